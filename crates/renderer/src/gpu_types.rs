@@ -1,0 +1,87 @@
+//! Plain-old-data mirrors of the WGSL uniforms in `shaders/params.wgsl`. Field order and
+//! sizes must match the WGSL structs; `tests/shader_layout.rs` checks them with naga.
+
+use bytemuck::{Pod, Zeroable};
+
+use crate::settings::RenderSettings;
+use crate::triplane::{Decoder, SceneInfo, HIDDEN, N_CHANNELS, N_OUT};
+
+pub const FLAG_JITTER: u32 = 1;
+pub const FLAG_WHITE_BACK: u32 = 2;
+
+/// Mirrors `struct Params` in `shaders/params.wgsl`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
+pub struct Params {
+    pub resolution: u32,
+    pub depth_resolution: u32,
+    pub depth_resolution_importance: u32,
+    pub camera_offset: u32,
+    pub plane_h: u32,
+    pub plane_w: u32,
+    pub feature_channels: u32,
+    pub flags: u32,
+    pub ray_start: f32,
+    pub ray_end: f32,
+    pub box_warp: f32,
+    pub seed: u32,
+    pub lin_step: f32,
+    pub jitter_step: f32,
+    pub u_step: f32,
+    pub n_cameras: u32,
+}
+
+impl Params {
+    pub fn new(tri: &SceneInfo, settings: &RenderSettings, feature_channels: u32, n_cameras: u32) -> Params {
+        let s = settings.depth_resolution;
+        let n = settings.depth_resolution_importance;
+        let mut flags = 0;
+        if !settings.deterministic {
+            flags |= FLAG_JITTER;
+        }
+        if settings.white_back {
+            flags |= FLAG_WHITE_BACK;
+        }
+        Params {
+            resolution: settings.resolution,
+            depth_resolution: s,
+            depth_resolution_importance: n,
+            camera_offset: 0,
+            plane_h: tri.height,
+            plane_w: tri.width,
+            feature_channels,
+            flags,
+            ray_start: tri.ray_start,
+            ray_end: tri.ray_end,
+            box_warp: tri.box_warp,
+            seed: settings.seed,
+            // torch.linspace's float32 step (computed in float32, as torch does on the CPU).
+            lin_step: (tri.ray_end - tri.ray_start) / (s - 1) as f32,
+            // EG3D's jitter scale: a Python float (float64) rounded once.
+            jitter_step: ((tri.ray_end as f64 - tri.ray_start as f64) / (s - 1) as f64) as f32,
+            u_step: if n > 1 { 1.0f32 / (n - 1) as f32 } else { 0.0 },
+            n_cameras,
+        }
+    }
+}
+
+/// Mirrors `struct Decoder` in `shaders/params.wgsl`: weights as vec4 rows, biases padded.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+pub struct DecoderUniform {
+    pub w0: [[f32; 4]; HIDDEN * N_CHANNELS / 4],
+    pub b0: [[f32; 4]; HIDDEN / 4],
+    pub w1: [[f32; 4]; N_OUT * HIDDEN / 4],
+    pub b1: [[f32; 4]; N_OUT.div_ceil(4)],
+}
+
+impl DecoderUniform {
+    pub fn from_decoder(d: &Decoder) -> Self {
+        let mut u = DecoderUniform::zeroed();
+        bytemuck::cast_slice_mut::<[f32; 4], f32>(&mut u.w0).copy_from_slice(&d.w0);
+        bytemuck::cast_slice_mut::<[f32; 4], f32>(&mut u.b0).copy_from_slice(&d.b0);
+        bytemuck::cast_slice_mut::<[f32; 4], f32>(&mut u.w1).copy_from_slice(&d.w1);
+        bytemuck::cast_slice_mut::<[f32; 4], f32>(&mut u.b1)[..N_OUT].copy_from_slice(&d.b1);
+        u
+    }
+}

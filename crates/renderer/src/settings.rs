@@ -1,0 +1,118 @@
+//! How to render: the one Rust definition of the rendering settings. Names follow EG3D's
+//! `rendering_kwargs` and match `lp3d.settings.RenderSettings` in Python and the WGSL
+//! `Params` uniform (a cross-language test ties them).
+
+use crate::error::{Error, Result};
+
+/// Largest ray-grid side.
+pub const MAX_RESOLUTION: u32 = 1024;
+/// Largest coarse or fine sample count per ray (sizes of the kernel's scratch arrays;
+/// must equal `MAX_SAMPLES` in `shaders/params.wgsl`).
+pub const MAX_SAMPLES: u32 = 256;
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RenderSettings {
+    /// Rays per image side (EG3D's neural rendering resolution).
+    pub resolution: u32,
+    /// Coarse samples per ray, EG3D's S.
+    pub depth_resolution: u32,
+    /// Fine (importance) samples per ray, EG3D's N; 0 disables the importance pass.
+    pub depth_resolution_importance: u32,
+    /// Composite over white (EG3D's Shapenet setting); FFHQ uses black.
+    pub white_back: bool,
+    /// No coarse jitter and EG3D's `det=True` importance draw. Otherwise jittered with `seed`.
+    pub deterministic: bool,
+    pub seed: u32,
+}
+
+impl Default for RenderSettings {
+    fn default() -> Self {
+        Self {
+            resolution: 128,
+            depth_resolution: 48,
+            depth_resolution_importance: 48,
+            white_back: false,
+            deterministic: true,
+            seed: 0,
+        }
+    }
+}
+
+impl RenderSettings {
+    pub fn validate(&self) -> Result<()> {
+        if !(1..=MAX_RESOLUTION).contains(&self.resolution) {
+            return Err(Error::invalid(
+                "resolution",
+                format!("must be in [1, {MAX_RESOLUTION}], got {}", self.resolution),
+            ));
+        }
+        let n = self.depth_resolution_importance;
+        // sample_pdf needs S - 3 >= 1 bins.
+        let min_s = if n > 0 { 4 } else { 2 };
+        if !(min_s..=MAX_SAMPLES).contains(&self.depth_resolution) {
+            return Err(Error::invalid(
+                "depth_resolution",
+                format!(
+                    "must be in [{min_s}, {MAX_SAMPLES}] (importance sampling needs at least 4), got {}",
+                    self.depth_resolution
+                ),
+            ));
+        }
+        if n != 0 && !(2..=MAX_SAMPLES).contains(&n) {
+            return Err(Error::invalid(
+                "depth_resolution_importance",
+                format!("must be 0 (no importance pass) or in [2, {MAX_SAMPLES}], got {n}"),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Which outputs to compute. Features need all 32 decoder colour rows; RGB needs 3;
+/// depth and weights sum need only the density row.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Outputs {
+    pub features: bool,
+    pub rgb: bool,
+    pub depth: bool,
+    pub weights_sum: bool,
+}
+
+impl Outputs {
+    pub const ALL: Outputs = Outputs { features: true, rgb: true, depth: true, weights_sum: true };
+    pub const NAMES: [&'static str; 4] = ["features", "rgb", "depth", "weights_sum"];
+
+    /// Parses output names such as `["rgb", "depth"]`.
+    pub fn from_names<S: AsRef<str>>(names: &[S]) -> Result<Self> {
+        let mut out = Outputs { features: false, rgb: false, depth: false, weights_sum: false };
+        for name in names {
+            match name.as_ref() {
+                "features" => out.features = true,
+                "rgb" => out.rgb = true,
+                "depth" => out.depth = true,
+                "weights_sum" => out.weights_sum = true,
+                other => {
+                    return Err(Error::invalid(
+                        "outputs",
+                        format!("unknown output '{other}', expected some of {:?}", Self::NAMES),
+                    ))
+                }
+            }
+        }
+        if !(out.features || out.rgb || out.depth || out.weights_sum) {
+            return Err(Error::invalid("outputs", "must name at least one output"));
+        }
+        Ok(out)
+    }
+
+    /// Decoder feature channels the kernel must compute.
+    pub fn feature_channels(&self) -> u32 {
+        if self.features {
+            32
+        } else if self.rgb {
+            3
+        } else {
+            0
+        }
+    }
+}

@@ -1,0 +1,63 @@
+"""Rendering settings: the one Python definition.
+
+Field names follow EG3D's ``rendering_kwargs`` and are the same in the Rust
+``RenderSettings`` struct, the WGSL ``Params`` uniform and the ``.npz`` keys
+(``ray_start``, ``ray_end``, ``box_warp`` live in the triplane file because
+they belong to the scene; the rest are per render). A cross-language test
+checks the defaults against ``lp3d_render.render``'s signature.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+#: Largest ray grid side accepted by every renderer.
+MAX_RESOLUTION = 1024
+#: Largest coarse or fine sample count per ray (private arrays in the kernel).
+MAX_SAMPLES = 256
+#: Channels of an EG3D triplane plane / decoder input.
+N_CHANNELS = 32
+#: Decoder hidden width and output width (density + 32 features).
+HIDDEN = 64
+N_OUT = 33
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """How to render (not what): sample counts, resolution and sampling mode.
+
+    ``depth_resolution`` is EG3D's S (coarse samples), ``depth_resolution_importance``
+    its N (fine samples; 0 disables the importance pass). Deterministic mode uses no
+    coarse jitter and EG3D's ``det=True`` importance draw; ``deterministic=False``
+    jitters with the counter-based RNG of ``docs/sampling-rng.md`` seeded by ``seed``.
+    """
+
+    resolution: int = 128
+    depth_resolution: int = 48
+    depth_resolution_importance: int = 48
+    white_back: bool = False
+    deterministic: bool = True
+    seed: int = 0
+
+    def validate(self) -> None:
+        if not isinstance(self.resolution, int) or not 1 <= self.resolution <= MAX_RESOLUTION:
+            raise ValueError(f"resolution must be an int in [1, {MAX_RESOLUTION}], got {self.resolution!r}")
+        s, n = self.depth_resolution, self.depth_resolution_importance
+        min_s = 4 if n > 0 else 2
+        if not isinstance(s, int) or not min_s <= s <= MAX_SAMPLES:
+            raise ValueError(
+                f"depth_resolution must be an int in [{min_s}, {MAX_SAMPLES}] "
+                f"(importance sampling needs at least 4), got {s!r}"
+            )
+        if not isinstance(n, int) or not (n == 0 or 2 <= n <= MAX_SAMPLES):
+            raise ValueError(
+                f"depth_resolution_importance must be 0 (no importance pass) or an int in [2, {MAX_SAMPLES}], got {n!r}"
+            )
+        if not isinstance(self.seed, int) or not 0 <= self.seed < 2**32:
+            raise ValueError(f"seed must be an int in [0, 2**32), got {self.seed!r}")
+
+
+#: EG3D FFHQ scene defaults (stored per triplane file).
+DEFAULT_BOX_WARP = 1.0
+DEFAULT_RAY_START = 2.25
+DEFAULT_RAY_END = 3.3

@@ -1,0 +1,58 @@
+// Bindings and uniforms shared by every kernel of the renderer.
+// The Rust mirror is `crates/renderer/src/gpu_types.rs`; a test checks the sizes match.
+
+// Largest coarse or fine sample count per ray (per-invocation scratch arrays).
+const MAX_SAMPLES: u32 = 256u;
+// Channels per plane / decoder input, decoder hidden width.
+const N_CHANNELS: u32 = 32u;
+const HIDDEN: u32 = 64u;
+
+const FLAG_JITTER: u32 = 1u;
+const FLAG_WHITE_BACK: u32 = 2u;
+
+// Per-render settings. Field names follow EG3D's rendering_kwargs.
+struct Params {
+    resolution: u32,
+    depth_resolution: u32,
+    depth_resolution_importance: u32,
+    // First camera of this dispatch within the batch (large batches are split).
+    camera_offset: u32,
+    plane_h: u32,
+    plane_w: u32,
+    // Feature channels decoded and written: 32 (features), 3 (rgb only) or 0.
+    feature_channels: u32,
+    flags: u32,
+    ray_start: f32,
+    ray_end: f32,
+    box_warp: f32,
+    seed: u32,
+    // torch.linspace's float32 step, (f32(end) - f32(start)) / (S - 1) in float32.
+    lin_step: f32,
+    // EG3D's jitter step, (ray_end - ray_start) / (S - 1) in float64, rounded.
+    jitter_step: f32,
+    // torch.linspace(0, 1, N)'s float32 step, for the det=True importance draw.
+    u_step: f32,
+    // Cameras in the whole batch (the depth clamp is batch-global, as in EG3D).
+    n_cameras: u32,
+}
+
+// EG3D OSGDecoder with effective weights, packed as vec4 rows for uniform layout.
+struct Decoder {
+    w0: array<vec4<f32>, 512>, // hidden unit j: w0[8j .. 8j+8] (64 x 32)
+    b0: array<vec4<f32>, 16>,  // 64
+    w1: array<vec4<f32>, 528>, // output r: w1[16r .. 16r+16] (33 x 64)
+    b1: array<vec4<f32>, 9>,   // 33, padded to 36
+}
+
+@group(0) @binding(0) var<uniform> params: Params;
+// 25 floats per camera: cam2world 4x4 row-major, then 3x3 normalised intrinsics.
+@group(0) @binding(1) var<storage, read> cameras: array<f32>;
+// Planes channel-last: texel (p, y, x) holds 8 vec4 = 32 channels.
+@group(0) @binding(2) var<storage, read> planes: array<vec4<f32>>;
+@group(0) @binding(3) var<uniform> decoder: Decoder;
+// Outputs of this dispatch: features (cameras, feature_channels, R, R), depth and weights sum (cameras, R, R).
+@group(0) @binding(4) var<storage, read_write> out_features: array<f32>;
+@group(0) @binding(5) var<storage, read_write> out_depth: array<f32>;
+@group(0) @binding(6) var<storage, read_write> out_weights_sum: array<f32>;
+// Batch-global [min, max] of all sample depths, as float bits (depths are >= 0, so bit order = value order).
+@group(0) @binding(7) var<storage, read_write> depth_bounds: array<atomic<u32>, 2>;
