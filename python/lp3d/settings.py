@@ -51,7 +51,8 @@ class RenderSettings:
             )
         if not isinstance(n, int) or not (n == 0 or 2 <= n <= MAX_SAMPLES):
             raise ValueError(
-                f"depth_resolution_importance must be 0 (no importance pass) or an int in [2, {MAX_SAMPLES}], got {n!r}"
+                "depth_resolution_importance must be 0 (no importance pass) or an int in "
+                f"[2, {MAX_SAMPLES}], got {n!r}"
             )
         if not isinstance(self.seed, int) or not 0 <= self.seed < 2**32:
             raise ValueError(f"seed must be an int in [0, 2**32), got {self.seed!r}")

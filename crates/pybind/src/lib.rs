@@ -1,0 +1,335 @@
+//! `lp3d_render`: the Python face of the lp3d renderer. Thin on purpose: conversion and
+//! validation live in `convert.rs`, error mapping in `error.rs`, rendering in the
+//! `lp3d-renderer` crate. GPU work runs with the GIL released; no panic crosses into Python.
+
+mod convert;
+mod error;
+
+use std::path::PathBuf;
+use std::hash::BuildHasher;
+use std::sync::{Arc, Mutex, OnceLock};
+
+use lp3d_renderer::settings::{MAX_RESOLUTION, MAX_SAMPLES};
+use lp3d_renderer::triplane::{HIDDEN, N_CHANNELS, N_OUT};
+use lp3d_renderer::{Camera, Decoder, GpuContext, GpuTriplane, Outputs, PlaneDtype, RenderSettings, Renderer};
+use numpy::{PyArray1, PyArrayMethods};
+use pyo3::exceptions::PyRuntimeError;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use convert::{camera_array, expect_shape, finite_f32, float_array, in_range, int_in};
+use error::{invalid, to_py};
+
+struct Gpu {
+    info: lp3d_renderer::device::GpuContext,
+    renderer: Renderer,
+}
+
+/// The process-wide device and pipelines, created on first use and reused.
+static GPU: OnceLock<Result<Gpu, String>> = OnceLock::new();
+
+fn gpu(py: Python<'_>) -> PyResult<&'static Gpu> {
+    let g = py.detach(|| {
+        GPU.get_or_init(|| {
+            let ctx = GpuContext::headless().map_err(|e| e.to_string())?;
+            let renderer = Renderer::new(&ctx).map_err(|e| e.to_string())?;
+            Ok(Gpu { info: ctx, renderer })
+        })
+    });
+    g.as_ref().map_err(|e| PyRuntimeError::new_err(e.clone()))
+}
+
+/// Runs `f`, turning a Rust panic into a Python RuntimeError instead of aborting.
+fn guarded<T>(f: impl FnOnce() -> PyResult<T>) -> PyResult<T> {
+    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)) {
+        Ok(r) => r,
+        Err(p) => {
+            let msg = p
+                .downcast_ref::<String>()
+                .cloned()
+                .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
+                .unwrap_or_else(|| "unknown panic".into());
+            Err(PyRuntimeError::new_err(format!("internal renderer error: {msg}")))
+        }
+    }
+}
+
+/// An EG3D-format triplane: planes (3, 32, H, W), the decoder's effective weights and the
+/// scene bounds. Immutable; its GPU copy is made on first render and reused.
+#[pyclass(module = "lp3d_render", frozen)]
+struct Triplane {
+    inner: lp3d_renderer::Triplane,
+    uploaded: Mutex<Option<Arc<GpuTriplane>>>,
+}
+
+impl Triplane {
+    fn wrap(inner: lp3d_renderer::Triplane) -> Self {
+        Triplane { inner, uploaded: Mutex::new(None) }
+    }
+
+    fn on_gpu(&self, gpu: &Gpu) -> PyResult<Arc<GpuTriplane>> {
+        let mut slot = self.uploaded.lock().map_err(|_| PyRuntimeError::new_err("triplane lock poisoned"))?;
+        if let Some(g) = slot.as_ref() {
+            return Ok(g.clone());
+        }
+        let g = Arc::new(gpu.renderer.upload(&self.inner).map_err(to_py)?);
+        *slot = Some(g.clone());
+        Ok(g)
+    }
+}
+
+fn f32_array<'py>(py: Python<'py>, data: &[f32], shape: &[usize]) -> PyResult<Bound<'py, PyAny>> {
+    Ok(PyArray1::from_slice(py, data).reshape(shape)?.into_any())
+}
+
+#[pymethods]
+impl Triplane {
+    #[new]
+    #[pyo3(signature = (planes, w0, b0, w1, b1, box_warp=1.0, ray_start=2.25, ray_end=3.3, *, camera=None, source=None))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        planes: &Bound<'_, PyAny>,
+        w0: &Bound<'_, PyAny>,
+        b0: &Bound<'_, PyAny>,
+        w1: &Bound<'_, PyAny>,
+        b1: &Bound<'_, PyAny>,
+        box_warp: f64,
+        ray_start: f64,
+        ray_end: f64,
+        camera: Option<&Bound<'_, PyAny>>,
+        source: Option<String>,
+    ) -> PyResult<Self> {
+        guarded(|| {
+            let p = float_array(planes, "planes", &["float16", "float32"])?;
+            if p.shape.len() != 4 || p.shape[0] != 3 || p.shape[1] != N_CHANNELS {
+                return Err(invalid("planes", format!("shape must be (3, 32, H, W), got {:?}", p.shape)));
+            }
+            let weights = ["float32", "float64"];
+            let w0 = float_array(w0, "w0", &weights)?;
+            expect_shape(&w0, "w0", &[HIDDEN, N_CHANNELS])?;
+            let b0 = float_array(b0, "b0", &weights)?;
+            expect_shape(&b0, "b0", &[HIDDEN])?;
+            let w1 = float_array(w1, "w1", &weights)?;
+            expect_shape(&w1, "w1", &[N_OUT, HIDDEN])?;
+            let b1 = float_array(b1, "b1", &weights)?;
+            expect_shape(&b1, "b1", &[N_OUT])?;
+            let camera = match camera {
+                None => None,
+                Some(c) => {
+                    let (v, batched) = camera_array(c)?;
+                    if batched {
+                        return Err(invalid("camera", "a triplane's input camera is one (25,) label"));
+                    }
+                    Some(Camera::from_label(&v, "camera").map_err(to_py)?)
+                }
+            };
+            let inner = lp3d_renderer::Triplane {
+                height: p.shape[2],
+                width: p.shape[3],
+                plane_dtype: if p.was_f16 { PlaneDtype::F16 } else { PlaneDtype::F32 },
+                planes: p.data,
+                decoder: Decoder { w0: w0.data, b0: b0.data, w1: w1.data, b1: b1.data },
+                box_warp: finite_f32(box_warp, "box_warp")?,
+                ray_start: finite_f32(ray_start, "ray_start")?,
+                ray_end: finite_f32(ray_end, "ray_end")?,
+                camera,
+                occupancy: None,
+                source,
+            };
+            inner.validate().map_err(to_py)?;
+            Ok(Triplane::wrap(inner))
+        })
+    }
+
+    /// Loads a triplane `.npz` file (never with pickle).
+    #[staticmethod]
+    fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
+        let inner = py.detach(|| lp3d_renderer::Triplane::load(&path)).map_err(to_py)?;
+        Ok(Triplane::wrap(inner))
+    }
+
+    /// Writes the triplane `.npz` atomically (temporary file, then rename).
+    fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        py.detach(|| self.inner.save(&path)).map_err(to_py)
+    }
+
+    /// (3, 32, H, W), float16 or float32 as stored.
+    #[getter]
+    fn planes<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let t = &self.inner;
+        let shape = [3, N_CHANNELS, t.height, t.width];
+        match t.plane_dtype {
+            PlaneDtype::F32 => f32_array(py, &t.planes, &shape),
+            PlaneDtype::F16 => {
+                let h: Vec<half::f16> = t.planes.iter().map(|&v| half::f16::from_f32(v)).collect();
+                Ok(PyArray1::from_vec(py, h).reshape(shape)?.into_any())
+            }
+        }
+    }
+    #[getter]
+    fn w0<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        f32_array(py, &self.inner.decoder.w0, &[HIDDEN, N_CHANNELS])
+    }
+    #[getter]
+    fn b0<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        f32_array(py, &self.inner.decoder.b0, &[HIDDEN])
+    }
+    #[getter]
+    fn w1<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        f32_array(py, &self.inner.decoder.w1, &[N_OUT, HIDDEN])
+    }
+    #[getter]
+    fn b1<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        f32_array(py, &self.inner.decoder.b1, &[N_OUT])
+    }
+    #[getter]
+    fn box_warp(&self) -> f32 {
+        self.inner.box_warp
+    }
+    #[getter]
+    fn ray_start(&self) -> f32 {
+        self.inner.ray_start
+    }
+    #[getter]
+    fn ray_end(&self) -> f32 {
+        self.inner.ray_end
+    }
+    /// The input view's 25-float camera, or None.
+    #[getter]
+    fn camera<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
+        self.inner.camera.map(|c| f32_array(py, &c.0, &[25])).transpose()
+    }
+    #[getter]
+    fn source(&self) -> Option<String> {
+        self.inner.source.clone()
+    }
+    /// The baked occupancy grid, or None.
+    #[getter]
+    fn occupancy<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
+        self.inner.occupancy.as_ref().map(|o| f32_array(py, &o.data, &o.dims)).transpose()
+    }
+
+    fn __repr__(&self) -> String {
+        let t = &self.inner;
+        format!(
+            "Triplane(planes=(3, 32, {}, {}) {}, box_warp={}, ray_start={}, ray_end={})",
+            t.height,
+            t.width,
+            if t.plane_dtype == PlaneDtype::F16 { "float16" } else { "float32" },
+            t.box_warp,
+            t.ray_start,
+            t.ray_end
+        )
+    }
+}
+
+/// Renders a triplane from one camera (25,) or a batch (B, 25).
+///
+/// Returns a dict of float32 arrays: ``features`` (32, R, R), ``rgb`` (3, R, R), ``depth``
+/// (R, R), ``weights_sum`` (R, R), each with a leading B axis for a batch of cameras.
+/// ``outputs`` restricts what is computed and returned.
+#[pyfunction]
+#[pyo3(signature = (triplane, camera, resolution=128, depth_resolution=48, depth_resolution_importance=48,
+                    deterministic=true, seed=None, outputs=None, white_back=false))]
+#[allow(clippy::too_many_arguments)]
+fn render<'py>(
+    py: Python<'py>,
+    triplane: &Bound<'py, PyAny>,
+    camera: &Bound<'py, PyAny>,
+    resolution: i64,
+    depth_resolution: i64,
+    depth_resolution_importance: i64,
+    deterministic: bool,
+    seed: Option<&Bound<'py, PyAny>>,
+    outputs: Option<Vec<String>>,
+    white_back: bool,
+) -> PyResult<Bound<'py, PyDict>> {
+    guarded(|| {
+        let tri = triplane.cast::<Triplane>().map_err(|_| {
+            invalid("triplane", format!("expected lp3d_render.Triplane, got {}", convert::type_name(triplane)))
+        })?;
+        let (labels, batched) = camera_array(camera)?;
+        let cameras = Camera::batch_from_labels(&labels).map_err(to_py)?;
+        let seed = match (deterministic, seed) {
+            (true, Some(s)) if !s.is_none() => {
+                return Err(invalid("seed", "only applies with deterministic=False"));
+            }
+            (false, Some(s)) if !s.is_none() => int_in(s, "seed", 0, u32::MAX as i64)?,
+            // Jitter without a seed: a fresh one per call, like EG3D's torch.rand.
+            (false, _) => std::collections::hash_map::RandomState::new().hash_one(0u8) as u32,
+            (true, _) => 0,
+        };
+        let settings = RenderSettings {
+            resolution: in_range(resolution, "resolution", 1, MAX_RESOLUTION)?,
+            depth_resolution: in_range(depth_resolution, "depth_resolution", 2, MAX_SAMPLES)?,
+            depth_resolution_importance: in_range(depth_resolution_importance, "depth_resolution_importance", 0, MAX_SAMPLES)?,
+            white_back,
+            deterministic,
+            seed,
+        };
+        settings.validate().map_err(to_py)?;
+        let outputs = match &outputs {
+            None => Outputs::ALL,
+            Some(names) => Outputs::from_names(names).map_err(to_py)?,
+        };
+        let gpu = gpu(py)?;
+        let tri = tri.get();
+        let uploaded = tri.on_gpu(gpu)?;
+        let out = py.detach(|| gpu.renderer.render(&uploaded, &cameras, &settings, outputs)).map_err(to_py)?;
+
+        let r = settings.resolution as usize;
+        let b = cameras.len();
+        let shape = |c: Option<usize>| -> Vec<usize> {
+            let mut s = Vec::new();
+            if batched {
+                s.push(b);
+            }
+            if let Some(c) = c {
+                s.push(c);
+            }
+            s.extend([r, r]);
+            s
+        };
+        let dict = PyDict::new(py);
+        if let Some(v) = &out.features {
+            dict.set_item("features", f32_array(py, v, &shape(Some(N_CHANNELS)))?)?;
+        }
+        if let Some(v) = &out.rgb {
+            dict.set_item("rgb", f32_array(py, v, &shape(Some(3)))?)?;
+        }
+        if let Some(v) = &out.depth {
+            dict.set_item("depth", f32_array(py, v, &shape(None))?)?;
+        }
+        if let Some(v) = &out.weights_sum {
+            dict.set_item("weights_sum", f32_array(py, v, &shape(None))?)?;
+        }
+        Ok(dict)
+    })
+}
+
+/// The GPU adapter the renderer runs on: backend, name, device type, driver.
+/// Raises RuntimeError (with the adapters seen) when none is usable.
+#[pyfunction]
+fn adapter_info(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
+    let info = &gpu(py)?.info.adapter_info;
+    let d = PyDict::new(py);
+    d.set_item("backend", format!("{:?}", info.backend).to_lowercase())?;
+    d.set_item("name", &info.name)?;
+    d.set_item("device_type", format!("{:?}", info.device_type).to_lowercase())?;
+    d.set_item("driver", &info.driver)?;
+    d.set_item("driver_info", &info.driver_info)?;
+    Ok(d)
+}
+
+#[pymodule]
+fn _lp3d_render(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<Triplane>()?;
+    m.add_function(wrap_pyfunction!(render, m)?)?;
+    m.add_function(wrap_pyfunction!(adapter_info, m)?)?;
+    m.add("MAX_RESOLUTION", MAX_RESOLUTION)?;
+    m.add("MAX_SAMPLES", MAX_SAMPLES)?;
+    m.add("PLANE_AXES", lp3d_renderer::triplane::PLANE_AXES.map(|a| (a[0], a[1])).to_vec())?;
+    m.add("FORMAT_VERSION", lp3d_renderer::triplane::FORMAT_VERSION)?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    Ok(())
+}

@@ -1,0 +1,188 @@
+"""The triplane: planes, decoder weights and scene bounds, as one validated value.
+
+Layout follows EG3D (``shared/design/eg3d-rendering.md`` §1-§4): ``planes`` is (3, 32, H, W), each
+plane a (C, H, W) image whose rows (H) are the grid_sample ``v`` coordinate and columns (W) the ``u``
+coordinate. The decoder weights are EG3D's OSGDecoder weights in *effective* form (gains already
+applied, see :func:`effective_decoder_weights`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lp3d.camera import validate_camera
+from lp3d.settings import DEFAULT_BOX_WARP, DEFAULT_RAY_END, DEFAULT_RAY_START, HIDDEN, N_CHANNELS, N_OUT
+
+#: World axes (u, v) each plane samples, in EG3D's plane order: plane 0 reads (x, y), plane 1 (x, z)
+#: and plane 2 (z, x). ``u`` indexes W (columns), ``v`` indexes H (rows).
+#:
+#: EG3D QUIRK, kept on purpose: plane 2 was meant to be YZ but EG3D's ``generate_planes`` /
+#: ``project_onto_planes`` make it sample (z, x), the transpose of plane 1's (x, z). So world y is seen
+#: by plane 0 alone and no plane sees the pair (y, z). Every released EG3D checkpoint (and Live 3D
+#: Portrait) was trained this way (NVlabs/eg3d issue #67), so EG3D triplanes only render correctly
+#: with exactly these axes.
+PLANE_AXES: tuple[tuple[int, int], ...] = ((0, 1), (0, 2), (2, 0))
+
+
+class TriplaneError(ValueError):
+    """A ValueError about one field of a triplane; ``field`` names it (e.g. ``"planes"``, ``"w0"``)."""
+
+    def __init__(self, field: str, message: str) -> None:
+        super().__init__(f"{field}: {message}")
+        self.field = field
+        self.detail = message
+
+
+_WEIGHT_SHAPES = {"w0": (HIDDEN, N_CHANNELS), "b0": (HIDDEN,), "w1": (N_OUT, HIDDEN), "b1": (N_OUT,)}
+
+
+def _as_array(name: str, value: object) -> np.ndarray:
+    try:
+        return np.asarray(value)
+    except (TypeError, ValueError) as e:
+        raise TriplaneError(name, f"cannot be converted to an array: {e}") from None
+
+
+def _as_float(name: str, value: object) -> float:
+    arr = _as_array(name, value)
+    if arr.shape not in ((), (1,)) or arr.dtype.kind not in "fiu":
+        raise TriplaneError(name, f"must be a real scalar, got dtype {arr.dtype} and shape {arr.shape}")
+    return float(arr.reshape(()))
+
+
+@dataclass(frozen=True, eq=False)
+class TriplaneData:
+    """An EG3D-format triplane, validated on construction.
+
+    Arrays: ``planes`` (3, 32, H, W) float16 or float32 (dtype kept), ``w0`` (64, 32), ``b0`` (64,),
+    ``w1`` (33, 64), ``b1`` (33,) effective decoder weights (float32 or float64 in, stored float32),
+    ``camera`` optional (25,) float64 label of the input view, ``occupancy`` optional 3-D float32 grid
+    (baked density, layout defined by the renderer), ``source`` optional short text. ``box_warp``: the
+    triplane spans ``[-box_warp/2, box_warp/2]^3``; ``ray_start``/``ray_end``: the sampled depth range.
+    The dataclass is frozen; arrays are not copied, so do not mutate them (call :meth:`validate` if you do).
+    """
+
+    planes: np.ndarray
+    w0: np.ndarray
+    b0: np.ndarray
+    w1: np.ndarray
+    b1: np.ndarray
+    box_warp: float = DEFAULT_BOX_WARP
+    ray_start: float = DEFAULT_RAY_START
+    ray_end: float = DEFAULT_RAY_END
+    camera: np.ndarray | None = None
+    occupancy: np.ndarray | None = None
+    source: str | None = field(default=None)
+
+    def __post_init__(self) -> None:
+        # Normalise representations (frozen, hence object.__setattr__), then check everything.
+        set_ = object.__setattr__
+        set_(self, "planes", _as_array("planes", self.planes))
+        for name in _WEIGHT_SHAPES:
+            arr = _as_array(name, getattr(self, name))
+            if arr.dtype in (np.float32, np.float64):
+                arr = arr.astype(np.float32, copy=False)
+            set_(self, name, arr)
+        for name in ("box_warp", "ray_start", "ray_end"):
+            set_(self, name, _as_float(name, getattr(self, name)))
+        if self.camera is not None:
+            try:
+                cams, batched = validate_camera(self.camera)
+            except ValueError as e:
+                raise TriplaneError("camera", str(e)) from None
+            if batched:
+                raise TriplaneError("camera", f"must be one (25,) label, got shape {np.shape(self.camera)}")
+            set_(self, "camera", cams[0])
+        if self.occupancy is not None:
+            occ = _as_array("occupancy", self.occupancy)
+            if occ.dtype.kind == "f":
+                occ = occ.astype(np.float32, copy=False)
+            set_(self, "occupancy", occ)
+        self.validate()
+
+    @property
+    def resolution(self) -> tuple[int, int]:
+        """``(H, W)`` of each plane."""
+        return int(self.planes.shape[2]), int(self.planes.shape[3])
+
+    def validate(self) -> None:
+        """Raise :class:`TriplaneError` (a ValueError) naming the first bad field."""
+        p = self.planes
+        if p.dtype not in (np.float16, np.float32):
+            raise TriplaneError(
+                "planes",
+                f"dtype must be float16 or float32, got {p.dtype} "
+                "(cast explicitly, e.g. .astype(np.float32))",
+            )
+        if p.ndim != 4 or p.shape[0] != 3 or p.shape[1] != N_CHANNELS:
+            raise TriplaneError("planes", f"shape must be (3, {N_CHANNELS}, H, W), got {p.shape}")
+        if p.shape[2] < 2 or p.shape[3] < 2:
+            raise TriplaneError("planes", f"H and W must be >= 2, got H = {p.shape[2]}, W = {p.shape[3]}")
+        if not np.all(np.isfinite(p)):
+            raise TriplaneError("planes", "contains NaN/Inf")
+        for name, shape in _WEIGHT_SHAPES.items():
+            arr = getattr(self, name)
+            if arr.dtype != np.float32:
+                raise TriplaneError(name, f"dtype must be float32 or float64, got {arr.dtype}")
+            if arr.shape != shape:
+                raise TriplaneError(name, f"shape must be {shape}, got {arr.shape}")
+            if not np.all(np.isfinite(arr)):
+                raise TriplaneError(name, "contains NaN/Inf")
+        if not (math.isfinite(self.box_warp) and self.box_warp > 0.0):
+            raise TriplaneError("box_warp", f"must be finite and > 0, got {self.box_warp!r}")
+        if not (math.isfinite(self.ray_start) and self.ray_start >= 0.0):
+            raise TriplaneError("ray_start", f"must be finite and >= 0, got {self.ray_start!r}")
+        if not (math.isfinite(self.ray_end) and self.ray_end > self.ray_start):
+            raise TriplaneError(
+                "ray_end", f"must be finite and > ray_start ({self.ray_start!r}), got {self.ray_end!r}"
+            )
+        if self.camera is not None and (
+            not isinstance(self.camera, np.ndarray)
+            or self.camera.shape != (25,)
+            or self.camera.dtype != np.float64
+        ):
+            raise TriplaneError("camera", "must be a (25,) float64 label")
+        if self.occupancy is not None:
+            occ = self.occupancy
+            if occ.dtype != np.float32:
+                raise TriplaneError(
+                    "occupancy", f"dtype must be a float type (stored float32), got {occ.dtype}"
+                )
+            if occ.ndim != 3 or min(occ.shape) < 1:
+                raise TriplaneError("occupancy", f"must be a non-empty 3-D grid, got shape {occ.shape}")
+            if not np.all(np.isfinite(occ)):
+                raise TriplaneError("occupancy", "contains NaN/Inf")
+        if self.source is not None and not isinstance(self.source, str):
+            raise TriplaneError("source", f"must be a str, got {type(self.source).__name__}")
+
+
+def effective_decoder_weights(
+    w0_stored: np.ndarray,
+    b0: np.ndarray,
+    w1_stored: np.ndarray,
+    b1: np.ndarray,
+    lr_multiplier: float = 1.0,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """EG3D OSGDecoder stored -> effective ``w0 (64, 32), b0 (64,), w1 (33, 64), b1 (33,)``, float32.
+
+    StyleGAN2's FullyConnectedLayer scales at run time: ``W_eff = W * (lr_multiplier / sqrt(in_features))``
+    and ``b_eff = b * lr_multiplier`` (``decoder_lr_mul`` = 1 for every released config, so
+    ``w0 / sqrt(32)``, ``w1 / 8``). Computed like torch's ``tensor * python_float`` on CPU (the gain
+    rounded to float32, then a float32 product), so exported weights match EG3D's forward pass.
+    """
+    out = []
+    for w, b in ((w0_stored, b0), (w1_stored, b1)):
+        w = np.array(w, dtype=np.float32)
+        b = np.array(b, dtype=np.float32)
+        if w.ndim != 2 or b.shape != (w.shape[0],):
+            raise ValueError(
+                f"decoder layer shapes must be (out, in) and (out,), got {w.shape} and {b.shape}"
+            )
+        gain = np.float32(lr_multiplier / math.sqrt(w.shape[1]))
+        out.append(w * gain)
+        out.append(b if lr_multiplier == 1.0 else b * np.float32(lr_multiplier))
+    w0, b0e, w1, b1e = out
+    return w0, b0e, w1, b1e

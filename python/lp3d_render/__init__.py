@@ -1,0 +1,34 @@
+"""lp3d_render: the lp3d triplane renderer (Rust, wgpu, WGSL compute shaders).
+
+Renders EG3D-format triplanes exactly as EG3D does (deterministic by default)::
+
+    import lp3d_render
+    tri = lp3d_render.Triplane.load("head.npz")
+    out = lp3d_render.render(tri, camera, resolution=128)   # camera: (25,) or (B, 25)
+    out["rgb"]      # (3, R, R) float32 in about [-1, 1]
+    out["depth"]    # (R, R)
+
+See ``docs/triplane-format.md`` for the file format and ``lp3d.camera`` for cameras.
+"""
+
+from lp3d_render._lp3d_render import (
+    FORMAT_VERSION,
+    MAX_RESOLUTION,
+    MAX_SAMPLES,
+    PLANE_AXES,
+    Triplane,
+    __version__,
+    adapter_info,
+    render,
+)
+
+__all__ = [
+    "FORMAT_VERSION",
+    "MAX_RESOLUTION",
+    "MAX_SAMPLES",
+    "PLANE_AXES",
+    "Triplane",
+    "__version__",
+    "adapter_info",
+    "render",
+]

@@ -1,0 +1,69 @@
+"""Type stubs for the native module; tests/test_stubs.py checks them against the runtime."""
+
+from collections.abc import Iterable
+from os import PathLike
+
+import numpy as np
+import numpy.typing as npt
+
+MAX_RESOLUTION: int
+MAX_SAMPLES: int
+PLANE_AXES: list[tuple[int, int]]
+FORMAT_VERSION: int
+__version__: str
+
+class Triplane:
+    """An EG3D-format triplane: planes (3, 32, H, W), effective decoder weights, scene bounds."""
+
+    def __init__(
+        self,
+        planes: npt.NDArray[np.float16] | npt.NDArray[np.float32],
+        w0: npt.NDArray[np.floating],
+        b0: npt.NDArray[np.floating],
+        w1: npt.NDArray[np.floating],
+        b1: npt.NDArray[np.floating],
+        box_warp: float = 1.0,
+        ray_start: float = 2.25,
+        ray_end: float = 3.3,
+        *,
+        camera: npt.NDArray[np.floating] | None = None,
+        source: str | None = None,
+    ) -> None: ...
+    @staticmethod
+    def load(path: str | PathLike[str]) -> Triplane: ...
+    def save(self, path: str | PathLike[str]) -> None: ...
+    @property
+    def planes(self) -> npt.NDArray[np.float16] | npt.NDArray[np.float32]: ...
+    @property
+    def w0(self) -> npt.NDArray[np.float32]: ...
+    @property
+    def b0(self) -> npt.NDArray[np.float32]: ...
+    @property
+    def w1(self) -> npt.NDArray[np.float32]: ...
+    @property
+    def b1(self) -> npt.NDArray[np.float32]: ...
+    @property
+    def box_warp(self) -> float: ...
+    @property
+    def ray_start(self) -> float: ...
+    @property
+    def ray_end(self) -> float: ...
+    @property
+    def camera(self) -> npt.NDArray[np.float32] | None: ...
+    @property
+    def source(self) -> str | None: ...
+    @property
+    def occupancy(self) -> npt.NDArray[np.float32] | None: ...
+
+def render(
+    triplane: Triplane,
+    camera: npt.NDArray[np.floating],
+    resolution: int = 128,
+    depth_resolution: int = 48,
+    depth_resolution_importance: int = 48,
+    deterministic: bool = True,
+    seed: int | None = None,
+    outputs: Iterable[str] | None = None,
+    white_back: bool = False,
+) -> dict[str, npt.NDArray[np.float32]]: ...
+def adapter_info() -> dict[str, str]: ...
