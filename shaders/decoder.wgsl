@@ -3,9 +3,20 @@
 
 var<private> hidden: array<vec4<f32>, 16>;
 
-// torch.nn.Softplus(beta=1, threshold=20).
+// torch.nn.Softplus(beta=1, threshold=20): x above 20, else log1p(exp(x)) (torch uses log1p).
+// WGSL has no log1p, and log(1 + y) loses all digits once y = exp(x) < 6e-8, turning the faint
+// densities of empty space into exact zeros. Below x = -3 (y < 0.05) a series in y keeps full
+// relative precision; above it, log(1 + y) is accurate to ~1e-6 relative (docs/numerics.md).
 fn softplus(x: f32) -> f32 {
-    return select(log(1.0 + exp(x)), x, x > 20.0);
+    if (x > 20.0) {
+        return x;
+    }
+    let y = exp(x);
+    if (x < -3.0) {
+        // log1p(y) = y - y^2/2 + y^3/3 - y^4/4 + y^5/5 - ..., truncation error < y^6/6.
+        return y * (1.0 - y * (0.5 - y * (1.0 / 3.0 - y * (0.25 - y * 0.2))));
+    }
+    return log(1.0 + y);
 }
 
 // MipNeRF's widened sigmoid, range (-0.001, 1.001).

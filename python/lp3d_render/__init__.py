@@ -19,6 +19,7 @@ from lp3d_render._lp3d_render import (
     Triplane,
     __version__,
     adapter_info,
+    look_at_camera,
     render,
 )
 
@@ -30,5 +31,6 @@ __all__ = [
     "Triplane",
     "__version__",
     "adapter_info",
+    "look_at_camera",
     "render",
 ]

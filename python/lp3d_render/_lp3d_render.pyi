@@ -67,3 +67,12 @@ def render(
     white_back: bool = False,
 ) -> dict[str, npt.NDArray[np.float32]]: ...
 def adapter_info() -> dict[str, str]: ...
+def look_at_camera(
+    *,
+    yaw_deg: float = 0.0,
+    pitch_deg: float = 0.0,
+    roll_deg: float = 0.0,
+    radius: float = 2.7,
+    lookat: tuple[float, float, float] = (0.0, 0.0, 0.2),
+    focal: float = 4.2647,
+) -> npt.NDArray[np.float32]: ...

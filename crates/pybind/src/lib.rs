@@ -5,13 +5,15 @@
 mod convert;
 mod error;
 
-use std::path::PathBuf;
 use std::hash::BuildHasher;
+use std::path::PathBuf;
 use std::sync::{Arc, Mutex, OnceLock};
 
 use lp3d_renderer::settings::{MAX_RESOLUTION, MAX_SAMPLES};
 use lp3d_renderer::triplane::{HIDDEN, N_CHANNELS, N_OUT};
-use lp3d_renderer::{Camera, Decoder, GpuContext, GpuTriplane, Outputs, PlaneDtype, RenderSettings, Renderer};
+use lp3d_renderer::{
+    Camera, Decoder, GpuContext, GpuTriplane, Outputs, PlaneDtype, RenderSettings, Renderer,
+};
 use numpy::{PyArray1, PyArrayMethods};
 use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
@@ -33,7 +35,10 @@ fn gpu(py: Python<'_>) -> PyResult<&'static Gpu> {
         GPU.get_or_init(|| {
             let ctx = GpuContext::headless().map_err(|e| e.to_string())?;
             let renderer = Renderer::new(&ctx).map_err(|e| e.to_string())?;
-            Ok(Gpu { info: ctx, renderer })
+            Ok(Gpu {
+                info: ctx,
+                renderer,
+            })
         })
     });
     g.as_ref().map_err(|e| PyRuntimeError::new_err(e.clone()))
@@ -49,7 +54,9 @@ fn guarded<T>(f: impl FnOnce() -> PyResult<T>) -> PyResult<T> {
                 .cloned()
                 .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
                 .unwrap_or_else(|| "unknown panic".into());
-            Err(PyRuntimeError::new_err(format!("internal renderer error: {msg}")))
+            Err(PyRuntimeError::new_err(format!(
+                "internal renderer error: {msg}"
+            )))
         }
     }
 }
@@ -64,11 +71,17 @@ struct Triplane {
 
 impl Triplane {
     fn wrap(inner: lp3d_renderer::Triplane) -> Self {
-        Triplane { inner, uploaded: Mutex::new(None) }
+        Triplane {
+            inner,
+            uploaded: Mutex::new(None),
+        }
     }
 
     fn on_gpu(&self, gpu: &Gpu) -> PyResult<Arc<GpuTriplane>> {
-        let mut slot = self.uploaded.lock().map_err(|_| PyRuntimeError::new_err("triplane lock poisoned"))?;
+        let mut slot = self
+            .uploaded
+            .lock()
+            .map_err(|_| PyRuntimeError::new_err("triplane lock poisoned"))?;
         if let Some(g) = slot.as_ref() {
             return Ok(g.clone());
         }
@@ -102,7 +115,10 @@ impl Triplane {
         guarded(|| {
             let p = float_array(planes, "planes", &["float16", "float32"])?;
             if p.shape.len() != 4 || p.shape[0] != 3 || p.shape[1] != N_CHANNELS {
-                return Err(invalid("planes", format!("shape must be (3, 32, H, W), got {:?}", p.shape)));
+                return Err(invalid(
+                    "planes",
+                    format!("shape must be (3, 32, H, W), got {:?}", p.shape),
+                ));
             }
             let weights = ["float32", "float64"];
             let w0 = float_array(w0, "w0", &weights)?;
@@ -118,7 +134,10 @@ impl Triplane {
                 Some(c) => {
                     let (v, batched) = camera_array(c)?;
                     if batched {
-                        return Err(invalid("camera", "a triplane's input camera is one (25,) label"));
+                        return Err(invalid(
+                            "camera",
+                            "a triplane's input camera is one (25,) label",
+                        ));
                     }
                     Some(Camera::from_label(&v, "camera").map_err(to_py)?)
                 }
@@ -126,9 +145,18 @@ impl Triplane {
             let inner = lp3d_renderer::Triplane {
                 height: p.shape[2],
                 width: p.shape[3],
-                plane_dtype: if p.was_f16 { PlaneDtype::F16 } else { PlaneDtype::F32 },
+                plane_dtype: if p.was_f16 {
+                    PlaneDtype::F16
+                } else {
+                    PlaneDtype::F32
+                },
                 planes: p.data,
-                decoder: Decoder { w0: w0.data, b0: b0.data, w1: w1.data, b1: b1.data },
+                decoder: Decoder {
+                    w0: w0.data,
+                    b0: b0.data,
+                    w1: w1.data,
+                    b1: b1.data,
+                },
                 box_warp: finite_f32(box_warp, "box_warp")?,
                 ray_start: finite_f32(ray_start, "ray_start")?,
                 ray_end: finite_f32(ray_end, "ray_end")?,
@@ -144,7 +172,9 @@ impl Triplane {
     /// Loads a triplane `.npz` file (never with pickle).
     #[staticmethod]
     fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
-        let inner = py.detach(|| lp3d_renderer::Triplane::load(&path)).map_err(to_py)?;
+        let inner = py
+            .detach(|| lp3d_renderer::Triplane::load(&path))
+            .map_err(to_py)?;
         Ok(Triplane::wrap(inner))
     }
 
@@ -197,7 +227,10 @@ impl Triplane {
     /// The input view's 25-float camera, or None.
     #[getter]
     fn camera<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
-        self.inner.camera.map(|c| f32_array(py, &c.0, &[25])).transpose()
+        self.inner
+            .camera
+            .map(|c| f32_array(py, &c.0, &[25]))
+            .transpose()
     }
     #[getter]
     fn source(&self) -> Option<String> {
@@ -206,7 +239,11 @@ impl Triplane {
     /// The baked occupancy grid, or None.
     #[getter]
     fn occupancy<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
-        self.inner.occupancy.as_ref().map(|o| f32_array(py, &o.data, &o.dims)).transpose()
+        self.inner
+            .occupancy
+            .as_ref()
+            .map(|o| f32_array(py, &o.data, &o.dims))
+            .transpose()
     }
 
     fn __repr__(&self) -> String {
@@ -215,7 +252,11 @@ impl Triplane {
             "Triplane(planes=(3, 32, {}, {}) {}, box_warp={}, ray_start={}, ray_end={})",
             t.height,
             t.width,
-            if t.plane_dtype == PlaneDtype::F16 { "float16" } else { "float32" },
+            if t.plane_dtype == PlaneDtype::F16 {
+                "float16"
+            } else {
+                "float32"
+            },
             t.box_warp,
             t.ray_start,
             t.ray_end
@@ -246,7 +287,13 @@ fn render<'py>(
 ) -> PyResult<Bound<'py, PyDict>> {
     guarded(|| {
         let tri = triplane.cast::<Triplane>().map_err(|_| {
-            invalid("triplane", format!("expected lp3d_render.Triplane, got {}", convert::type_name(triplane)))
+            invalid(
+                "triplane",
+                format!(
+                    "expected lp3d_render.Triplane, got {}",
+                    convert::type_name(triplane)
+                ),
+            )
         })?;
         let (labels, batched) = camera_array(camera)?;
         let cameras = Camera::batch_from_labels(&labels).map_err(to_py)?;
@@ -262,7 +309,12 @@ fn render<'py>(
         let settings = RenderSettings {
             resolution: in_range(resolution, "resolution", 1, MAX_RESOLUTION)?,
             depth_resolution: in_range(depth_resolution, "depth_resolution", 2, MAX_SAMPLES)?,
-            depth_resolution_importance: in_range(depth_resolution_importance, "depth_resolution_importance", 0, MAX_SAMPLES)?,
+            depth_resolution_importance: in_range(
+                depth_resolution_importance,
+                "depth_resolution_importance",
+                0,
+                MAX_SAMPLES,
+            )?,
             white_back,
             deterministic,
             seed,
@@ -275,7 +327,9 @@ fn render<'py>(
         let gpu = gpu(py)?;
         let tri = tri.get();
         let uploaded = tri.on_gpu(gpu)?;
-        let out = py.detach(|| gpu.renderer.render(&uploaded, &cameras, &settings, outputs)).map_err(to_py)?;
+        let out = py
+            .detach(|| gpu.renderer.render(&uploaded, &cameras, &settings, outputs))
+            .map_err(to_py)?;
 
         let r = settings.resolution as usize;
         let b = cameras.len();
@@ -307,6 +361,50 @@ fn render<'py>(
     })
 }
 
+/// A look-at camera label (25,) from geometric angles in degrees: the renderer crate's
+/// `Camera::orbit`, the camera the viewer uses. Matches `lp3d.camera.look_at_camera`.
+#[pyfunction]
+#[pyo3(signature = (*, yaw_deg=0.0, pitch_deg=0.0, roll_deg=0.0, radius=2.7, lookat=(0.0, 0.0, 0.2), focal=4.2647))]
+fn look_at_camera<'py>(
+    py: Python<'py>,
+    yaw_deg: f64,
+    pitch_deg: f64,
+    roll_deg: f64,
+    radius: f64,
+    lookat: (f64, f64, f64),
+    focal: f64,
+) -> PyResult<Bound<'py, PyAny>> {
+    for (name, v) in [
+        ("yaw_deg", yaw_deg),
+        ("pitch_deg", pitch_deg),
+        ("roll_deg", roll_deg),
+        ("radius", radius),
+    ] {
+        finite_f32(v, name)?;
+    }
+    if !(-90.0 < pitch_deg && pitch_deg < 90.0) {
+        return Err(invalid(
+            "pitch_deg",
+            format!("must be in (-90, 90), got {pitch_deg}"),
+        ));
+    }
+    if !(focal.is_finite() && focal > 0.0) {
+        return Err(invalid(
+            "focal",
+            format!("must be finite and > 0, got {focal}"),
+        ));
+    }
+    let c = Camera::orbit(
+        yaw_deg,
+        pitch_deg,
+        roll_deg,
+        radius,
+        [lookat.0, lookat.1, lookat.2],
+        focal,
+    );
+    f32_array(py, &c.0, &[25])
+}
+
 /// The GPU adapter the renderer runs on: backend, name, device type, driver.
 /// Raises RuntimeError (with the adapters seen) when none is usable.
 #[pyfunction]
@@ -315,7 +413,10 @@ fn adapter_info(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("backend", format!("{:?}", info.backend).to_lowercase())?;
     d.set_item("name", &info.name)?;
-    d.set_item("device_type", format!("{:?}", info.device_type).to_lowercase())?;
+    d.set_item(
+        "device_type",
+        format!("{:?}", info.device_type).to_lowercase(),
+    )?;
     d.set_item("driver", &info.driver)?;
     d.set_item("driver_info", &info.driver_info)?;
     Ok(d)
@@ -326,9 +427,15 @@ fn _lp3d_render(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Triplane>()?;
     m.add_function(wrap_pyfunction!(render, m)?)?;
     m.add_function(wrap_pyfunction!(adapter_info, m)?)?;
+    m.add_function(wrap_pyfunction!(look_at_camera, m)?)?;
     m.add("MAX_RESOLUTION", MAX_RESOLUTION)?;
     m.add("MAX_SAMPLES", MAX_SAMPLES)?;
-    m.add("PLANE_AXES", lp3d_renderer::triplane::PLANE_AXES.map(|a| (a[0], a[1])).to_vec())?;
+    m.add(
+        "PLANE_AXES",
+        lp3d_renderer::triplane::PLANE_AXES
+            .map(|a| (a[0], a[1]))
+            .to_vec(),
+    )?;
     m.add("FORMAT_VERSION", lp3d_renderer::triplane::FORMAT_VERSION)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())

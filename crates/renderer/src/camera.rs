@@ -20,14 +20,24 @@ impl Camera {
     /// Validates one label; `field` names it in errors (e.g. `camera[3]`).
     pub fn from_label(label: &[f64], field: &str) -> Result<Camera> {
         if label.len() != 25 {
-            return Err(Error::invalid(field, format!("must have 25 values, got {}", label.len())));
+            return Err(Error::invalid(
+                field,
+                format!("must have 25 values, got {}", label.len()),
+            ));
         }
         if let Some(i) = label.iter().position(|v| !v.is_finite()) {
-            return Err(Error::invalid(field, format!("contains NaN/Inf at index {i}")));
+            return Err(Error::invalid(
+                field,
+                format!("contains NaN/Inf at index {i}"),
+            ));
         }
         let m = |r: usize, c: usize| label[4 * r + c];
         let bottom = [m(3, 0), m(3, 1), m(3, 2), m(3, 3)];
-        if (bottom[0].abs() > 1e-6) || (bottom[1].abs() > 1e-6) || (bottom[2].abs() > 1e-6) || ((bottom[3] - 1.0).abs() > 1e-6) {
+        if (bottom[0].abs() > 1e-6)
+            || (bottom[1].abs() > 1e-6)
+            || (bottom[2].abs() > 1e-6)
+            || ((bottom[3] - 1.0).abs() > 1e-6)
+        {
             return Err(Error::invalid(
                 format!("{field} cam2world"),
                 format!("bottom row must be (0, 0, 0, 1), got {bottom:?}"),
@@ -52,7 +62,10 @@ impl Camera {
         if k[3] != 0.0 || k[6] != 0.0 || k[7] != 0.0 || k[8] != 1.0 {
             return Err(Error::invalid(
                 format!("{field} intrinsics"),
-                format!("rows 2-3 must be (0, fy, cy) and (0, 0, 1), got {:?}", &k[3..9]),
+                format!(
+                    "rows 2-3 must be (0, fy, cy) and (0, 0, 1), got {:?}",
+                    &k[3..9]
+                ),
             ));
         }
         let mut out = [0f32; 25];
@@ -60,7 +73,10 @@ impl Camera {
             *o = *v as f32;
         }
         if out[16] == 0.0 || out[20] == 0.0 {
-            return Err(Error::invalid(format!("{field} focal"), "too small for float32"));
+            return Err(Error::invalid(
+                format!("{field} focal"),
+                "too small for float32",
+            ));
         }
         Ok(Camera(out))
     }
@@ -70,7 +86,10 @@ impl Camera {
         if labels.is_empty() || labels.len() % 25 != 0 {
             return Err(Error::invalid(
                 "camera",
-                format!("must hold (25,) or (B, 25) values, got {} values", labels.len()),
+                format!(
+                    "must hold (25,) or (B, 25) values, got {} values",
+                    labels.len()
+                ),
             ));
         }
         labels
@@ -80,39 +99,67 @@ impl Camera {
             .collect()
     }
 
+    /// A look-at camera from geometric angles in degrees, as `lp3d.camera.look_at_camera`:
+    /// yaw > 0 moves the camera toward +x, pitch > 0 raises it (true elevation, in (-90, 90)),
+    /// roll turns it about its viewing axis (`cam2world[:3,:3] @ Rz(roll)`). Maps onto EG3D's
+    /// angles as h = π/2 + yaw, v = π/2 · (1 − sin pitch).
+    pub fn orbit(
+        yaw_deg: f64,
+        pitch_deg: f64,
+        roll_deg: f64,
+        radius: f64,
+        lookat: [f64; 3],
+        focal: f64,
+    ) -> Camera {
+        let pitch = pitch_deg.clamp(-89.9, 89.9).to_radians();
+        let h = std::f64::consts::FRAC_PI_2 + yaw_deg.to_radians();
+        let v = std::f64::consts::FRAC_PI_2 * (1.0 - pitch.sin());
+        let label = look_at_label(h, v, radius, lookat, focal);
+        let (c, s) = (roll_deg.to_radians().cos(), roll_deg.to_radians().sin());
+        let mut out = label;
+        for i in 0..3 {
+            // Columns right, down of the rotation, turned about the forward axis.
+            let (r, d) = (label[4 * i], label[4 * i + 1]);
+            out[4 * i] = c * r + s * d;
+            out[4 * i + 1] = -s * r + c * d;
+        }
+        Camera(out.map(|v| v as f32))
+    }
+
     /// EG3D's `LookAtPoseSampler.sample(h, v, lookat, radius)` with focal length `focal` and
     /// principal point (0.5, 0.5). `h`, `v` are EG3D's angles in radians (h = v = π/2 is
     /// frontal). The origin lies on a sphere about the world origin, not about `lookat`
     /// (EG3D's quirk).
     pub fn look_at(h: f64, v: f64, radius: f64, lookat: [f64; 3], focal: f64) -> Camera {
-        let theta = h;
-        let v = v.clamp(1e-5, std::f64::consts::PI - 1e-5);
-        let phi = (1.0 - 2.0 * v / std::f64::consts::PI).acos();
-        let origin = [
-            radius * phi.sin() * (std::f64::consts::PI - theta).cos(),
-            radius * phi.cos(),
-            radius * phi.sin() * (std::f64::consts::PI - theta).sin(),
-        ];
-        let forward = normalize(sub(lookat, origin));
-        // create_cam2world_matrix: right = -normalize(cross(up, forward)), up' = normalize(cross(forward, right)).
-        let r = cross([0.0, 1.0, 0.0], forward);
-        let right = normalize([-r[0], -r[1], -r[2]]);
-        let up = normalize(cross(forward, right));
-        let mut label = [0f64; 25];
-        for i in 0..3 {
-            label[4 * i] = right[i];
-            label[4 * i + 1] = up[i];
-            label[4 * i + 2] = forward[i];
-            label[4 * i + 3] = origin[i];
-        }
-        label[15] = 1.0;
-        label[16..25].copy_from_slice(&[focal, 0.0, 0.5, 0.0, focal, 0.5, 0.0, 0.0, 1.0]);
-        let mut out = [0f32; 25];
-        for (o, v) in out.iter_mut().zip(label) {
-            *o = v as f32;
-        }
-        Camera(out)
+        Camera(look_at_label(h, v, radius, lookat, focal).map(|v| v as f32))
     }
+}
+
+/// The float64 label of [`Camera::look_at`].
+fn look_at_label(h: f64, v: f64, radius: f64, lookat: [f64; 3], focal: f64) -> [f64; 25] {
+    let theta = h;
+    let v = v.clamp(1e-5, std::f64::consts::PI - 1e-5);
+    let phi = (1.0 - 2.0 * v / std::f64::consts::PI).acos();
+    let origin = [
+        radius * phi.sin() * (std::f64::consts::PI - theta).cos(),
+        radius * phi.cos(),
+        radius * phi.sin() * (std::f64::consts::PI - theta).sin(),
+    ];
+    let forward = normalize(sub(lookat, origin));
+    // create_cam2world_matrix: right = -normalize(cross(up, forward)), up' = normalize(cross(forward, right)).
+    let r = cross([0.0, 1.0, 0.0], forward);
+    let right = normalize([-r[0], -r[1], -r[2]]);
+    let up = normalize(cross(forward, right));
+    let mut label = [0f64; 25];
+    for i in 0..3 {
+        label[4 * i] = right[i];
+        label[4 * i + 1] = up[i];
+        label[4 * i + 2] = forward[i];
+        label[4 * i + 3] = origin[i];
+    }
+    label[15] = 1.0;
+    label[16..25].copy_from_slice(&[focal, 0.0, 0.5, 0.0, focal, 0.5, 0.0, 0.0, 1.0]);
+    label
 }
 
 fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
@@ -120,7 +167,11 @@ fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
 }
 
 fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
 }
 
 fn normalize(a: [f64; 3]) -> [f64; 3] {
@@ -135,10 +186,24 @@ mod tests {
     #[test]
     fn frontal_look_at_matches_eg3d_sanity_numbers() {
         // eg3d-rendering.md section 13: camera at (0, 0, 2.7), right (1,0,0), up' (0,-1,0), forward (0,0,-1).
-        let c = Camera::look_at(std::f64::consts::FRAC_PI_2, std::f64::consts::FRAC_PI_2, 2.7, [0.0; 3], FFHQ_FOCAL).0;
-        let expect = [1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 2.7, 0.0, 0.0, 0.0, 1.0];
+        let c = Camera::look_at(
+            std::f64::consts::FRAC_PI_2,
+            std::f64::consts::FRAC_PI_2,
+            2.7,
+            [0.0; 3],
+            FFHQ_FOCAL,
+        )
+        .0;
+        let expect = [
+            1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 2.7, 0.0, 0.0, 0.0, 1.0,
+        ];
         for i in 0..16 {
-            assert!((c[i] as f64 - expect[i]).abs() < 1e-6, "index {i}: {} vs {}", c[i], expect[i]);
+            assert!(
+                (c[i] as f64 - expect[i]).abs() < 1e-6,
+                "index {i}: {} vs {}",
+                c[i],
+                expect[i]
+            );
         }
         assert!((c[16] as f64 - FFHQ_FOCAL).abs() < 1e-6);
         Camera::from_label(&c.map(f64::from), "camera").unwrap();
@@ -146,19 +211,30 @@ mod tests {
 
     #[test]
     fn validation_names_the_field() {
-        let good = Camera::look_at(1.2, 1.4, 2.7, [0.0; 3], 4.26).0.map(f64::from);
+        let good = Camera::look_at(1.2, 1.4, 2.7, [0.0; 3], 4.26)
+            .0
+            .map(f64::from);
         let mut bad = good;
         bad[20] = 0.0;
         let e = Camera::from_label(&bad, "camera").unwrap_err().to_string();
         assert!(e.contains("focal"), "{e}");
         let mut bad = good;
         bad[5] = f64::NAN;
-        assert!(Camera::from_label(&bad, "camera").unwrap_err().to_string().contains("NaN"));
+        assert!(Camera::from_label(&bad, "camera")
+            .unwrap_err()
+            .to_string()
+            .contains("NaN"));
         let mut bad = good;
         for i in 0..3 {
             bad[4 * i] = 0.0;
         }
-        assert!(Camera::from_label(&bad, "camera").unwrap_err().to_string().contains("singular"));
-        assert!(Camera::batch_from_labels(&good[..24]).unwrap_err().to_string().contains("camera"));
+        assert!(Camera::from_label(&bad, "camera")
+            .unwrap_err()
+            .to_string()
+            .contains("singular"));
+        assert!(Camera::batch_from_labels(&good[..24])
+            .unwrap_err()
+            .to_string()
+            .contains("camera"));
     }
 }

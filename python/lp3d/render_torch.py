@@ -1,0 +1,746 @@
+"""PyTorch twin of the EG3D triplane renderer: differentiable, batched, device-agnostic.
+
+Training needs gradients through the renderer, so this module re-implements, in torch, exactly the
+semantics of ``shared/design/eg3d-rendering.md`` that ``lp3d_render`` (WGSL) and the float64 NumPy
+reference (``lp3d.reference``) implement. The stages follow the data flow and have the reference's
+names, arguments and quantities (``t`` depths, ``sigma_raw`` raw densities, ``feat`` features):
+
+``rays_from_cameras`` → ``sample_stratified`` → ``sample_triplane`` → ``decode`` → ``march`` (coarse)
+→ ``sample_importance`` / ``sample_pdf`` → ``sample_triplane`` → ``decode`` → ``unify_samples`` →
+``march`` → ``clamp_depth``.
+
+``render_rays`` runs that pipeline on given rays; ``render_torch`` validates its inputs, builds the
+rays from EG3D 25-float camera labels, renders in chunks of rays and assembles images;
+``render_triplane_torch`` is a NumPy-in, NumPy-out convenience with the reference's interface.
+
+Shapes: ``B`` cameras, ``M = R*R`` rays per camera, ``S``/``N`` coarse/fine samples per ray,
+``K`` samples in a marched list, ``C = 32`` channels, ``P`` triplanes (1 shared or one per camera).
+Everything follows the dtype of ``planes`` (float32 as in EG3D; float64 for gradient checks) and the
+device of ``planes``.
+
+Where this twin knowingly differs from EG3D's code (values are identical):
+
+* The depth of a ray with zero total weight is 0/0 = NaN in EG3D, which ``nan_to_num`` turns into +inf
+  and the clamp into the batch's largest sample depth. The forward values here are the same, but the
+  division is guarded so that the backward pass gives 0 rather than NaN on such rays.
+* The coarse march that feeds importance sampling runs under ``torch.no_grad``: EG3D only uses its
+  weights inside ``no_grad`` anyway, so this saves memory without changing any gradient.
+* Opacity is computed as ``-expm1(-sigma * delta)`` rather than ``1 - exp(-sigma * delta)``: the same
+  function, evaluated without cancellation, so float32 renders of faint rays agree with the float64
+  reference (EG3D's float32 form can be off by several percent in the depth of nearly empty rays).
+* Deterministic mode (the lp3d default) uses no coarse jitter and EG3D's ``det=True`` importance draw;
+  jittered mode takes its random numbers from ``lp3d.sampling_rng`` (``docs/sampling-rng.md``) so that
+  all lp3d renderers draw the same ones, rather than from ``torch.rand``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple, Protocol
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from lp3d import sampling_rng  # the counter-based RNG shared by every lp3d renderer
+from lp3d.camera import validate_camera
+from lp3d.settings import (
+    DEFAULT_BOX_WARP,
+    DEFAULT_RAY_END,
+    DEFAULT_RAY_START,
+    HIDDEN,
+    N_CHANNELS,
+    N_OUT,
+    RenderSettings,
+)
+from lp3d.triplane import PLANE_AXES, TriplaneData
+
+__all__ = [
+    "DEFAULT_RAY_CHUNK",
+    "PLANE_AXES",
+    "MarchResult",
+    "TriplaneLike",
+    "clamp_depth",
+    "decode",
+    "march",
+    "rays_from_cameras",
+    "render_rays",
+    "render_torch",
+    "render_triplane_torch",
+    "sample_importance",
+    "sample_pdf",
+    "sample_stratified",
+    "sample_triplane",
+    "unify_samples",
+]
+
+#: Rays rendered at once by ``render_torch`` (over all cameras). With 48+48 samples a chunk peaks at
+#: about 2 GB without autograd; gradients keep every chunk's graph alive, so chunking bounds memory
+#: only for inference renders (e.g. 512² previews), never for training steps.
+DEFAULT_RAY_CHUNK = 32768
+
+#: Added to the transmittance factor (1 - alpha), as EG3D's MipRayMarcher2 does.
+_TRANSMITTANCE_EPS = 1e-10
+#: Added to the smoothed coarse weights before sampling the PDF.
+_PDF_WEIGHT_FLOOR = 0.01
+#: MipNeRF's sigmoid clamp: features lie in (-_SIGMOID_MARGIN, 1 + _SIGMOID_MARGIN).
+_SIGMOID_MARGIN = 0.001
+#: Activation bias of the density: sigma = softplus(raw - 1).
+_DENSITY_SHIFT = 1.0
+
+
+class TriplaneLike(Protocol):
+    """What ``render_triplane_torch`` reads from a triplane (e.g. ``lp3d.triplane.TriplaneData``).
+
+    ``planes`` (3, 32, H, W) float16/float32; effective decoder weights ``w0`` (64, 32), ``b0`` (64,),
+    ``w1`` (33, 64), ``b1`` (33,); scalars ``box_warp``, ``ray_start``, ``ray_end``.
+    """
+
+    planes: np.ndarray
+    w0: np.ndarray
+    b0: np.ndarray
+    w1: np.ndarray
+    b1: np.ndarray
+    box_warp: float | np.ndarray
+    ray_start: float | np.ndarray
+    ray_end: float | np.ndarray
+
+
+# --------------------------------------------------------------------------------------------------
+# Data flow, one function per stage (names and arguments as in lp3d.reference).
+# --------------------------------------------------------------------------------------------------
+
+
+def rays_from_cameras(cameras: Tensor, resolution: int) -> tuple[Tensor, Tensor]:
+    """Rays through the pixel centres of an ``R x R`` grid, as EG3D's RaySampler builds them.
+
+    Args:
+        cameras: (B, 25) EG3D labels: cam2world 4x4 row-major (OpenCV axes), then the 3x3 intrinsics
+            normalised by image size.
+        resolution: R, rays per side. Ray ``m = row * R + col``, row 0 at the top.
+
+    Returns:
+        ``(ray_origins, ray_directions)``, each (B, R*R, 3); directions have unit length, so depths
+        along them are Euclidean distances from the camera centre.
+    """
+    n_cams = cameras.shape[0]
+    cam2world = cameras[:, :16].reshape(n_cams, 4, 4)
+    intrinsics = cameras[:, 16:25].reshape(n_cams, 3, 3)
+    fx, fy = intrinsics[:, 0, 0, None], intrinsics[:, 1, 1, None]
+    cx, cy = intrinsics[:, 0, 2, None], intrinsics[:, 1, 2, None]
+    sk = intrinsics[:, 0, 1, None]
+
+    # EG3D: arange * (1/R) + 0.5/R, i.e. normalised pixel centres.
+    steps = torch.arange(resolution, dtype=cameras.dtype, device=cameras.device) * (1.0 / resolution)
+    steps = steps + 0.5 / resolution
+    y, x = torch.meshgrid(steps, steps, indexing="ij")
+    x, y = x.reshape(1, -1), y.reshape(1, -1)
+
+    x_lift = (x - cx + cy * sk / fy - sk * y / fy) / fx
+    y_lift = (y - cy) / fy
+    ones = torch.ones_like(x_lift)
+    cam_rel_points = torch.stack((x_lift, y_lift, ones, ones), dim=-1)  # (B, M, 4)
+    world_points = (cam_rel_points @ cam2world.transpose(1, 2))[..., :3]
+    ray_origins = cam2world[:, None, :3, 3].expand_as(world_points)
+    ray_directions = F.normalize(world_points - ray_origins, dim=-1)
+    return ray_origins, ray_directions
+
+
+def sample_stratified(
+    n_rays: int | tuple[int, ...],
+    *,
+    depth_resolution: int,
+    ray_start: float,
+    ray_end: float,
+    jitter: Tensor | None = None,
+    dtype: torch.dtype = torch.float32,
+    device: torch.device | str | None = None,
+) -> Tensor:
+    """Coarse depths t (..., S): ``linspace(ray_start, ray_end, S) + U * (ray_end - ray_start) / (S - 1)``.
+
+    Args:
+        n_rays: number of rays, or the leading shape of the ray axes (e.g. ``(B, M)``).
+        depth_resolution: S, coarse samples per ray.
+        ray_start, ray_end: depth range of the linspace, the same for every ray.
+        jitter: U (..., S) in [0, 1) (EG3D's ``rand_like``), or None for no jitter. When given, the
+            result takes its dtype and device.
+        dtype, device: of the result when ``jitter`` is None.
+
+    Returns:
+        t: (..., S), ascending; jittered samples may reach one step past ray_end.
+    """
+    lead = (n_rays,) if isinstance(n_rays, int) else tuple(n_rays)
+    if jitter is not None:
+        dtype, device = jitter.dtype, jitter.device
+    # torch's CPU linspace is the bit-exact recipe of the spec (§7); build it there on every device.
+    lin = torch.linspace(ray_start, ray_end, depth_resolution, dtype=dtype).to(device)
+    t = lin.expand(*lead, depth_resolution)
+    if jitter is not None:
+        if tuple(jitter.shape) != tuple(t.shape):
+            raise ValueError(f"jitter must have shape {tuple(t.shape)}, got {tuple(jitter.shape)}")
+        # The jitter step is the Python-float (float64) step, as in EG3D, not the linspace's own.
+        t = t + jitter * ((ray_end - ray_start) / (depth_resolution - 1))
+    return t
+
+
+def sample_pdf(bins: Tensor, weights: Tensor, u: Tensor, *, eps: float = 1e-5) -> Tensor:
+    """Inverse-CDF samples (n, N) from bin edges (n, nb) and weights (n, nw), nw <= nb - 1 (§9.4).
+
+    EG3D's ``sample_pdf``: ``pdf = (w + eps) / sum``, ``cdf = [0, cumsum(pdf)]`` (nw + 1 entries),
+    ``idx = searchsorted(cdf, u, right=True)``, ``below = max(idx - 1, 0)``, ``above = min(idx, nw)``,
+    ``denom = cdf[above] - cdf[below]`` (1 where < eps), ``t = bins[below] + (u - cdf[below]) / denom *
+    (bins[above] - bins[below])``. Only edges 0..nw are used (EG3D passes nb = nw + 2).
+
+    Args:
+        bins: (n, nb); weights: (n, nw) non-negative; u: (n, N) in [0, 1].
+
+    Returns:
+        (n, N) depths, not sorted unless ``u`` is, and not clamped.
+    """
+    n_bins = weights.shape[-1]
+    weights = weights + eps
+    pdf = weights / weights.sum(dim=-1, keepdim=True)
+    cdf = torch.cumsum(pdf, dim=-1)
+    cdf = torch.cat([torch.zeros_like(cdf[:, :1]), cdf], dim=-1).contiguous()  # (n, nw + 1)
+    u = u.contiguous()
+
+    inds = torch.searchsorted(cdf, u, right=True)
+    below = torch.clamp_min(inds - 1, 0)
+    above = torch.clamp_max(inds, n_bins)
+    cdf_below, cdf_above = cdf.gather(1, below), cdf.gather(1, above)
+    bins_below, bins_above = bins.gather(1, below), bins.gather(1, above)
+
+    denom = cdf_above - cdf_below
+    denom = torch.where(denom < eps, torch.ones_like(denom), denom)
+    return bins_below + (u - cdf_below) / denom * (bins_above - bins_below)
+
+
+def sample_importance(
+    t_coarse: Tensor, coarse_weights: Tensor, n_importance: int, u: Tensor | None = None
+) -> Tensor:
+    """Fine depths (..., N) drawn from the smoothed coarse weights (EG3D's ``sample_importance``, §9).
+
+    The S-1 coarse weights are max-pooled (kernel 2, stride 1, padding 1), average-pooled (kernel 2,
+    stride 1) and get +0.01; their inner S-3 values weight the bins between coarse midpoints. As in
+    EG3D the result carries no gradient.
+
+    Args:
+        t_coarse: (..., S) ascending coarse depths, S >= 4.
+        coarse_weights: (..., S-1) weights of the coarse ``march``.
+        n_importance: N.
+        u: (..., N) in [0, 1] (the jittered mode's sorted draw), or None for EG3D's ``det=True`` draw
+            ``linspace(0, 1, N)`` (including 1).
+
+    Returns:
+        t_fine: (..., N), detached.
+    """
+    with torch.no_grad():
+        lead, n_coarse = t_coarse.shape[:-1], t_coarse.shape[-1]
+        t = t_coarse.reshape(-1, n_coarse)
+        w = coarse_weights.reshape(-1, 1, n_coarse - 1)
+        w = F.max_pool1d(w, 2, 1, padding=1)
+        w = F.avg_pool1d(w, 2, 1).squeeze(1) + _PDF_WEIGHT_FLOOR
+        mids = 0.5 * (t[:, :-1] + t[:, 1:])
+        if u is None:
+            flat_u = torch.linspace(0, 1, n_importance, dtype=t.dtype).to(t.device).expand(t.shape[0], -1)
+        else:
+            flat_u = u.reshape(-1, n_importance)
+        t_fine = sample_pdf(mids, w[:, 1 : n_coarse - 2], flat_u)
+    return t_fine.reshape(*lead, n_importance)
+
+
+def sample_triplane(planes: Tensor, points: Tensor, *, box_warp: float = 1.0) -> Tensor:
+    """Mean of the three planes' bilinear features at world points (EG3D's ``sample_from_planes``, §2-§4).
+
+    Points are scaled by ``2 / box_warp`` and plane p reads the world axes ``PLANE_AXES[p]`` as (u, v)
+    (EG3D's (x,y), (x,z), (z,x) quirk), with ``grid_sample(bilinear, zeros, align_corners=False)``.
+    Points outside the box are not masked: their taps read zeros, as in EG3D.
+
+    Args:
+        planes: (P, 3, C, H, W).
+        points: (P, K, 3) world points; point k of triplane p is looked up in ``planes[p]``.
+        box_warp: side of the world cube the triplane spans.
+
+    Returns:
+        features: (P, K, C), averaged over the three planes.
+    """
+    n_tri, n_planes, channels, height, width = planes.shape
+    n_points = points.shape[1]
+    q = points * (2.0 / box_warp)
+    axes = torch.tensor(PLANE_AXES, device=points.device)  # (3, 2): (u, v) world axis per plane
+    grid = q[:, :, axes].permute(0, 2, 1, 3).reshape(n_tri * n_planes, 1, n_points, 2)
+    sampled = F.grid_sample(
+        planes.reshape(n_tri * n_planes, channels, height, width),
+        grid,
+        mode="bilinear",
+        padding_mode="zeros",
+        align_corners=False,
+    )  # (P*3, C, 1, K)
+    return sampled.reshape(n_tri, n_planes, channels, n_points).mean(dim=1).transpose(1, 2)
+
+
+def decode(features: Tensor, w0: Tensor, b0: Tensor, w1: Tensor, b1: Tensor) -> tuple[Tensor, Tensor]:
+    """EG3D's OSGDecoder with effective weights: ``h = softplus(W0 f + b0)``, ``o = W1 h + b1`` (§4).
+
+    Args:
+        features: (..., 32) plane-averaged features from ``sample_triplane``.
+        w0, b0, w1, b1: (64, 32), (64,), (33, 64), (33,) effective weights.
+
+    Returns:
+        ``(sigma_raw, feat)``: (...) raw densities ``o[0]`` (no activation; ``march`` applies
+        softplus(x - 1)) and (..., 32) features ``sigmoid(o[1:]) * 1.002 - 0.001``.
+    """
+    hidden = F.softplus(F.linear(features, w0, b0))  # beta 1, threshold 20: torch.nn.Softplus defaults
+    out = F.linear(hidden, w1, b1)
+    feat = torch.sigmoid(out[..., 1:]) * (1 + 2 * _SIGMOID_MARGIN) - _SIGMOID_MARGIN
+    return out[..., 0], feat
+
+
+class MarchResult(NamedTuple):
+    """Output of ``march``: ``features`` (..., C) already mapped ``* 2 - 1``; ``depth`` (...) before the
+    batch-wide clamp (+inf where W = 0); ``weights`` (..., K-1); ``weights_sum`` W (...)."""
+
+    features: Tensor
+    depth: Tensor
+    weights: Tensor
+    weights_sum: Tensor
+
+
+def march(t: Tensor, sigma_raw: Tensor, feat: Tensor, *, white_back: bool = False) -> MarchResult:
+    """EG3D's MipRayMarcher2 over sorted depths t (..., K), raw densities (..., K), features (..., K, C).
+
+    K samples give K-1 intervals (no infinite last interval). Per interval: midpoint colour and depth,
+    ``sigma = softplus(mean of the two raw densities - 1)``, ``alpha = 1 - exp(-sigma * delta)``;
+    transmittance is the exclusive cumprod of ``(1 - alpha) + 1e-10``. Depth is the weighted mean
+    midpoint, +inf where W = 0 (EG3D's NaN → inf); the caller clamps it to the batch's sample range
+    (``clamp_depth``).
+    """
+    delta = t[..., 1:] - t[..., :-1]
+    feat_mid = (feat[..., :-1, :] + feat[..., 1:, :]) / 2
+    t_mid = (t[..., :-1] + t[..., 1:]) / 2
+    sigma = F.softplus((sigma_raw[..., :-1] + sigma_raw[..., 1:]) / 2 - _DENSITY_SHIFT)
+    # 1 - exp(-x), written as -expm1(-x): the same function, but accurate in float32 for the tiny x of
+    # near-empty space, where 1 - exp(-x) loses most digits (and with them the depth of faint rays).
+    alpha = -torch.expm1(-sigma * delta)
+    shifted = torch.cat([torch.ones_like(alpha[..., :1]), 1 - alpha + _TRANSMITTANCE_EPS], dim=-1)
+    weights = alpha * torch.cumprod(shifted, dim=-1)[..., :-1]
+
+    weights_sum = weights.sum(dim=-1)
+    rgb = (weights.unsqueeze(-2) @ feat_mid).squeeze(-2)
+    # EG3D: 0/0 = NaN → +inf. Guarding the division keeps those values and gives 0, not NaN, gradients.
+    has_weight = weights_sum > 0
+    safe_sum = torch.where(has_weight, weights_sum, torch.ones_like(weights_sum))
+    depth = torch.where(
+        has_weight, (weights * t_mid).sum(dim=-1) / safe_sum, torch.full_like(safe_sum, math.inf)
+    )
+    if white_back:
+        rgb = rgb + (1 - weights_sum).unsqueeze(-1)
+    return MarchResult(rgb * 2 - 1, depth, weights, weights_sum)
+
+
+def clamp_depth(depth: Tensor, t: Tensor) -> Tensor:
+    """EG3D's clamp of ``depth`` (any shape) to [min, max] of *every* sample depth ``t`` of the batch.
+
+    Only rays with zero weight (depth +inf) are affected in practice: they get the batch's largest
+    sample depth; any other depth is already a convex combination of its ray's midpoints.
+    """
+    bounds = t.detach()
+    return torch.clamp(depth, bounds.min(), bounds.max())
+
+
+def unify_samples(
+    t1: Tensor, sigma_raw1: Tensor, feat1: Tensor, t2: Tensor, sigma_raw2: Tensor, feat2: Tensor
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Merge two sample lists per ray and sort them by depth (EG3D's ``unify_samples``, §9.6).
+
+    Args:
+        t*: (..., K*); sigma_raw*: (..., K*); feat*: (..., K*, C).
+
+    Returns:
+        ``(t, sigma_raw, feat)`` with K = K1 + K2 samples, ascending in t. The coarse samples' values are
+        reused, not recomputed.
+    """
+    t = torch.cat([t1, t2], dim=-1)
+    sigma_raw = torch.cat([sigma_raw1, sigma_raw2], dim=-1)
+    feat = torch.cat([feat1, feat2], dim=-2)
+    # Stable for reproducibility; tied depths are the same point, so their order does not matter.
+    t, order = torch.sort(t, dim=-1, stable=True)
+    feat = feat.gather(-2, order.unsqueeze(-1).expand_as(feat))
+    return t, sigma_raw.gather(-1, order), feat
+
+
+def _evaluate(
+    planes: Tensor, w0: Tensor, b0: Tensor, w1: Tensor, b1: Tensor, points: Tensor, *, box_warp: float
+) -> tuple[Tensor, Tensor]:
+    """Triplane lookup and decoder at ``points`` (B, M, K, 3) → sigma_raw (B, M, K), feat (B, M, K, 32).
+
+    ``planes`` is (P, 3, C, H, W) with P = B, or P = 1 shared by all cameras.
+    """
+    lead = points.shape[:3]
+    flat = points.reshape(planes.shape[0], -1, 3)  # a shared triplane sees every camera's points at once
+    sigma_raw, feat = decode(sample_triplane(planes, flat, box_warp=box_warp), w0, b0, w1, b1)
+    return sigma_raw.reshape(lead), feat.reshape(*lead, -1)
+
+
+def render_rays(
+    planes: Tensor,
+    w0: Tensor,
+    b0: Tensor,
+    w1: Tensor,
+    b1: Tensor,
+    ray_origins: Tensor,
+    ray_directions: Tensor,
+    *,
+    ray_start: float,
+    ray_end: float,
+    box_warp: float,
+    depth_resolution: int,
+    depth_resolution_importance: int,
+    white_back: bool = False,
+    coarse_jitter: Tensor | None = None,
+    importance_u: Tensor | None = None,
+    t_fine: Tensor | None = None,
+    clamp: bool = True,
+) -> dict[str, Tensor]:
+    """EG3D's ``ImportanceRenderer.forward`` on given rays, without input validation (see ``render_torch``).
+
+    Args:
+        planes: (P, 3, 32, H, W), P = B (one triplane per camera) or 1 (shared).
+        w0, b0, w1, b1: effective decoder weights, (64, 32), (64,), (33, 64), (33,).
+        ray_origins, ray_directions: (B, M, 3), unit directions.
+        ray_start, ray_end, box_warp, depth_resolution, depth_resolution_importance, white_back: as in
+            EG3D's ``rendering_kwargs``; ``depth_resolution_importance = 0`` renders coarse samples only.
+        coarse_jitter: U (B, M, S) in [0, 1), or None (no jitter).
+        importance_u: u (B, M, N) in [0, 1], or None (EG3D's ``det=True``: linspace(0, 1, N)).
+        t_fine: (B, M, N) fine depths to use instead of drawing them from the coarse pass, e.g. to hold
+            them fixed in a finite-difference gradient check.
+        clamp: clamp depths to the range of all sample depths of this call (EG3D); ``render_torch``
+            clamps once over all its chunks instead.
+
+    Returns:
+        ``features`` (B, M, 32), ``depth`` (B, M), ``weights_sum`` (B, M); ``t_range`` (2,), the min and
+        max over all sample depths; and ``t_fine`` (B, M, N) when N > 0.
+    """
+
+    def points_at(t: Tensor) -> Tensor:  # (B, M, K) depths → (B, M, K, 3) world points
+        return ray_origins.unsqueeze(-2) + t.unsqueeze(-1) * ray_directions.unsqueeze(-2)
+
+    t = sample_stratified(
+        ray_origins.shape[:2],
+        depth_resolution=depth_resolution,
+        ray_start=ray_start,
+        ray_end=ray_end,
+        jitter=coarse_jitter,
+        dtype=ray_origins.dtype,
+        device=ray_origins.device,
+    )
+    sigma_raw, feat = _evaluate(planes, w0, b0, w1, b1, points_at(t), box_warp=box_warp)
+    out: dict[str, Tensor] = {}
+
+    if depth_resolution_importance > 0:
+        if t_fine is None:
+            # Only the coarse weights are used from this pass, and they get no gradient (as in EG3D).
+            with torch.no_grad():
+                coarse = march(t, sigma_raw, feat)
+            t_fine = sample_importance(t, coarse.weights, depth_resolution_importance, importance_u)
+        sigma_fine, feat_fine = _evaluate(planes, w0, b0, w1, b1, points_at(t_fine), box_warp=box_warp)
+        t, sigma_raw, feat = unify_samples(t, sigma_raw, feat, t_fine, sigma_fine, feat_fine)
+        out["t_fine"] = t_fine
+
+    result = march(t, sigma_raw, feat, white_back=white_back)
+    bounds = t.detach()
+    out.update(
+        features=result.features,
+        depth=clamp_depth(result.depth, t) if clamp else result.depth,
+        weights_sum=result.weights_sum,
+        t_range=torch.stack([bounds.min(), bounds.max()]),
+    )
+    return out
+
+
+# --------------------------------------------------------------------------------------------------
+# Validation and the public entry points.
+# --------------------------------------------------------------------------------------------------
+
+
+def _check_tensor(name: str, value: object, shape: tuple[int, ...], like: Tensor) -> Tensor:
+    """Shape, dtype, device and finiteness of a decoder weight; returns it unchanged."""
+    if not isinstance(value, Tensor):
+        raise TypeError(f"{name} must be a torch.Tensor, got {type(value).__name__}")
+    if tuple(value.shape) != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {tuple(value.shape)}")
+    if value.dtype != like.dtype or value.device != like.device:
+        raise ValueError(
+            f"{name} must match planes' dtype and device ({like.dtype}, {like.device}), "
+            f"got ({value.dtype}, {value.device})"
+        )
+    if not bool(torch.isfinite(value).all()):
+        raise ValueError(f"{name} must be finite (it contains NaN or Inf)")
+    return value
+
+
+def _check_scalar(name: str, value: object) -> float:
+    try:
+        scalar = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a real number, got {value!r}") from None
+    if not math.isfinite(scalar):
+        raise ValueError(f"{name} must be finite, got {scalar!r}")
+    return scalar
+
+
+def _validate(
+    planes: object,
+    w0: object,
+    b0: object,
+    w1: object,
+    b1: object,
+    cameras: object,
+    ray_start: object,
+    ray_end: object,
+    box_warp: object,
+    ray_chunk: object,
+) -> tuple[Tensor, Tensor, float, float, float]:
+    """Checks every input; returns planes as (P, 3, 32, H, W), cameras as (B, 25) and the scalars."""
+    if not isinstance(planes, Tensor):
+        raise TypeError(f"planes must be a torch.Tensor, got {type(planes).__name__}")
+    if planes.dtype not in (torch.float32, torch.float64):
+        raise ValueError(f"planes must be float32 (as in EG3D) or float64, got {planes.dtype}")
+    if (
+        planes.ndim not in (4, 5)
+        or tuple(planes.shape[-4:-2]) != (3, N_CHANNELS)
+        or min(planes.shape[-2:]) < 1
+    ):
+        raise ValueError(
+            f"planes must have shape (3, {N_CHANNELS}, H, W) or (B, 3, {N_CHANNELS}, H, W), "
+            f"got {tuple(planes.shape)}"
+        )
+    if planes.ndim == 5 and planes.shape[0] < 1:
+        raise ValueError("planes must hold at least one triplane, got a batch of 0")
+    if not bool(torch.isfinite(planes).all()):
+        raise ValueError("planes must be finite (it contains NaN or Inf)")
+    _check_tensor("w0", w0, (HIDDEN, N_CHANNELS), planes)
+    _check_tensor("b0", b0, (HIDDEN,), planes)
+    _check_tensor("w1", w1, (N_OUT, HIDDEN), planes)
+    _check_tensor("b1", b1, (N_OUT,), planes)
+
+    if not isinstance(cameras, Tensor):
+        raise TypeError(f"cameras must be a torch.Tensor, got {type(cameras).__name__}")
+    try:  # the one camera check of lp3d (shape, finiteness, rigid pose, intrinsics layout)
+        validate_camera(cameras.detach().to("cpu", torch.float64).numpy())
+    except ValueError as error:
+        raise ValueError(f"cameras: {error}") from None
+    # Rays are built in the planes' dtype, as EG3D builds them in float32.
+    cams = cameras.reshape(-1, 25).to(device=planes.device, dtype=planes.dtype)
+    tri = planes if planes.ndim == 5 else planes.unsqueeze(0)
+    if planes.ndim == 5 and tri.shape[0] != cams.shape[0]:
+        raise ValueError(
+            f"planes hold {tri.shape[0]} triplanes but cameras hold {cams.shape[0]} cameras; give one "
+            "triplane per camera, or planes of shape (3, 32, H, W) shared by all cameras"
+        )
+
+    start = _check_scalar("ray_start", ray_start)
+    end = _check_scalar("ray_end", ray_end)
+    if start < 0:
+        raise ValueError(f"ray_start must be >= 0, got {start}")
+    if not start < end:
+        raise ValueError(f"ray_start must be smaller than ray_end, got {start} and {end}")
+    warp = _check_scalar("box_warp", box_warp)
+    if warp <= 0:
+        raise ValueError(f"box_warp must be positive, got {warp}")
+    if isinstance(ray_chunk, bool) or not isinstance(ray_chunk, int) or ray_chunk < 1:
+        raise ValueError(f"ray_chunk must be a positive int, got {ray_chunk!r}")
+    return tri, cams, start, end, warp
+
+
+def _random_draws(
+    seed: int, n_rays: int, settings: RenderSettings, like: Tensor
+) -> tuple[Tensor, Tensor | None]:
+    """The jittered mode's coarse U (n_rays, S) and sorted importance u (n_rays, N) (lp3d.sampling_rng)."""
+    jitter = torch.as_tensor(sampling_rng.coarse_jitter(seed, n_rays, settings.depth_resolution))
+    jitter = jitter.to(device=like.device, dtype=like.dtype)
+    if settings.depth_resolution_importance == 0:
+        return jitter, None
+    u = torch.as_tensor(sampling_rng.sorted_importance_u(seed, n_rays, settings.depth_resolution_importance))
+    return jitter, u.to(device=like.device, dtype=like.dtype)
+
+
+def render_torch(
+    planes: Tensor,
+    w0: Tensor,
+    b0: Tensor,
+    w1: Tensor,
+    b1: Tensor,
+    cameras: Tensor,
+    *,
+    resolution: int = 128,
+    depth_resolution: int = 48,
+    depth_resolution_importance: int = 48,
+    ray_start: float = DEFAULT_RAY_START,
+    ray_end: float = DEFAULT_RAY_END,
+    box_warp: float = DEFAULT_BOX_WARP,
+    white_back: bool = False,
+    deterministic: bool = True,
+    seed: int = 0,
+    ray_chunk: int = DEFAULT_RAY_CHUNK,
+) -> dict[str, Tensor]:
+    """Render triplanes from EG3D cameras, differentiably, with EG3D's renderer semantics.
+
+    Args:
+        planes: (B, 3, 32, H, W), one triplane per camera (as in training), or (3, 32, H, W) shared by
+            all cameras; float32 or float64. Its dtype and device are those of the render.
+        w0, b0, w1, b1: effective decoder weights (64, 32), (64,), (33, 64), (33,), same dtype/device.
+        cameras: (B, 25) or (25,) EG3D labels; cast to the planes' dtype and device.
+        resolution: R, rays per side.
+        depth_resolution, depth_resolution_importance: S coarse and N fine samples (N = 0: coarse only).
+        ray_start, ray_end, box_warp, white_back: EG3D's rendering_kwargs (FFHQ defaults).
+        deterministic: no coarse jitter and ``det=True`` importance draw; otherwise the draws of
+            ``lp3d.sampling_rng`` for ``seed`` (ray index ``b * R * R + row * R + col``).
+        ray_chunk: rays rendered at once (over all cameras), to bound memory; does not change results.
+
+    Returns:
+        ``features`` (B, 32, R, R) in about [-1, 1], ``rgb`` (B, 3, R, R) (= features[:, :3]),
+        ``depth`` (B, R, R) and ``weights_sum`` (B, R, R). The B axis is dropped when ``cameras`` is
+        (25,) and ``planes`` is (3, 32, H, W). Depths are clamped to the range of all sample depths of
+        the whole batch (EG3D's behaviour; it matters only for rays with zero total weight).
+
+    Raises:
+        ValueError: naming the offending input (shape, dtype, device, finiteness, settings).
+    """
+    settings = RenderSettings(
+        resolution=resolution,
+        depth_resolution=depth_resolution,
+        depth_resolution_importance=depth_resolution_importance,
+        white_back=white_back,
+        deterministic=deterministic,
+        seed=seed,
+    )
+    settings.validate()
+    tri, cams, start, end, warp = _validate(
+        planes, w0, b0, w1, b1, cameras, ray_start, ray_end, box_warp, ray_chunk
+    )
+    n_cams, n_rays = cams.shape[0], resolution * resolution
+    s, n = depth_resolution, depth_resolution_importance
+
+    ray_origins, ray_directions = rays_from_cameras(cams, resolution)
+    jitter = u = None
+    if not deterministic:
+        flat_jitter, flat_u = _random_draws(seed, n_cams * n_rays, settings, tri)
+        jitter = flat_jitter.reshape(n_cams, n_rays, s)
+        u = None if flat_u is None else flat_u.reshape(n_cams, n_rays, n)
+
+    per_chunk = max(1, ray_chunk // n_cams)  # rays per camera in one chunk
+    chunks: list[dict[str, Tensor]] = []
+    for lo in range(0, n_rays, per_chunk):
+        part = slice(lo, min(lo + per_chunk, n_rays))
+        chunk = render_rays(
+            tri,
+            w0,
+            b0,
+            w1,
+            b1,
+            ray_origins[:, part],
+            ray_directions[:, part],
+            ray_start=start,
+            ray_end=end,
+            box_warp=warp,
+            depth_resolution=s,
+            depth_resolution_importance=n,
+            white_back=white_back,
+            coarse_jitter=None if jitter is None else jitter[:, part],
+            importance_u=None if u is None else u[:, part],
+            clamp=False,
+        )
+        chunks.append(chunk)
+    joined = {key: torch.cat([c[key] for c in chunks], dim=1) for key in ("features", "depth", "weights_sum")}
+    # EG3D clamps to the min/max over the sample depths of the whole batch, so clamp after all chunks.
+    ranges = torch.stack([c["t_range"] for c in chunks])
+    depth = torch.clamp(joined["depth"], ranges[:, 0].min(), ranges[:, 1].max())
+
+    side = (n_cams, resolution, resolution)
+    features = joined["features"].transpose(1, 2).reshape(n_cams, N_CHANNELS, resolution, resolution)
+    result = {
+        "features": features,
+        "rgb": features[:, :3],
+        "depth": depth.reshape(side),
+        "weights_sum": joined["weights_sum"].reshape(side),
+    }
+    if cameras.ndim == 1 and planes.ndim == 4:
+        result = {key: value[0] for key, value in result.items()}
+    return result
+
+
+def render_triplane_torch(
+    triplane: TriplaneLike,
+    camera: np.ndarray,
+    *,
+    resolution: int = 128,
+    depth_resolution: int = 48,
+    depth_resolution_importance: int = 48,
+    white_back: bool = False,
+    deterministic: bool = True,
+    seed: int = 0,
+    device: str | torch.device | None = None,
+    ray_chunk: int = DEFAULT_RAY_CHUNK,
+) -> dict[str, np.ndarray]:
+    """NumPy in, NumPy out: render a triplane object with the twin in float32, without autograd.
+
+    Args:
+        triplane: planes (3, 32, H, W), effective decoder weights w0, b0, w1, b1, and the scene scalars
+            box_warp, ray_start, ray_end (e.g. ``lp3d.triplane.TriplaneData``); validated as one.
+        camera: (25,) or (B, 25) EG3D label(s).
+        resolution, depth_resolution, depth_resolution_importance, white_back, deterministic, seed:
+            as in ``render_torch``.
+        device: where to render (default CPU).
+        ray_chunk: rays rendered at once.
+
+    Raises:
+        ValueError: naming the bad field of the triplane or camera, or the bad setting.
+
+    Returns:
+        float32 arrays ``features`` ([B,] 32, R, R), ``rgb`` ([B,] 3, R, R), ``depth`` ([B,] R, R) and
+        ``weights_sum`` ([B,] R, R); B only when ``camera`` is (B, 25).
+    """
+
+    tri = _as_triplane_data(triplane)
+    try:
+        cams, batched = validate_camera(camera)
+    except ValueError as error:
+        raise ValueError(f"camera: {error}") from None
+
+    def tensor(array: np.ndarray) -> Tensor:
+        return torch.as_tensor(np.asarray(array, dtype=np.float32), device=device)
+
+    with torch.no_grad():
+        result = render_torch(
+            tensor(tri.planes),  # float16 planes are rendered in float32, as the other renderers do
+            tensor(tri.w0),
+            tensor(tri.b0),
+            tensor(tri.w1),
+            tensor(tri.b1),
+            tensor(cams if batched else cams[0]),
+            resolution=resolution,
+            depth_resolution=depth_resolution,
+            depth_resolution_importance=depth_resolution_importance,
+            ray_start=tri.ray_start,
+            ray_end=tri.ray_end,
+            box_warp=tri.box_warp,
+            white_back=white_back,
+            deterministic=deterministic,
+            seed=seed,
+            ray_chunk=ray_chunk,
+        )
+    return {key: np.ascontiguousarray(value.cpu().numpy(), dtype=np.float32) for key, value in result.items()}
+
+
+def _as_triplane_data(triplane: object) -> TriplaneData:
+    """A validated ``TriplaneData`` from any object with the triplane attributes."""
+    if isinstance(triplane, TriplaneData):
+        triplane.validate()
+        return triplane
+    names = ("planes", "w0", "b0", "w1", "b1", "box_warp", "ray_start", "ray_end")
+    missing = [name for name in names if not hasattr(triplane, name)]
+    if missing:
+        raise TypeError(f"triplane must have the attributes {', '.join(names)}; missing {', '.join(missing)}")
+    return TriplaneData(**{name: getattr(triplane, name) for name in names})
