@@ -22,8 +22,12 @@ SAMPLES = {"depth_resolution": 12, "depth_resolution_importance": 12}
 
 def assert_parity(got: dict[str, np.ndarray], ref: dict[str, np.ndarray]) -> None:
     assert set(got) == {"features", "rgb", "depth", "weights_sum"}
-    for key, tol in [("features", FEATURE_TOL), ("rgb", FEATURE_TOL), ("depth", DEPTH_TOL),
-                     ("weights_sum", WEIGHTS_TOL)]:
+    for key, tol in [
+        ("features", FEATURE_TOL),
+        ("rgb", FEATURE_TOL),
+        ("depth", DEPTH_TOL),
+        ("weights_sum", WEIGHTS_TOL),
+    ]:
         assert got[key].shape == ref[key].shape, key
         assert got[key].dtype == np.float32, key
         err = float(np.abs(got[key].astype(np.float64) - ref[key]).max())

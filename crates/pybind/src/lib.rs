@@ -364,7 +364,10 @@ fn render<'py>(
 /// A look-at camera label (25,) from geometric angles in degrees: the renderer crate's
 /// `Camera::orbit`, the camera the viewer uses. Matches `lp3d.camera.look_at_camera`.
 #[pyfunction]
-#[pyo3(signature = (*, yaw_deg=0.0, pitch_deg=0.0, roll_deg=0.0, radius=2.7, lookat=(0.0, 0.0, 0.2), focal=4.2647))]
+#[pyo3(
+    signature = (*, yaw_deg=0.0, pitch_deg=0.0, roll_deg=0.0, radius=2.7, lookat=(0.0, 0.0, 0.2), focal=4.2647),
+    text_signature = "(*, yaw_deg=0.0, pitch_deg=0.0, roll_deg=0.0, radius=2.7, lookat=(0.0, 0.0, 0.2), focal=4.2647)"
+)]
 fn look_at_camera<'py>(
     py: Python<'py>,
     yaw_deg: f64,

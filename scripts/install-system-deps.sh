@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# Installs the system packages lp3d needs: Mesa's lavapipe (software Vulkan) from
-# bookworm-backports (Mesa 25.x, ~2x faster than stock 22.x), the Vulkan loader, and
-# Xvfb for viewer screenshots. The backports entry is a copy of the machine's own
+# Installs the system packages lp3d needs (Debian/Ubuntu, as root): Mesa's lavapipe
+# (software Vulkan) from bookworm-backports (Mesa 25.x, ~2x faster than stock 22.x) where that
+# suite exists, the Vulkan loader, and Xvfb for viewer screenshots. Idempotent. The backports entry is a copy of the machine's own
 # Debian entry with a new suite name, so no mirror host is written here.
 set -euo pipefail
 export DEBIAN_FRONTEND=noninteractive
@@ -27,4 +27,4 @@ if [ ${#missing[@]} -gt 0 ]; then
     apt-get install -y -qq "${missing[@]}"
   fi
 fi
-dpkg -s mesa-vulkan-drivers | grep '^Version'
+echo "mesa-vulkan-drivers $(dpkg-query -W -f='${Version}' mesa-vulkan-drivers)"
