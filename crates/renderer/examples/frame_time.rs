@@ -1,0 +1,102 @@
+//! Times one render configuration on the headless device: a quick loop for kernel work.
+//!
+//!     cargo run --release -p lp3d-renderer --example frame_time -- [R] [S] [N] [repeats] [outputs]
+//!
+//! The scene is a 256² random triplane with an EG3D-scaled decoder, seen from the frontal camera.
+//! The committed benchmarks are the Python scripts in bench/; this is for iterating on shaders.
+
+use std::time::Instant;
+
+use lp3d_renderer::camera::{FFHQ_FOCAL, FFHQ_RADIUS};
+use lp3d_renderer::{
+    Camera, Decoder, GpuContext, Outputs, PlaneDtype, RenderSettings, Renderer, Triplane,
+};
+
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let arg = |i: usize, d: u32| {
+        args.get(i)
+            .map(|s| s.parse().expect("integer argument"))
+            .unwrap_or(d)
+    };
+    let (r, s, n, repeats) = (arg(0, 128), arg(1, 48), arg(2, 48), arg(3, 3));
+    let outputs = match args.get(4) {
+        Some(list) => Outputs::from_names(&list.split(',').collect::<Vec<_>>()).expect("outputs"),
+        None => Outputs::ALL,
+    };
+    let mut state = 7u32;
+    let mut rand = move || {
+        state ^= state << 13;
+        state ^= state >> 17;
+        state ^= state << 5;
+        (state as f32 / u32::MAX as f32) * 2.0 - 1.0
+    };
+    let size = 256;
+    let tri = Triplane {
+        planes: (0..3 * 32 * size * size).map(|_| rand() * 1.7).collect(),
+        height: size,
+        width: size,
+        plane_dtype: PlaneDtype::F32,
+        decoder: Decoder {
+            w0: (0..64 * 32).map(|_| rand() * 0.3).collect(),
+            b0: (0..64).map(|_| rand() * 0.1).collect(),
+            w1: (0..33 * 64).map(|_| rand() * 0.2).collect(),
+            b1: (0..33).map(|_| rand() * 0.1).collect(),
+        },
+        box_warp: 1.0,
+        ray_start: 2.25,
+        ray_end: 3.3,
+        camera: None,
+        occupancy: None,
+        source: None,
+    };
+    let ctx = GpuContext::headless().expect("GPU adapter");
+    let renderer = Renderer::new(&ctx).expect("pipelines");
+    let gpu = renderer.upload(&tri).expect("upload");
+    let half_pi = std::f64::consts::FRAC_PI_2;
+    let cams = [Camera::look_at(
+        half_pi,
+        half_pi,
+        FFHQ_RADIUS,
+        [0.0, 0.0, 0.2],
+        FFHQ_FOCAL,
+    )];
+    let settings = RenderSettings {
+        resolution: r,
+        depth_resolution: s,
+        depth_resolution_importance: n,
+        ..Default::default()
+    };
+    let t0 = Instant::now();
+    renderer
+        .render(
+            &gpu,
+            &cams,
+            &RenderSettings {
+                resolution: 4,
+                ..settings
+            },
+            outputs,
+        )
+        .expect("warm-up");
+    eprintln!(
+        "adapter: {} | warm-up (pipeline compile) {:.1} s",
+        ctx.adapter_info.name,
+        t0.elapsed().as_secs_f64()
+    );
+    let mut times = Vec::new();
+    let mut checksum = 0.0f64;
+    for _ in 0..repeats {
+        let t = Instant::now();
+        let out = renderer
+            .render(&gpu, &cams, &settings, outputs)
+            .expect("render");
+        times.push(t.elapsed().as_secs_f64() * 1e3);
+        checksum = out
+            .weights_sum
+            .map(|w| w.iter().map(|&v| v as f64).sum())
+            .unwrap_or(0.0);
+    }
+    times.sort_by(f64::total_cmp);
+    println!("R={r} S+N={s}+{n} outputs={outputs:?}: median {:.1} ms/frame (min {:.1}) | weights_sum total {checksum:.4}", times[times.len() / 2], times[0]);
+}

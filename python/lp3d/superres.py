@@ -1,0 +1,285 @@
+"""EG3D's super-resolution network (``SuperresolutionHybrid8XDC``) driven by a constant w.
+
+Paper §3 ("We make use of the MLP volume renderer and superresolution architectures from EG3D") and
+supplement "Implementation details": "we replaced the latent code W injected to the StyleGAN2-based
+super-resolution layer with a constant 1". Structure (``shared/design/eg3d-rendering.md`` §10)::
+
+    feature image (B,32,128,128), rgb = its first 3 channels
+      block0: SynthesisBlock 32 -> 256 at 256² (modulated conv up ×2, modulated conv, ToRGB)
+      block1: SynthesisBlock 256 -> 128 at 512² (same)
+      image path: img = upsample2d(img, [1,3,3,1]) + torgb(x) in every block, starting from rgb
+    -> image (B,3,512,512)
+
+Faithful to EG3D in: parameter and buffer names and shapes (so an EG3D ``superresolution`` state
+dict should load with ``strict=False``, only ``w_const`` missing; not yet tried on a real checkpoint),
+modulation/demodulation, the transposed-conv-then-FIR ×2 upsampling and its padding, lrelu·√2, ToRGB
+without demodulation and its 1/√C style gain, the ``[1,3,3,1]`` image skip, and the
+bilinear-antialiased resize of inputs that are not ``input_resolution``.
+
+Simplifications (documented differences):
+  * fp32 only: no fp16 layers, hence no fp16 weight pre-normalisation and no ``conv_clamp`` (EG3D
+    clamps only its fp16 layers).
+  * The modulated convolutions always use the non-fused path (scale input, convolve, scale output);
+    mathematically identical to EG3D's fused grouped convolution.
+  * Noise defaults to ``noise_mode="none"`` (EG3D's FFHQ ``superresolution_noise_mode``); "const" and
+    "random" are available and read the same ``noise_const``/``noise_strength`` tensors.
+  * Resolutions and widths are configurable: one SynthesisBlock (×2) per doubling from
+    ``input_resolution`` to ``output_resolution`` (e.g. 64 -> 128 for CPU training).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields
+from typing import Any, Literal
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from lp3d.stylegan_ops import FullyConnectedLayer, bias_lrelu, setup_filter, upfirdn2d, upsample2d
+
+__all__ = ["SUPERRES_CONFIGS", "SuperresConfig", "SuperResolution", "build_superres", "modulated_conv2d"]
+
+NoiseMode = Literal["none", "const", "random"]
+
+
+@dataclass(frozen=True)
+class SuperresConfig:
+    """Sizes of the super-resolution network; ``eg3d`` is EG3D's 128 -> 512 module."""
+
+    name: str = "eg3d"
+    #: Channels of the rendered feature image (rgb = the first 3).
+    in_channels: int = 32
+    input_resolution: int = 128
+    output_resolution: int = 512
+    #: Output channels of each SynthesisBlock; one block per ×2 step.
+    block_channels: tuple[int, ...] = (256, 128)
+    w_dim: int = 512
+    #: The paper's w is a constant 1 (a buffer); True makes it a learned parameter instead.
+    learn_w: bool = False
+    #: Register EG3D's noise tensors (unused with noise_mode="none", kept for state-dict parity).
+    use_noise: bool = True
+    #: Resize mismatched inputs with bilinear antialiasing (EG3D's ``sr_antialias``).
+    antialias: bool = True
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    @property
+    def num_blocks(self) -> int:
+        return int(round(math.log2(self.output_resolution / self.input_resolution)))
+
+    def validate(self) -> None:
+        for name in ("in_channels", "input_resolution", "output_resolution", "w_dim"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or v <= 0:
+                raise ValueError(f"SuperresConfig.{name} must be a positive int, got {v!r}")
+        if self.in_channels < 3:
+            raise ValueError("SuperresConfig.in_channels must be >= 3 (rgb is the first 3 channels)")
+        ratio = self.output_resolution // self.input_resolution
+        if self.output_resolution % self.input_resolution or ratio < 2 or ratio & (ratio - 1):
+            raise ValueError(
+                f"SuperresConfig.output_resolution ({self.output_resolution}) must be input_resolution "
+                f"({self.input_resolution}) times a power of two >= 2"
+            )
+        if len(self.block_channels) != self.num_blocks or any(c <= 0 for c in self.block_channels):
+            raise ValueError(
+                f"SuperresConfig.block_channels needs {self.num_blocks} positive widths (one per ×2), "
+                f"got {self.block_channels!r}"
+            )
+
+    def to_dict(self) -> dict[str, Any]:
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> SuperresConfig:
+        unknown = sorted(set(data) - {f.name for f in fields(cls)})
+        if unknown:
+            raise ValueError(f"SuperresConfig.from_dict: unknown keys {unknown}")
+        return cls(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in data.items()})
+
+
+SUPERRES_CONFIGS: dict[str, SuperresConfig] = {
+    "eg3d": SuperresConfig(),
+    "small": SuperresConfig(
+        name="small", input_resolution=64, output_resolution=256, block_channels=(128, 64), w_dim=128
+    ),
+    "tiny": SuperresConfig(
+        name="tiny", input_resolution=64, output_resolution=128, block_channels=(64,), w_dim=64
+    ),
+}
+
+
+def modulated_conv2d(
+    x: Tensor,
+    weight: Tensor,
+    styles: Tensor,
+    *,
+    up: int = 1,
+    padding: int = 0,
+    resample_filter: Tensor | None = None,
+    demodulate: bool = True,
+    noise: Tensor | None = None,
+) -> Tensor:
+    """StyleGAN2's modulated convolution (non-fused form). x (B, I, H, W), weight (O, I, k, k),
+    styles (B or 1, I) -> (B, O, H·up, W·up).
+
+    up=2 is EG3D's ``conv2d_resample`` fast path: transposed conv (stride 2, unflipped weight) then the
+    FIR filter with gain 4 and padding ``padding + (fw+1)//2 - (k-1)``, which equals FIR upsampling
+    followed by the convolution, including at the borders.
+    """
+    out_ch, in_ch, kh, kw = weight.shape
+    x = x * styles.to(x.dtype).reshape(styles.shape[0], in_ch, 1, 1)
+    w = weight.to(x.dtype)
+    if up == 1:
+        x = F.conv2d(x, w, padding=padding)
+    else:
+        if resample_filter is None:
+            raise ValueError("modulated_conv2d: up > 1 needs a resample_filter")
+        fw = resample_filter.shape[-1]
+        p0 = padding + (fw + up - 1) // 2 - (kw - 1)
+        p1 = padding + (fw - up) // 2 - (kw - up)
+        x = F.conv_transpose2d(x, w.transpose(0, 1), stride=up)
+        x = upfirdn2d(x, resample_filter, padding=(p0, p1, p0, p1), gain=up * up)
+    if demodulate:
+        # 1/‖w·s‖ per (sample, output channel): unit-variance outputs for unit-variance inputs.
+        wm = w.unsqueeze(0) * styles.to(x.dtype).reshape(styles.shape[0], 1, in_ch, 1, 1)
+        dcoefs = (wm.square().sum(dim=(2, 3, 4)) + 1e-8).rsqrt()
+        x = x * dcoefs.reshape(styles.shape[0], out_ch, 1, 1)
+    if noise is not None:
+        x = x + noise.to(x.dtype)
+    return x
+
+
+class SynthesisLayer(nn.Module):
+    """EG3D's SynthesisLayer: modulated 3×3 conv (optionally up ×2), noise, bias, lrelu·√2.
+
+    (B, cin, r/up, r/up), w (B or 1, w_dim) -> (B, cout, r, r).
+    """
+
+    def __init__(
+        self, cin: int, cout: int, w_dim: int, resolution: int, *, up: int = 1, use_noise: bool
+    ) -> None:
+        super().__init__()
+        self.up = up
+        self.resolution = resolution
+        self.use_noise = use_noise
+        self.register_buffer("resample_filter", setup_filter())
+        self.affine = FullyConnectedLayer(w_dim, cin, bias_init=1.0)
+        self.weight = nn.Parameter(torch.randn(cout, cin, 3, 3))
+        if use_noise:
+            self.register_buffer("noise_const", torch.randn(resolution, resolution))
+            self.noise_strength = nn.Parameter(torch.zeros([]))
+        self.bias = nn.Parameter(torch.zeros(cout))
+
+    def forward(self, x: Tensor, w: Tensor, noise_mode: NoiseMode = "none") -> Tensor:
+        styles = self.affine(w)
+        noise = None
+        if self.use_noise and noise_mode == "random":
+            shape = (x.shape[0], 1, self.resolution, self.resolution)
+            noise = torch.randn(shape, device=x.device, dtype=x.dtype) * self.noise_strength
+        elif self.use_noise and noise_mode == "const":
+            noise = self.noise_const * self.noise_strength
+        x = modulated_conv2d(
+            x, self.weight, styles, up=self.up, padding=1, resample_filter=self.resample_filter, noise=noise
+        )
+        return bias_lrelu(x, self.bias)
+
+
+class ToRGBLayer(nn.Module):
+    """EG3D's ToRGBLayer: modulated 1×1 conv, no demodulation, plus bias. (B, cin, r, r) -> (B, 3, r, r)."""
+
+    def __init__(self, cin: int, w_dim: int, out_channels: int = 3) -> None:
+        super().__init__()
+        self.affine = FullyConnectedLayer(w_dim, cin, bias_init=1.0)
+        self.weight = nn.Parameter(torch.randn(out_channels, cin, 1, 1))
+        self.bias = nn.Parameter(torch.zeros(out_channels))
+        self.weight_gain = 1.0 / math.sqrt(cin)
+
+    def forward(self, x: Tensor, w: Tensor) -> Tensor:
+        styles = self.affine(w) * self.weight_gain
+        x = modulated_conv2d(x, self.weight, styles, demodulate=False)
+        return x + self.bias.to(x.dtype).reshape(1, -1, 1, 1)
+
+
+class SynthesisBlock(nn.Module):
+    """EG3D's SynthesisBlock ('skip' architecture) with in_channels > 0: conv0 (up ×2), conv1, ToRGB.
+
+    (x (B, cin, r/2, r/2), img (B, 3, r/2, r/2), w) -> (x (B, cout, r, r), img (B, 3, r, r)).
+    """
+
+    def __init__(self, cin: int, cout: int, w_dim: int, resolution: int, *, use_noise: bool) -> None:
+        super().__init__()
+        self.resolution = resolution
+        self.register_buffer("resample_filter", setup_filter())
+        self.conv0 = SynthesisLayer(cin, cout, w_dim, resolution, up=2, use_noise=use_noise)
+        self.conv1 = SynthesisLayer(cout, cout, w_dim, resolution, use_noise=use_noise)
+        self.torgb = ToRGBLayer(cout, w_dim)
+
+    def forward(
+        self, x: Tensor, img: Tensor, w: Tensor, noise_mode: NoiseMode = "none"
+    ) -> tuple[Tensor, Tensor]:
+        x = self.conv0(x, w, noise_mode)
+        x = self.conv1(x, w, noise_mode)
+        img = upsample2d(img, self.resample_filter) + self.torgb(x, w)
+        return x, img
+
+
+class SuperResolution(nn.Module):
+    """``forward(feature_image (B, C, R, R)) -> image (B, 3, R_out, R_out)``, EG3D's SR with constant w.
+
+    ``rgb = feature_image[:, :3]`` (the raw neural rendering, paper §2). Inputs that are not
+    ``input_resolution`` are first resized (bilinear, antialiased), as EG3D does.
+    """
+
+    def __init__(self, config: SuperresConfig | None = None) -> None:
+        super().__init__()
+        self.config = config = config or SuperresConfig()
+        w = torch.ones(config.w_dim)  # "a constant 1" (supplement)
+        if config.learn_w:
+            self.w_const = nn.Parameter(w)
+        else:
+            self.register_buffer("w_const", w)
+        cin, res = config.in_channels, config.input_resolution
+        for i, cout in enumerate(config.block_channels):
+            res *= 2
+            setattr(
+                self, f"block{i}", SynthesisBlock(cin, cout, config.w_dim, res, use_noise=config.use_noise)
+            )
+            cin = cout
+
+    @property
+    def blocks(self) -> list[SynthesisBlock]:
+        return [getattr(self, f"block{i}") for i in range(self.config.num_blocks)]
+
+    def forward(self, feature_image: Tensor, *, noise_mode: NoiseMode = "none") -> Tensor:
+        """feature_image (B, in_channels, R, R) -> image (B, 3, output_resolution, output_resolution)."""
+        cfg = self.config
+        if feature_image.ndim != 4 or feature_image.shape[1] != cfg.in_channels:
+            raise ValueError(
+                f"feature_image must have shape (B, {cfg.in_channels}, R, R), "
+                f"got {tuple(feature_image.shape)}"
+            )
+        if feature_image.shape[2] != feature_image.shape[3]:
+            raise ValueError(f"feature_image must be square, got {tuple(feature_image.shape[2:])}")
+        if noise_mode not in ("none", "const", "random"):
+            raise ValueError(f"noise_mode must be 'none', 'const' or 'random', got {noise_mode!r}")
+        x = feature_image
+        r = cfg.input_resolution
+        if x.shape[-1] != r:
+            x = F.interpolate(x, size=(r, r), mode="bilinear", align_corners=False, antialias=cfg.antialias)
+        img = x[:, :3]  # EG3D resizes rgb separately with the same filter: identical to slicing after
+        w = self.w_const.to(x.dtype).unsqueeze(0)  # (1, w_dim): one style for the whole batch
+        for block in self.blocks:
+            x, img = block(x, img, w, noise_mode)
+        return img
+
+
+def build_superres(config: SuperresConfig | str = "eg3d") -> SuperResolution:
+    """Build from a config or a name in :data:`SUPERRES_CONFIGS` (``eg3d``, ``small``, ``tiny``)."""
+    if isinstance(config, str):
+        if config not in SUPERRES_CONFIGS:
+            raise ValueError(f"unknown superres config {config!r}; choose one of {sorted(SUPERRES_CONFIGS)}")
+        config = SUPERRES_CONFIGS[config]
+    return SuperResolution(config)
