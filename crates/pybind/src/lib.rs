@@ -35,10 +35,7 @@ fn gpu(py: Python<'_>) -> PyResult<&'static Gpu> {
         GPU.get_or_init(|| {
             let ctx = GpuContext::headless().map_err(|e| e.to_string())?;
             let renderer = Renderer::new(&ctx).map_err(|e| e.to_string())?;
-            Ok(Gpu {
-                info: ctx,
-                renderer,
-            })
+            Ok(Gpu { info: ctx, renderer })
         })
     });
     g.as_ref().map_err(|e| PyRuntimeError::new_err(e.clone()))
@@ -54,9 +51,7 @@ fn guarded<T>(f: impl FnOnce() -> PyResult<T>) -> PyResult<T> {
                 .cloned()
                 .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
                 .unwrap_or_else(|| "unknown panic".into());
-            Err(PyRuntimeError::new_err(format!(
-                "internal renderer error: {msg}"
-            )))
+            Err(PyRuntimeError::new_err(format!("internal renderer error: {msg}")))
         }
     }
 }
@@ -71,17 +66,11 @@ struct Triplane {
 
 impl Triplane {
     fn wrap(inner: lp3d_renderer::Triplane) -> Self {
-        Triplane {
-            inner,
-            uploaded: Mutex::new(None),
-        }
+        Triplane { inner, uploaded: Mutex::new(None) }
     }
 
     fn on_gpu(&self, gpu: &Gpu) -> PyResult<Arc<GpuTriplane>> {
-        let mut slot = self
-            .uploaded
-            .lock()
-            .map_err(|_| PyRuntimeError::new_err("triplane lock poisoned"))?;
+        let mut slot = self.uploaded.lock().map_err(|_| PyRuntimeError::new_err("triplane lock poisoned"))?;
         if let Some(g) = slot.as_ref() {
             return Ok(g.clone());
         }
@@ -115,10 +104,7 @@ impl Triplane {
         guarded(|| {
             let p = float_array(planes, "planes", &["float16", "float32"])?;
             if p.shape.len() != 4 || p.shape[0] != 3 || p.shape[1] != N_CHANNELS {
-                return Err(invalid(
-                    "planes",
-                    format!("shape must be (3, 32, H, W), got {:?}", p.shape),
-                ));
+                return Err(invalid("planes", format!("shape must be (3, 32, H, W), got {:?}", p.shape)));
             }
             let weights = ["float32", "float64"];
             let w0 = float_array(w0, "w0", &weights)?;
@@ -134,10 +120,7 @@ impl Triplane {
                 Some(c) => {
                     let (v, batched) = camera_array(c)?;
                     if batched {
-                        return Err(invalid(
-                            "camera",
-                            "a triplane's input camera is one (25,) label",
-                        ));
+                        return Err(invalid("camera", "a triplane's input camera is one (25,) label"));
                     }
                     Some(Camera::from_label(&v, "camera").map_err(to_py)?)
                 }
@@ -145,18 +128,9 @@ impl Triplane {
             let inner = lp3d_renderer::Triplane {
                 height: p.shape[2],
                 width: p.shape[3],
-                plane_dtype: if p.was_f16 {
-                    PlaneDtype::F16
-                } else {
-                    PlaneDtype::F32
-                },
+                plane_dtype: if p.was_f16 { PlaneDtype::F16 } else { PlaneDtype::F32 },
                 planes: p.data,
-                decoder: Decoder {
-                    w0: w0.data,
-                    b0: b0.data,
-                    w1: w1.data,
-                    b1: b1.data,
-                },
+                decoder: Decoder { w0: w0.data, b0: b0.data, w1: w1.data, b1: b1.data },
                 box_warp: finite_f32(box_warp, "box_warp")?,
                 ray_start: finite_f32(ray_start, "ray_start")?,
                 ray_end: finite_f32(ray_end, "ray_end")?,
@@ -172,9 +146,7 @@ impl Triplane {
     /// Loads a triplane `.npz` file (never with pickle).
     #[staticmethod]
     fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
-        let inner = py
-            .detach(|| lp3d_renderer::Triplane::load(&path))
-            .map_err(to_py)?;
+        let inner = py.detach(|| lp3d_renderer::Triplane::load(&path)).map_err(to_py)?;
         Ok(Triplane::wrap(inner))
     }
 
@@ -227,10 +199,7 @@ impl Triplane {
     /// The input view's 25-float camera, or None.
     #[getter]
     fn camera<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
-        self.inner
-            .camera
-            .map(|c| f32_array(py, &c.0, &[25]))
-            .transpose()
+        self.inner.camera.map(|c| f32_array(py, &c.0, &[25])).transpose()
     }
     #[getter]
     fn source(&self) -> Option<String> {
@@ -239,11 +208,7 @@ impl Triplane {
     /// The baked occupancy grid, or None.
     #[getter]
     fn occupancy<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
-        self.inner
-            .occupancy
-            .as_ref()
-            .map(|o| f32_array(py, &o.data, &o.dims))
-            .transpose()
+        self.inner.occupancy.as_ref().map(|o| f32_array(py, &o.data, &o.dims)).transpose()
     }
 
     fn __repr__(&self) -> String {
@@ -252,11 +217,7 @@ impl Triplane {
             "Triplane(planes=(3, 32, {}, {}) {}, box_warp={}, ray_start={}, ray_end={})",
             t.height,
             t.width,
-            if t.plane_dtype == PlaneDtype::F16 {
-                "float16"
-            } else {
-                "float32"
-            },
+            if t.plane_dtype == PlaneDtype::F16 { "float16" } else { "float32" },
             t.box_warp,
             t.ray_start,
             t.ray_end
@@ -289,10 +250,7 @@ fn render<'py>(
         let tri = triplane.cast::<Triplane>().map_err(|_| {
             invalid(
                 "triplane",
-                format!(
-                    "expected lp3d_render.Triplane, got {}",
-                    convert::type_name(triplane)
-                ),
+                format!("expected lp3d_render.Triplane, got {}", convert::type_name(triplane)),
             )
         })?;
         let (labels, batched) = camera_array(camera)?;
@@ -327,9 +285,8 @@ fn render<'py>(
         let gpu = gpu(py)?;
         let tri = tri.get();
         let uploaded = tri.on_gpu(gpu)?;
-        let out = py
-            .detach(|| gpu.renderer.render(&uploaded, &cameras, &settings, outputs))
-            .map_err(to_py)?;
+        let out =
+            py.detach(|| gpu.renderer.render(&uploaded, &cameras, &settings, outputs)).map_err(to_py)?;
 
         let r = settings.resolution as usize;
         let b = cameras.len();
@@ -377,34 +334,18 @@ fn look_at_camera<'py>(
     lookat: (f64, f64, f64),
     focal: f64,
 ) -> PyResult<Bound<'py, PyAny>> {
-    for (name, v) in [
-        ("yaw_deg", yaw_deg),
-        ("pitch_deg", pitch_deg),
-        ("roll_deg", roll_deg),
-        ("radius", radius),
-    ] {
+    for (name, v) in
+        [("yaw_deg", yaw_deg), ("pitch_deg", pitch_deg), ("roll_deg", roll_deg), ("radius", radius)]
+    {
         finite_f32(v, name)?;
     }
     if !(-90.0 < pitch_deg && pitch_deg < 90.0) {
-        return Err(invalid(
-            "pitch_deg",
-            format!("must be in (-90, 90), got {pitch_deg}"),
-        ));
+        return Err(invalid("pitch_deg", format!("must be in (-90, 90), got {pitch_deg}")));
     }
     if !(focal.is_finite() && focal > 0.0) {
-        return Err(invalid(
-            "focal",
-            format!("must be finite and > 0, got {focal}"),
-        ));
+        return Err(invalid("focal", format!("must be finite and > 0, got {focal}")));
     }
-    let c = Camera::orbit(
-        yaw_deg,
-        pitch_deg,
-        roll_deg,
-        radius,
-        [lookat.0, lookat.1, lookat.2],
-        focal,
-    );
+    let c = Camera::orbit(yaw_deg, pitch_deg, roll_deg, radius, [lookat.0, lookat.1, lookat.2], focal);
     f32_array(py, &c.0, &[25])
 }
 
@@ -416,10 +357,7 @@ fn adapter_info(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("backend", format!("{:?}", info.backend).to_lowercase())?;
     d.set_item("name", &info.name)?;
-    d.set_item(
-        "device_type",
-        format!("{:?}", info.device_type).to_lowercase(),
-    )?;
+    d.set_item("device_type", format!("{:?}", info.device_type).to_lowercase())?;
     d.set_item("driver", &info.driver)?;
     d.set_item("driver_info", &info.driver_info)?;
     Ok(d)
@@ -433,12 +371,7 @@ fn _lp3d_render(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(look_at_camera, m)?)?;
     m.add("MAX_RESOLUTION", MAX_RESOLUTION)?;
     m.add("MAX_SAMPLES", MAX_SAMPLES)?;
-    m.add(
-        "PLANE_AXES",
-        lp3d_renderer::triplane::PLANE_AXES
-            .map(|a| (a[0], a[1]))
-            .to_vec(),
-    )?;
+    m.add("PLANE_AXES", lp3d_renderer::triplane::PLANE_AXES.map(|a| (a[0], a[1])).to_vec())?;
     m.add("FORMAT_VERSION", lp3d_renderer::triplane::FORMAT_VERSION)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())

@@ -20,16 +20,10 @@ impl Camera {
     /// Validates one label; `field` names it in errors (e.g. `camera[3]`).
     pub fn from_label(label: &[f64], field: &str) -> Result<Camera> {
         if label.len() != 25 {
-            return Err(Error::invalid(
-                field,
-                format!("must have 25 values, got {}", label.len()),
-            ));
+            return Err(Error::invalid(field, format!("must have 25 values, got {}", label.len())));
         }
         if let Some(i) = label.iter().position(|v| !v.is_finite()) {
-            return Err(Error::invalid(
-                field,
-                format!("contains NaN/Inf at index {i}"),
-            ));
+            return Err(Error::invalid(field, format!("contains NaN/Inf at index {i}")));
         }
         let m = |r: usize, c: usize| label[4 * r + c];
         let bottom = [m(3, 0), m(3, 1), m(3, 2), m(3, 3)];
@@ -62,10 +56,7 @@ impl Camera {
         if k[3] != 0.0 || k[6] != 0.0 || k[7] != 0.0 || k[8] != 1.0 {
             return Err(Error::invalid(
                 format!("{field} intrinsics"),
-                format!(
-                    "rows 2-3 must be (0, fy, cy) and (0, 0, 1), got {:?}",
-                    &k[3..9]
-                ),
+                format!("rows 2-3 must be (0, fy, cy) and (0, 0, 1), got {:?}", &k[3..9]),
             ));
         }
         let mut out = [0f32; 25];
@@ -73,10 +64,7 @@ impl Camera {
             *o = *v as f32;
         }
         if out[16] == 0.0 || out[20] == 0.0 {
-            return Err(Error::invalid(
-                format!("{field} focal"),
-                "too small for float32",
-            ));
+            return Err(Error::invalid(format!("{field} focal"), "too small for float32"));
         }
         Ok(Camera(out))
     }
@@ -86,17 +74,10 @@ impl Camera {
         if labels.is_empty() || labels.len() % 25 != 0 {
             return Err(Error::invalid(
                 "camera",
-                format!(
-                    "must hold (25,) or (B, 25) values, got {} values",
-                    labels.len()
-                ),
+                format!("must hold (25,) or (B, 25) values, got {} values", labels.len()),
             ));
         }
-        labels
-            .chunks(25)
-            .enumerate()
-            .map(|(i, c)| Camera::from_label(c, &format!("camera[{i}]")))
-            .collect()
+        labels.chunks(25).enumerate().map(|(i, c)| Camera::from_label(c, &format!("camera[{i}]"))).collect()
     }
 
     /// A look-at camera from geometric angles in degrees, as `lp3d.camera.look_at_camera`:
@@ -167,11 +148,7 @@ fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
 }
 
 fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
+    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
 }
 
 fn normalize(a: [f64; 3]) -> [f64; 3] {
@@ -194,16 +171,9 @@ mod tests {
             FFHQ_FOCAL,
         )
         .0;
-        let expect = [
-            1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 2.7, 0.0, 0.0, 0.0, 1.0,
-        ];
+        let expect = [1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 2.7, 0.0, 0.0, 0.0, 1.0];
         for i in 0..16 {
-            assert!(
-                (c[i] as f64 - expect[i]).abs() < 1e-6,
-                "index {i}: {} vs {}",
-                c[i],
-                expect[i]
-            );
+            assert!((c[i] as f64 - expect[i]).abs() < 1e-6, "index {i}: {} vs {}", c[i], expect[i]);
         }
         assert!((c[16] as f64 - FFHQ_FOCAL).abs() < 1e-6);
         Camera::from_label(&c.map(f64::from), "camera").unwrap();
@@ -211,30 +181,19 @@ mod tests {
 
     #[test]
     fn validation_names_the_field() {
-        let good = Camera::look_at(1.2, 1.4, 2.7, [0.0; 3], 4.26)
-            .0
-            .map(f64::from);
+        let good = Camera::look_at(1.2, 1.4, 2.7, [0.0; 3], 4.26).0.map(f64::from);
         let mut bad = good;
         bad[20] = 0.0;
         let e = Camera::from_label(&bad, "camera").unwrap_err().to_string();
         assert!(e.contains("focal"), "{e}");
         let mut bad = good;
         bad[5] = f64::NAN;
-        assert!(Camera::from_label(&bad, "camera")
-            .unwrap_err()
-            .to_string()
-            .contains("NaN"));
+        assert!(Camera::from_label(&bad, "camera").unwrap_err().to_string().contains("NaN"));
         let mut bad = good;
         for i in 0..3 {
             bad[4 * i] = 0.0;
         }
-        assert!(Camera::from_label(&bad, "camera")
-            .unwrap_err()
-            .to_string()
-            .contains("singular"));
-        assert!(Camera::batch_from_labels(&good[..24])
-            .unwrap_err()
-            .to_string()
-            .contains("camera"));
+        assert!(Camera::from_label(&bad, "camera").unwrap_err().to_string().contains("singular"));
+        assert!(Camera::batch_from_labels(&good[..24]).unwrap_err().to_string().contains("camera"));
     }
 }

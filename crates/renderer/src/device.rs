@@ -14,8 +14,7 @@ impl GpuContext {
     /// Creates a device without a window. Honours `WGPU_BACKEND`, `WGPU_ADAPTER_NAME` and
     /// `WGPU_POWER_PREF`; fails with the list of adapters seen when none is usable.
     pub fn headless() -> Result<GpuContext> {
-        let instance =
-            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
         let adapter = pollster::block_on(wgpu::util::initialize_adapter_from_env_or_default(&instance, None))
             .map_err(|e| {
                 let seen: Vec<String> = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()))
@@ -39,12 +38,7 @@ impl GpuContext {
             ..Default::default()
         }))
         .map_err(|e| Error::Gpu(format!("request_device failed: {e}")))?;
-        Ok(GpuContext {
-            device,
-            queue,
-            adapter_info: adapter.get_info(),
-            limits,
-        })
+        Ok(GpuContext { device, queue, adapter_info: adapter.get_info(), limits })
     }
 
     /// Wraps a device someone else created (the viewer passes eframe's).
@@ -54,11 +48,6 @@ impl GpuContext {
         adapter_info: wgpu::AdapterInfo,
     ) -> GpuContext {
         let limits = device.limits();
-        GpuContext {
-            device,
-            queue,
-            adapter_info,
-            limits,
-        }
+        GpuContext { device, queue, adapter_info, limits }
     }
 }

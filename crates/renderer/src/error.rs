@@ -9,11 +9,7 @@ pub enum Error {
     /// A value handed to the API is unusable; `field` names it (e.g. `camera[1]`, `resolution`).
     InvalidInput { field: String, message: String },
     /// A triplane file's contents are wrong (missing key, bad dtype, unknown version…).
-    Format {
-        path: PathBuf,
-        field: String,
-        message: String,
-    },
+    Format { path: PathBuf, field: String, message: String },
     /// The file system refused (missing file, unwritable directory…).
     Io { path: PathBuf, message: String },
     /// No adapter, out of device memory, a failed dispatch.
@@ -24,10 +20,7 @@ pub type Result<T> = std::result::Result<T, Error>;
 
 impl Error {
     pub fn invalid(field: impl Into<String>, message: impl Into<String>) -> Self {
-        Error::InvalidInput {
-            field: field.into(),
-            message: message.into(),
-        }
+        Error::InvalidInput { field: field.into(), message: message.into() }
     }
 }
 
@@ -35,11 +28,7 @@ impl fmt::Display for Error {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Error::InvalidInput { field, message } => write!(f, "{field}: {message}"),
-            Error::Format {
-                path,
-                field,
-                message,
-            } => {
+            Error::Format { path, field, message } => {
                 write!(f, "{}: key '{field}': {message}", path.display())
             }
             Error::Io { path, message } => write!(f, "{}: {message}", path.display()),

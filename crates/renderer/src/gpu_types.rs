@@ -32,12 +32,7 @@ pub struct Params {
 }
 
 impl Params {
-    pub fn new(
-        tri: &SceneInfo,
-        settings: &RenderSettings,
-        feature_channels: u32,
-        n_cameras: u32,
-    ) -> Params {
+    pub fn new(tri: &SceneInfo, settings: &RenderSettings, feature_channels: u32, n_cameras: u32) -> Params {
         let s = settings.depth_resolution;
         let n = settings.depth_resolution_importance;
         let mut flags = 0;

@@ -24,10 +24,7 @@ pub struct NpyArray {
 
 impl NpyArray {
     pub fn f32(shape: Vec<usize>, data: Vec<f32>) -> Self {
-        NpyArray {
-            shape,
-            data: NpyData::F32(data),
-        }
+        NpyArray { shape, data: NpyData::F32(data) }
     }
 
     pub fn dtype_name(&self) -> &'static str {
@@ -44,11 +41,7 @@ impl NpyArray {
     /// Values as f32 (floats converted; integers and strings refused).
     pub fn to_f32(&self) -> Option<Vec<f32>> {
         match &self.data {
-            NpyData::F16(v) => Some(
-                v.iter()
-                    .map(|&b| half::f16::from_bits(b).to_f32())
-                    .collect(),
-            ),
+            NpyData::F16(v) => Some(v.iter().map(|&b| half::f16::from_bits(b).to_f32()).collect()),
             NpyData::F32(v) => Some(v.clone()),
             NpyData::F64(v) => Some(v.iter().map(|&x| x as f32).collect()),
             _ => None,
@@ -83,16 +76,11 @@ pub fn parse_npy(bytes: &[u8]) -> Result<NpyArray, String> {
             if bytes.len() < 12 {
                 return Err("truncated header".into());
             }
-            (
-                u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize,
-                12,
-            )
+            (u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize, 12)
         }
         v => return Err(format!("unsupported .npy version {v}")),
     };
-    let header = bytes
-        .get(start..start + header_len)
-        .ok_or("truncated header")?;
+    let header = bytes.get(start..start + header_len).ok_or("truncated header")?;
     let header = std::str::from_utf8(header).map_err(|_| "header is not text")?;
     let descr = dict_value(header, "descr").ok_or("header has no 'descr'")?;
     let descr = descr.trim_matches(|c| c == '\'' || c == '"');
@@ -106,54 +94,30 @@ pub fn parse_npy(bytes: &[u8]) -> Result<NpyArray, String> {
         .split(',')
         .map(str::trim)
         .filter(|s| !s.is_empty())
-        .map(|s| {
-            s.parse::<usize>()
-                .map_err(|_| format!("bad shape {shape_text}"))
-        })
+        .map(|s| s.parse::<usize>().map_err(|_| format!("bad shape {shape_text}")))
         .collect::<Result<_, _>>()?;
-    let count = shape
-        .iter()
-        .try_fold(1usize, |a, &d| a.checked_mul(d))
-        .ok_or("shape too large")?;
+    let count = shape.iter().try_fold(1usize, |a, &d| a.checked_mul(d)).ok_or("shape too large")?;
     let body = &bytes[start + header_len..];
     if descr.contains('O') {
         return Err("object arrays are not allowed (they would need pickle)".into());
     }
     let take = |width: usize| -> Result<&[u8], String> {
         let n = count.checked_mul(width).ok_or("shape too large")?;
-        body.get(..n)
-            .ok_or_else(|| format!("truncated data: expected {n} bytes, found {}", body.len()))
+        body.get(..n).ok_or_else(|| format!("truncated data: expected {n} bytes, found {}", body.len()))
     };
     let data = match descr {
-        "<f2" => NpyData::F16(
-            take(2)?
-                .chunks_exact(2)
-                .map(|c| u16::from_le_bytes([c[0], c[1]]))
-                .collect(),
-        ),
+        "<f2" => NpyData::F16(take(2)?.chunks_exact(2).map(|c| u16::from_le_bytes([c[0], c[1]])).collect()),
         "<f4" => NpyData::F32(
-            take(4)?
-                .chunks_exact(4)
-                .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
-                .collect(),
+            take(4)?.chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect(),
         ),
         "<f8" => NpyData::F64(
-            take(8)?
-                .chunks_exact(8)
-                .map(|c| f64::from_le_bytes(c.try_into().unwrap()))
-                .collect(),
+            take(8)?.chunks_exact(8).map(|c| f64::from_le_bytes(c.try_into().unwrap())).collect(),
         ),
         "<i8" => NpyData::I64(
-            take(8)?
-                .chunks_exact(8)
-                .map(|c| i64::from_le_bytes(c.try_into().unwrap()))
-                .collect(),
+            take(8)?.chunks_exact(8).map(|c| i64::from_le_bytes(c.try_into().unwrap())).collect(),
         ),
         "<i4" => NpyData::I32(
-            take(4)?
-                .chunks_exact(4)
-                .map(|c| i32::from_le_bytes(c.try_into().unwrap()))
-                .collect(),
+            take(4)?.chunks_exact(4).map(|c| i32::from_le_bytes(c.try_into().unwrap())).collect(),
         ),
         d if d.starts_with("<U") && count == 1 => {
             let n: usize = d[2..].parse().map_err(|_| format!("bad dtype {d}"))?;
@@ -176,37 +140,18 @@ fn dict_value<'a>(header: &'a str, key: &str) -> Option<&'a str> {
     let pat = format!("'{key}':");
     let at = header.find(&pat)? + pat.len();
     let rest = header[at..].trim_start();
-    let end = if rest.starts_with('(') {
-        rest.find(')')? + 1
-    } else {
-        rest.find([',', '}'])?
-    };
+    let end = if rest.starts_with('(') { rest.find(')')? + 1 } else { rest.find([',', '}'])? };
     Some(&rest[..end])
 }
 
 /// Serialises one array as `.npy` version 1.0.
 pub fn write_npy(array: &NpyArray) -> Vec<u8> {
     let (descr, body): (String, Vec<u8>) = match &array.data {
-        NpyData::F16(v) => (
-            "<f2".into(),
-            v.iter().flat_map(|x| x.to_le_bytes()).collect(),
-        ),
-        NpyData::F32(v) => (
-            "<f4".into(),
-            v.iter().flat_map(|x| x.to_le_bytes()).collect(),
-        ),
-        NpyData::F64(v) => (
-            "<f8".into(),
-            v.iter().flat_map(|x| x.to_le_bytes()).collect(),
-        ),
-        NpyData::I64(v) => (
-            "<i8".into(),
-            v.iter().flat_map(|x| x.to_le_bytes()).collect(),
-        ),
-        NpyData::I32(v) => (
-            "<i4".into(),
-            v.iter().flat_map(|x| x.to_le_bytes()).collect(),
-        ),
+        NpyData::F16(v) => ("<f2".into(), v.iter().flat_map(|x| x.to_le_bytes()).collect()),
+        NpyData::F32(v) => ("<f4".into(), v.iter().flat_map(|x| x.to_le_bytes()).collect()),
+        NpyData::F64(v) => ("<f8".into(), v.iter().flat_map(|x| x.to_le_bytes()).collect()),
+        NpyData::I64(v) => ("<i8".into(), v.iter().flat_map(|x| x.to_le_bytes()).collect()),
+        NpyData::I32(v) => ("<i4".into(), v.iter().flat_map(|x| x.to_le_bytes()).collect()),
         NpyData::Str(s) => {
             let n = s.chars().count().max(1);
             let mut b: Vec<u8> = s.chars().flat_map(|c| (c as u32).to_le_bytes()).collect();
@@ -217,15 +162,7 @@ pub fn write_npy(array: &NpyArray) -> Vec<u8> {
     let shape = match array.shape.len() {
         0 => "()".to_string(),
         1 => format!("({},)", array.shape[0]),
-        _ => format!(
-            "({})",
-            array
-                .shape
-                .iter()
-                .map(|d| d.to_string())
-                .collect::<Vec<_>>()
-                .join(", ")
-        ),
+        _ => format!("({})", array.shape.iter().map(|d| d.to_string()).collect::<Vec<_>>().join(", ")),
     };
     let mut header = format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': {shape}, }}");
     // Pad so that magic + version + length + header is a multiple of 64, ending in '\n'.
@@ -242,26 +179,17 @@ pub fn write_npy(array: &NpyArray) -> Vec<u8> {
 
 /// Reads every array of an `.npz` archive, in archive order, as (key, array).
 pub fn read_npz<R: Read + Seek>(reader: R) -> Result<Vec<(String, NpyArray)>, (String, String)> {
-    let mut zip = zip::ZipArchive::new(reader).map_err(|e| {
-        (
-            "<archive>".to_string(),
-            format!("not a valid .npz (zip) file: {e}"),
-        )
-    })?;
+    let mut zip = zip::ZipArchive::new(reader)
+        .map_err(|e| ("<archive>".to_string(), format!("not a valid .npz (zip) file: {e}")))?;
     let mut out = Vec::with_capacity(zip.len());
     for i in 0..zip.len() {
-        let mut entry = zip
-            .by_index(i)
-            .map_err(|e| ("<archive>".to_string(), format!("corrupt entry {i}: {e}")))?;
-        let name = entry
-            .name()
-            .map_err(|e| ("<archive>".to_string(), format!("bad entry name: {e}")))?
-            .to_string();
+        let mut entry =
+            zip.by_index(i).map_err(|e| ("<archive>".to_string(), format!("corrupt entry {i}: {e}")))?;
+        let name =
+            entry.name().map_err(|e| ("<archive>".to_string(), format!("bad entry name: {e}")))?.to_string();
         let key = name.strip_suffix(".npy").unwrap_or(&name).to_string();
         let mut bytes = Vec::with_capacity(entry.size() as usize);
-        entry
-            .read_to_end(&mut bytes)
-            .map_err(|e| (key.clone(), format!("cannot read: {e}")))?;
+        entry.read_to_end(&mut bytes).map_err(|e| (key.clone(), format!("cannot read: {e}")))?;
         let array = parse_npy(&bytes).map_err(|m| (key.clone(), m))?;
         out.push((key, array));
     }
@@ -275,8 +203,7 @@ pub fn write_npz<W: Write + Seek>(writer: W, arrays: &[(&str, NpyArray)]) -> std
         .compression_method(zip::CompressionMethod::Stored)
         .large_file(true);
     for (key, array) in arrays {
-        zip.start_file(format!("{key}.npy"), options)
-            .map_err(std::io::Error::other)?;
+        zip.start_file(format!("{key}.npy"), options).map_err(std::io::Error::other)?;
         zip.write_all(&write_npy(array))?;
     }
     zip.finish().map_err(std::io::Error::other)?;
@@ -290,26 +217,11 @@ mod tests {
     #[test]
     fn npy_round_trip_all_dtypes() {
         let cases = vec![
-            NpyArray {
-                shape: vec![2, 3],
-                data: NpyData::F32(vec![1.0, -2.0, 3.5, 0.0, 1e-8, 7.0]),
-            },
-            NpyArray {
-                shape: vec![3],
-                data: NpyData::F16(vec![0x3c00, 0xc000, 0x0001]),
-            },
-            NpyArray {
-                shape: vec![],
-                data: NpyData::F64(vec![2.25]),
-            },
-            NpyArray {
-                shape: vec![],
-                data: NpyData::I64(vec![1]),
-            },
-            NpyArray {
-                shape: vec![],
-                data: NpyData::Str("procedural seed 3 — ü".into()),
-            },
+            NpyArray { shape: vec![2, 3], data: NpyData::F32(vec![1.0, -2.0, 3.5, 0.0, 1e-8, 7.0]) },
+            NpyArray { shape: vec![3], data: NpyData::F16(vec![0x3c00, 0xc000, 0x0001]) },
+            NpyArray { shape: vec![], data: NpyData::F64(vec![2.25]) },
+            NpyArray { shape: vec![], data: NpyData::I64(vec![1]) },
+            NpyArray { shape: vec![], data: NpyData::Str("procedural seed 3 — ü".into()) },
         ];
         for a in cases {
             let bytes = write_npy(&a);

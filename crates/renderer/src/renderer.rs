@@ -128,9 +128,7 @@ impl Renderer {
         let render_pipeline = make(shaders::RENDER_ENTRY, "lp3d render_rays");
         let bounds_pipeline = make(shaders::DEPTH_BOUNDS_ENTRY, "lp3d depth_bounds_pass");
         if let Some(e) = pollster::block_on(scope.pop()) {
-            return Err(Error::Gpu(format!(
-                "building the render pipelines failed: {e}"
-            )));
+            return Err(Error::Gpu(format!("building the render pipelines failed: {e}")));
         }
         Ok(Renderer {
             device,
@@ -148,10 +146,7 @@ impl Renderer {
         tri.validate()?;
         let planes = tri.planes_channel_last();
         let bytes = (planes.len() * 4) as u64;
-        let max = self
-            .limits
-            .max_storage_buffer_binding_size
-            .min(self.limits.max_buffer_size);
+        let max = self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size);
         if bytes > max {
             return Err(Error::invalid(
                 "planes",
@@ -163,28 +158,20 @@ impl Renderer {
             ));
         }
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
-        let planes = self
-            .device
-            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("lp3d planes (3, H, W, 32)"),
-                contents: bytemuck::cast_slice(&planes),
-                usage: wgpu::BufferUsages::STORAGE,
-            });
-        let decoder = self
-            .device
-            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("lp3d decoder weights"),
-                contents: bytemuck::bytes_of(&DecoderUniform::from_decoder(&tri.decoder)),
-                usage: wgpu::BufferUsages::UNIFORM,
-            });
+        let planes = self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("lp3d planes (3, H, W, 32)"),
+            contents: bytemuck::cast_slice(&planes),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        let decoder = self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("lp3d decoder weights"),
+            contents: bytemuck::bytes_of(&DecoderUniform::from_decoder(&tri.decoder)),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(Error::Gpu(format!("uploading the triplane failed: {e}")));
         }
-        Ok(GpuTriplane {
-            planes,
-            decoder,
-            scene: tri.scene(),
-        })
+        Ok(GpuTriplane { planes, decoder, scene: tri.scene() })
     }
 
     /// Renders `cameras` (one image each) of an uploaded triplane.
@@ -199,10 +186,7 @@ impl Renderer {
         if cameras.is_empty() || cameras.len() > MAX_CAMERAS {
             return Err(Error::invalid(
                 "camera",
-                format!(
-                    "batch size must be in [1, {MAX_CAMERAS}], got {}",
-                    cameras.len()
-                ),
+                format!("batch size must be in [1, {MAX_CAMERAS}], got {}", cameras.len()),
             ));
         }
         let n_cam = cameras.len();
@@ -212,19 +196,14 @@ impl Renderer {
         let mut params = Params::new(&tri.scene, settings, fc as u32, n_cam as u32);
 
         // Split the batch so each dispatch's output fits one storage binding.
-        let max_binding = self
-            .limits
-            .max_storage_buffer_binding_size
-            .min(self.limits.max_buffer_size) as usize;
+        let max_binding =
+            self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size) as usize;
         let per_cam = (fc.max(1) * n_pix * 4).max(1);
         let chunk = (max_binding / per_cam).clamp(1, n_cam);
         if per_cam > max_binding {
             return Err(Error::invalid(
                 "resolution",
-                format!(
-                    "one image's outputs ({} MiB) exceed the device's buffer limit",
-                    per_cam >> 20
-                ),
+                format!("one image's outputs ({} MiB) exceed the device's buffer limit", per_cam >> 20),
             ));
         }
 
@@ -276,67 +255,32 @@ impl Renderer {
             label: Some("lp3d render bind group"),
             layout: &self.layout,
             entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: params_buf.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: camera_buf.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 2,
-                    resource: tri.planes.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 3,
-                    resource: tri.decoder.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 4,
-                    resource: feat_buf.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 5,
-                    resource: depth_buf.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 6,
-                    resource: wsum_buf.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 7,
-                    resource: bounds_buf.as_entire_binding(),
-                },
+                wgpu::BindGroupEntry { binding: 0, resource: params_buf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: camera_buf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 2, resource: tri.planes.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 3, resource: tri.decoder.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 4, resource: feat_buf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 5, resource: depth_buf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 6, resource: wsum_buf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 7, resource: bounds_buf.as_entire_binding() },
             ],
         });
         if let Some(e) = pollster::block_on(oom_scope.pop()) {
             drop(scope);
-            return Err(Error::Gpu(format!(
-                "out of device memory allocating render buffers: {e}"
-            )));
+            return Err(Error::Gpu(format!("out of device memory allocating render buffers: {e}")));
         }
 
         let groups_x = (n_pix as u32).div_ceil(WORKGROUP);
-        let mut features = vec![
-            0f32;
-            if outputs.features || outputs.rgb {
-                n_cam * fc * n_pix
-            } else {
-                0
-            }
-        ];
+        let mut features = vec![0f32; if outputs.features || outputs.rgb { n_cam * fc * n_pix } else { 0 }];
         let mut depth = vec![0f32; n_cam * n_pix];
         let mut weights_sum = vec![0f32; n_cam * n_pix];
         let mut first = 0usize;
         while first < n_cam {
             let count = chunk.min(n_cam - first);
             params.camera_offset = first as u32;
-            self.queue
-                .write_buffer(&params_buf, 0, bytemuck::bytes_of(&params));
-            let mut encoder = dev.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("lp3d render"),
-            });
+            self.queue.write_buffer(&params_buf, 0, bytemuck::bytes_of(&params));
+            let mut encoder =
+                dev.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("lp3d render") });
             {
                 let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
                     label: Some("lp3d render pass"),
@@ -360,16 +304,8 @@ impl Renderer {
             encoder.copy_buffer_to_buffer(&wsum_buf, 0, &wsum_read, 0, pbytes);
             self.queue.submit([encoder.finish()]);
             let mut jobs: Vec<(&wgpu::Buffer, u64, &mut [f32])> = vec![
-                (
-                    &depth_read,
-                    pbytes,
-                    &mut depth[first * n_pix..(first + count) * n_pix],
-                ),
-                (
-                    &wsum_read,
-                    pbytes,
-                    &mut weights_sum[first * n_pix..(first + count) * n_pix],
-                ),
+                (&depth_read, pbytes, &mut depth[first * n_pix..(first + count) * n_pix]),
+                (&wsum_read, pbytes, &mut weights_sum[first * n_pix..(first + count) * n_pix]),
             ];
             if fc > 0 {
                 jobs.push((
@@ -388,20 +324,13 @@ impl Renderer {
             return Err(Error::Gpu(e));
         }
 
-        let mut out = RenderOutput {
-            n_cameras: n_cam,
-            resolution: r,
-            ..Default::default()
-        };
+        let mut out = RenderOutput { n_cameras: n_cam, resolution: r, ..Default::default() };
         if outputs.rgb {
             let rgb = if fc == 3 {
                 features.clone()
             } else {
                 // First three of the 32 channels of each image.
-                features
-                    .chunks(fc * n_pix)
-                    .flat_map(|img| img[..3 * n_pix].iter().copied())
-                    .collect()
+                features.chunks(fc * n_pix).flat_map(|img| img[..3 * n_pix].iter().copied()).collect()
             };
             out.rgb = Some(rgb);
         }
@@ -431,11 +360,7 @@ impl Renderer {
         self.device
             .poll(wgpu::PollType::wait_indefinitely())
             .map_err(|e| Error::Gpu(format!("waiting for the GPU failed: {e}")))?;
-        if let Some(Err(e)) = status
-            .lock()
-            .ok()
-            .and_then(|s| s.iter().find(|r| r.is_err()).cloned())
-        {
+        if let Some(Err(e)) = status.lock().ok().and_then(|s| s.iter().find(|r| r.is_err()).cloned()) {
             return Err(Error::Gpu(format!("reading results back failed: {e}")));
         }
         for (buf, bytes, dst) in jobs.iter_mut() {

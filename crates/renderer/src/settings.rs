@@ -79,22 +79,12 @@ pub struct Outputs {
 }
 
 impl Outputs {
-    pub const ALL: Outputs = Outputs {
-        features: true,
-        rgb: true,
-        depth: true,
-        weights_sum: true,
-    };
+    pub const ALL: Outputs = Outputs { features: true, rgb: true, depth: true, weights_sum: true };
     pub const NAMES: [&'static str; 4] = ["features", "rgb", "depth", "weights_sum"];
 
     /// Parses output names such as `["rgb", "depth"]`.
     pub fn from_names<S: AsRef<str>>(names: &[S]) -> Result<Self> {
-        let mut out = Outputs {
-            features: false,
-            rgb: false,
-            depth: false,
-            weights_sum: false,
-        };
+        let mut out = Outputs { features: false, rgb: false, depth: false, weights_sum: false };
         for name in names {
             match name.as_ref() {
                 "features" => out.features = true,
@@ -104,10 +94,7 @@ impl Outputs {
                 other => {
                     return Err(Error::invalid(
                         "outputs",
-                        format!(
-                            "unknown output '{other}', expected some of {:?}",
-                            Self::NAMES
-                        ),
+                        format!("unknown output '{other}', expected some of {:?}", Self::NAMES),
                     ))
                 }
             }

@@ -6,18 +6,9 @@
 pub const SOURCES: [(&str, &str); 7] = [
     ("params.wgsl", include_str!("../../../shaders/params.wgsl")),
     ("camera.wgsl", include_str!("../../../shaders/camera.wgsl")),
-    (
-        "sampling.wgsl",
-        include_str!("../../../shaders/sampling.wgsl"),
-    ),
-    (
-        "triplane.wgsl",
-        include_str!("../../../shaders/triplane.wgsl"),
-    ),
-    (
-        "decoder.wgsl",
-        include_str!("../../../shaders/decoder.wgsl"),
-    ),
+    ("sampling.wgsl", include_str!("../../../shaders/sampling.wgsl")),
+    ("triplane.wgsl", include_str!("../../../shaders/triplane.wgsl")),
+    ("decoder.wgsl", include_str!("../../../shaders/decoder.wgsl")),
     ("march.wgsl", include_str!("../../../shaders/march.wgsl")),
     ("render.wgsl", include_str!("../../../shaders/render.wgsl")),
 ];
@@ -28,9 +19,5 @@ pub const DEPTH_BOUNDS_ENTRY: &str = "depth_bounds_pass";
 
 /// The full WGSL source of the render module.
 pub fn render_module_source() -> String {
-    SOURCES
-        .iter()
-        .map(|(_, s)| *s)
-        .collect::<Vec<_>>()
-        .join("\n")
+    SOURCES.iter().map(|(_, s)| *s).collect::<Vec<_>>().join("\n")
 }

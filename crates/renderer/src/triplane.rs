@@ -51,16 +51,10 @@ impl Decoder {
             ("b1", &self.b1, N_OUT),
         ] {
             if v.len() != n {
-                return Err(Error::invalid(
-                    name,
-                    format!("expected {n} values, got {}", v.len()),
-                ));
+                return Err(Error::invalid(name, format!("expected {n} values, got {}", v.len())));
             }
             if let Some(i) = v.iter().position(|x| !x.is_finite()) {
-                return Err(Error::invalid(
-                    name,
-                    format!("contains NaN/Inf at flat index {i}"),
-                ));
+                return Err(Error::invalid(name, format!("contains NaN/Inf at flat index {i}")));
             }
         }
         Ok(())
@@ -121,37 +115,21 @@ impl Triplane {
     }
 
     pub fn validate(&self) -> Result<()> {
-        if self.height < 2
-            || self.width < 2
-            || self.height > MAX_PLANE_SIZE
-            || self.width > MAX_PLANE_SIZE
-        {
+        if self.height < 2 || self.width < 2 || self.height > MAX_PLANE_SIZE || self.width > MAX_PLANE_SIZE {
             return Err(Error::invalid(
                 "planes",
-                format!(
-                    "H and W must be in [2, {MAX_PLANE_SIZE}], got {}x{}",
-                    self.height, self.width
-                ),
+                format!("H and W must be in [2, {MAX_PLANE_SIZE}], got {}x{}", self.height, self.width),
             ));
         }
         if self.planes.len() != 3 * N_CHANNELS * self.height * self.width {
-            return Err(Error::invalid(
-                "planes",
-                "data length does not match (3, 32, H, W)",
-            ));
+            return Err(Error::invalid("planes", "data length does not match (3, 32, H, W)"));
         }
         if let Some(i) = self.planes.iter().position(|x| !x.is_finite()) {
-            return Err(Error::invalid(
-                "planes",
-                format!("contains NaN/Inf at flat index {i}"),
-            ));
+            return Err(Error::invalid("planes", format!("contains NaN/Inf at flat index {i}")));
         }
         self.decoder.validate()?;
         if !(self.box_warp.is_finite() && self.box_warp > 0.0) {
-            return Err(Error::invalid(
-                "box_warp",
-                format!("must be finite and > 0, got {}", self.box_warp),
-            ));
+            return Err(Error::invalid("box_warp", format!("must be finite and > 0, got {}", self.box_warp)));
         }
         if !(self.ray_start.is_finite() && self.ray_start >= 0.0) {
             return Err(Error::invalid(
@@ -162,10 +140,7 @@ impl Triplane {
         if !(self.ray_end.is_finite() && self.ray_end > self.ray_start) {
             return Err(Error::invalid(
                 "ray_end",
-                format!(
-                    "must be finite and > ray_start ({}), got {}",
-                    self.ray_start, self.ray_end
-                ),
+                format!("must be finite and > ray_start ({}), got {}", self.ray_start, self.ray_end),
             ));
         }
         Ok(())
@@ -190,15 +165,9 @@ impl Triplane {
     /// Loads a triplane `.npz` (never with pickle). Errors name the file and the key.
     pub fn load(path: impl AsRef<Path>) -> Result<Triplane> {
         let path = path.as_ref();
-        let file = File::open(path).map_err(|e| Error::Io {
-            path: path.into(),
-            message: e.to_string(),
-        })?;
-        let fmt = |field: &str, message: String| Error::Format {
-            path: path.into(),
-            field: field.into(),
-            message,
-        };
+        let file = File::open(path).map_err(|e| Error::Io { path: path.into(), message: e.to_string() })?;
+        let fmt =
+            |field: &str, message: String| Error::Format { path: path.into(), field: field.into(), message };
         let arrays = npz::read_npz(BufReader::new(file)).map_err(|(k, m)| fmt(&k, m))?;
         let get = |key: &str| arrays.iter().find(|(k, _)| k == key).map(|(_, a)| a);
         const REQUIRED: [&str; 9] = [
@@ -242,17 +211,9 @@ impl Triplane {
         let floats = |key: &str, shape: &[usize]| -> Result<Vec<f32>> {
             let a = get(key).unwrap();
             if a.shape != shape {
-                return Err(fmt(
-                    key,
-                    format!("expected shape {shape:?}, got {:?}", a.shape),
-                ));
+                return Err(fmt(key, format!("expected shape {shape:?}, got {:?}", a.shape)));
             }
-            a.to_f32().ok_or_else(|| {
-                fmt(
-                    key,
-                    format!("expected a float array, got {}", a.dtype_name()),
-                )
-            })
+            a.to_f32().ok_or_else(|| fmt(key, format!("expected a float array, got {}", a.dtype_name())))
         };
         let scalar = |key: &str| -> Result<f32> {
             get(key)
@@ -263,20 +224,12 @@ impl Triplane {
         };
         let pa = get("planes").unwrap();
         if pa.shape.len() != 4 || pa.shape[0] != 3 || pa.shape[1] != N_CHANNELS {
-            return Err(fmt(
-                "planes",
-                format!("expected shape (3, 32, H, W), got {:?}", pa.shape),
-            ));
+            return Err(fmt("planes", format!("expected shape (3, 32, H, W), got {:?}", pa.shape)));
         }
         let plane_dtype = match pa.data {
             NpyData::F16(_) => PlaneDtype::F16,
             NpyData::F32(_) => PlaneDtype::F32,
-            _ => {
-                return Err(fmt(
-                    "planes",
-                    format!("expected float16 or float32, got {}", pa.dtype_name()),
-                ))
-            }
+            _ => return Err(fmt("planes", format!("expected float16 or float32, got {}", pa.dtype_name()))),
         };
         let camera = match get("camera") {
             None => None,
@@ -293,26 +246,15 @@ impl Triplane {
             None => None,
             Some(a) => {
                 if a.shape.len() != 3 {
-                    return Err(fmt(
-                        "occupancy",
-                        format!("expected a 3-D grid, got shape {:?}", a.shape),
-                    ));
+                    return Err(fmt("occupancy", format!("expected a 3-D grid, got shape {:?}", a.shape)));
                 }
-                let data = a
-                    .to_f32()
-                    .ok_or_else(|| fmt("occupancy", "expected floats".into()))?;
-                Some(Occupancy {
-                    dims: a.shape.clone(),
-                    data,
-                })
+                let data = a.to_f32().ok_or_else(|| fmt("occupancy", "expected floats".into()))?;
+                Some(Occupancy { dims: a.shape.clone(), data })
             }
         };
         let source = match get("source") {
             None => None,
-            Some(NpyArray {
-                data: NpyData::Str(s),
-                ..
-            }) => Some(s.clone()),
+            Some(NpyArray { data: NpyData::Str(s), .. }) => Some(s.clone()),
             Some(_) => return Err(fmt("source", "expected a unicode string".into())),
         };
         let tri = Triplane {
@@ -347,60 +289,21 @@ impl Triplane {
         let path = path.as_ref();
         let planes = match self.plane_dtype {
             PlaneDtype::F32 => NpyData::F32(self.planes.clone()),
-            PlaneDtype::F16 => NpyData::F16(
-                self.planes
-                    .iter()
-                    .map(|&v| half::f16::from_f32(v).to_bits())
-                    .collect(),
-            ),
+            PlaneDtype::F16 => {
+                NpyData::F16(self.planes.iter().map(|&v| half::f16::from_f32(v).to_bits()).collect())
+            }
         };
         let d = &self.decoder;
         let mut arrays: Vec<(&str, NpyArray)> = vec![
-            (
-                "planes",
-                NpyArray {
-                    shape: vec![3, N_CHANNELS, self.height, self.width],
-                    data: planes,
-                },
-            ),
-            (
-                "decoder_w0",
-                NpyArray::f32(vec![HIDDEN, N_CHANNELS], d.w0.clone()),
-            ),
+            ("planes", NpyArray { shape: vec![3, N_CHANNELS, self.height, self.width], data: planes }),
+            ("decoder_w0", NpyArray::f32(vec![HIDDEN, N_CHANNELS], d.w0.clone())),
             ("decoder_b0", NpyArray::f32(vec![HIDDEN], d.b0.clone())),
-            (
-                "decoder_w1",
-                NpyArray::f32(vec![N_OUT, HIDDEN], d.w1.clone()),
-            ),
+            ("decoder_w1", NpyArray::f32(vec![N_OUT, HIDDEN], d.w1.clone())),
             ("decoder_b1", NpyArray::f32(vec![N_OUT], d.b1.clone())),
-            (
-                "box_warp",
-                NpyArray {
-                    shape: vec![],
-                    data: NpyData::F64(vec![self.box_warp as f64]),
-                },
-            ),
-            (
-                "ray_start",
-                NpyArray {
-                    shape: vec![],
-                    data: NpyData::F64(vec![self.ray_start as f64]),
-                },
-            ),
-            (
-                "ray_end",
-                NpyArray {
-                    shape: vec![],
-                    data: NpyData::F64(vec![self.ray_end as f64]),
-                },
-            ),
-            (
-                "format_version",
-                NpyArray {
-                    shape: vec![],
-                    data: NpyData::I64(vec![FORMAT_VERSION]),
-                },
-            ),
+            ("box_warp", NpyArray { shape: vec![], data: NpyData::F64(vec![self.box_warp as f64]) }),
+            ("ray_start", NpyArray { shape: vec![], data: NpyData::F64(vec![self.ray_start as f64]) }),
+            ("ray_end", NpyArray { shape: vec![], data: NpyData::F64(vec![self.ray_end as f64]) }),
+            ("format_version", NpyArray { shape: vec![], data: NpyData::I64(vec![FORMAT_VERSION]) }),
         ];
         if let Some(c) = &self.camera {
             arrays.push(("camera", NpyArray::f32(vec![25], c.0.to_vec())));
@@ -409,40 +312,22 @@ impl Triplane {
             arrays.push(("occupancy", NpyArray::f32(o.dims.clone(), o.data.clone())));
         }
         if let Some(s) = &self.source {
-            arrays.push((
-                "source",
-                NpyArray {
-                    shape: vec![],
-                    data: NpyData::Str(s.clone()),
-                },
-            ));
+            arrays.push(("source", NpyArray { shape: vec![], data: NpyData::Str(s.clone()) }));
         }
         write_atomically(path, |file| npz::write_npz(file, &arrays))
     }
 }
 
 /// Runs `write` on a temporary sibling of `path`, then renames it into place.
-pub fn write_atomically(
-    path: &Path,
-    write: impl FnOnce(&mut File) -> std::io::Result<()>,
-) -> Result<()> {
-    let io_err = |p: &Path, e: std::io::Error| Error::Io {
-        path: p.into(),
-        message: e.to_string(),
-    };
+pub fn write_atomically(path: &Path, write: impl FnOnce(&mut File) -> std::io::Result<()>) -> Result<()> {
+    let io_err = |p: &Path, e: std::io::Error| Error::Io { path: p.into(), message: e.to_string() };
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
         _ => PathBuf::from("."),
     };
-    let name = path.file_name().ok_or_else(|| Error::Io {
-        path: path.into(),
-        message: "not a file path".into(),
-    })?;
-    let tmp = dir.join(format!(
-        ".{}.tmp-{}",
-        name.to_string_lossy(),
-        std::process::id()
-    ));
+    let name =
+        path.file_name().ok_or_else(|| Error::Io { path: path.into(), message: "not a file path".into() })?;
+    let tmp = dir.join(format!(".{}.tmp-{}", name.to_string_lossy(), std::process::id()));
     let result = (|| {
         let mut file = File::create(&tmp)?;
         write(&mut file)?;

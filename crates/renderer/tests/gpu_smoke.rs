@@ -3,9 +3,7 @@
 //! reference lives in the Python suite (tests/test_render_parity.py).
 
 use lp3d_renderer::camera::{FFHQ_FOCAL, FFHQ_RADIUS};
-use lp3d_renderer::{
-    Camera, Decoder, GpuContext, Outputs, PlaneDtype, RenderSettings, Renderer, Triplane,
-};
+use lp3d_renderer::{Camera, Decoder, GpuContext, Outputs, PlaneDtype, RenderSettings, Renderer, Triplane};
 
 fn test_triplane(h: usize, w: usize) -> Triplane {
     // Deterministic pseudo-random values (no rand dependency).
@@ -48,13 +46,7 @@ fn renders_finite_outputs_and_restricts_outputs() {
     let half_pi = std::f64::consts::FRAC_PI_2;
     let cams = vec![
         Camera::look_at(half_pi, half_pi, FFHQ_RADIUS, [0.0, 0.0, 0.0], FFHQ_FOCAL),
-        Camera::look_at(
-            half_pi + 0.5,
-            half_pi - 0.2,
-            FFHQ_RADIUS,
-            [0.0, 0.0, 0.2],
-            FFHQ_FOCAL,
-        ),
+        Camera::look_at(half_pi + 0.5, half_pi - 0.2, FFHQ_RADIUS, [0.0, 0.0, 0.2], FFHQ_FOCAL),
     ];
     let settings = RenderSettings {
         resolution: 8,
@@ -62,28 +54,17 @@ fn renders_finite_outputs_and_restricts_outputs() {
         depth_resolution_importance: 12,
         ..Default::default()
     };
-    let out = renderer
-        .render(&gpu, &cams, &settings, Outputs::ALL)
-        .unwrap();
+    let out = renderer.render(&gpu, &cams, &settings, Outputs::ALL).unwrap();
     let features = out.features.unwrap();
     assert_eq!(features.len(), 2 * 32 * 64);
-    assert!(features
-        .iter()
-        .all(|v| v.is_finite() && (-1.01..=1.01).contains(v)));
+    assert!(features.iter().all(|v| v.is_finite() && (-1.01..=1.01).contains(v)));
     let depth = out.depth.unwrap();
     assert!(depth.iter().all(|d| (2.25..=3.3).contains(d)), "{depth:?}");
     let wsum = out.weights_sum.unwrap();
     assert!(wsum.iter().all(|w| (0.0..=1.0).contains(w)));
     assert!(wsum.iter().any(|w| *w > 0.01));
     // rgb equals the first 3 feature channels, whether or not features are computed.
-    let rgb_only = renderer
-        .render(
-            &gpu,
-            &cams,
-            &settings,
-            Outputs::from_names(&["rgb"]).unwrap(),
-        )
-        .unwrap();
+    let rgb_only = renderer.render(&gpu, &cams, &settings, Outputs::from_names(&["rgb"]).unwrap()).unwrap();
     assert!(rgb_only.features.is_none() && rgb_only.depth.is_none());
     let rgb = rgb_only.rgb.unwrap();
     for b in 0..2 {
@@ -103,25 +84,17 @@ fn triplane_file_round_trips() {
         let mut tri = test_triplane(4, 6);
         tri.plane_dtype = dtype;
         if dtype == PlaneDtype::F16 {
-            tri.planes = tri
-                .planes
-                .iter()
-                .map(|&v| half::f16::from_f32(v).to_f32())
-                .collect();
+            tri.planes = tri.planes.iter().map(|&v| half::f16::from_f32(v).to_f32()).collect();
         }
         tri.camera = Some(Camera::look_at(1.0, 1.5, 2.7, [0.0; 3], 4.2647));
         let path = dir.join("t.npz");
         tri.save(&path).unwrap();
         assert_eq!(Triplane::load(&path).unwrap(), tri);
     }
-    let e = Triplane::load(dir.join("missing.npz"))
-        .unwrap_err()
-        .to_string();
+    let e = Triplane::load(dir.join("missing.npz")).unwrap_err().to_string();
     assert!(e.contains("missing.npz"), "{e}");
     std::fs::write(dir.join("junk.npz"), b"not a zip").unwrap();
-    let e = Triplane::load(dir.join("junk.npz"))
-        .unwrap_err()
-        .to_string();
+    let e = Triplane::load(dir.join("junk.npz")).unwrap_err().to_string();
     assert!(e.contains("zip"), "{e}");
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -18,10 +18,7 @@ fn every_wgsl_file_is_listed() {
         .filter(|n| n.ends_with(".wgsl"))
         .collect();
     on_disk.sort();
-    let mut listed: Vec<String> = shaders::SOURCES
-        .iter()
-        .map(|(n, _)| n.to_string())
-        .collect();
+    let mut listed: Vec<String> = shaders::SOURCES.iter().map(|(n, _)| n.to_string()).collect();
     listed.sort();
     assert_eq!(on_disk, listed, "shaders/ and shaders.rs::SOURCES disagree");
 }
@@ -29,17 +26,11 @@ fn every_wgsl_file_is_listed() {
 #[test]
 fn render_module_validates() {
     let module = parse();
-    naga::valid::Validator::new(
-        naga::valid::ValidationFlags::all(),
-        naga::valid::Capabilities::default(),
-    )
-    .validate(&module)
-    .expect("WGSL validates");
+    naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::default())
+        .validate(&module)
+        .expect("WGSL validates");
     for entry in [shaders::RENDER_ENTRY, shaders::DEPTH_BOUNDS_ENTRY] {
-        assert!(
-            module.entry_points.iter().any(|e| e.name == entry),
-            "missing entry point {entry}"
-        );
+        assert!(module.entry_points.iter().any(|e| e.name == entry), "missing entry point {entry}");
     }
 }
 
@@ -49,11 +40,7 @@ fn uniform_layouts_match_wgsl() {
     let mut layouter = naga::proc::Layouter::default();
     layouter.update(module.to_ctx()).unwrap();
     let size_of = |name: &str| {
-        let (handle, _) = module
-            .types
-            .iter()
-            .find(|(_, t)| t.name.as_deref() == Some(name))
-            .unwrap();
+        let (handle, _) = module.types.iter().find(|(_, t)| t.name.as_deref() == Some(name)).unwrap();
         layouter[handle].size as usize
     };
     assert_eq!(size_of("Params"), std::mem::size_of::<Params>());
