@@ -61,6 +61,7 @@ def test_stub_signatures_match_runtime() -> None:
         "Triplane.__init__": _lp3d_render.Triplane,
         "Triplane.load": _lp3d_render.Triplane.load,
         "Triplane.save": _lp3d_render.Triplane.save,
+        "view": _lp3d_render.view,
     }
     assert set(stubs) == set(runtime)
     for name, obj in runtime.items():

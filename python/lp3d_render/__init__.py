@@ -21,6 +21,7 @@ from lp3d_render._lp3d_render import (
     adapter_info,
     look_at_camera,
     render,
+    view,
 )
 
 __all__ = [
@@ -33,4 +34,5 @@ __all__ = [
     "adapter_info",
     "look_at_camera",
     "render",
+    "view",
 ]

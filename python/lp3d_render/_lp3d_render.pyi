@@ -76,3 +76,12 @@ def look_at_camera(
     lookat: tuple[float, float, float] = (0.0, 0.0, 0.2),
     focal: float = 4.2647,
 ) -> npt.NDArray[np.float32]: ...
+def view(
+    path: str | PathLike[str] | None = None,
+    *,
+    screenshot: str | PathLike[str] | None = None,
+    yaw: float = 0.0,
+    pitch: float = 0.0,
+    resolution: int = 128,
+    frames: int = 3,
+) -> None: ...

@@ -349,6 +349,35 @@ fn look_at_camera<'py>(
     f32_array(py, &c.0, &[25])
 }
 
+/// Opens the lp3d-view window on a triplane file and blocks until it is closed.
+/// With ``screenshot``, renders ``frames`` frames, saves a PNG of the window (plus a JSON
+/// sidecar giving the 3D view's pixel rectangle) and returns. Call from the main thread,
+/// once per process (a windowing limitation).
+#[cfg(feature = "viewer")]
+#[pyfunction]
+#[pyo3(signature = (path=None, *, screenshot=None, yaw=0.0, pitch=0.0, resolution=128, frames=3))]
+fn view(
+    py: Python<'_>,
+    path: Option<PathBuf>,
+    screenshot: Option<PathBuf>,
+    yaw: f64,
+    pitch: f64,
+    resolution: i64,
+    frames: i64,
+) -> PyResult<()> {
+    let options = lp3d_viewer::ViewerOptions {
+        path,
+        screenshot,
+        yaw: finite_f32(yaw, "yaw").map(|_| yaw)?,
+        pitch: finite_f32(pitch, "pitch").map(|_| pitch)?,
+        resolution: in_range(resolution, "resolution", 16, MAX_RESOLUTION)?,
+        frames: in_range(frames, "frames", 1, 10_000)?,
+        help: false,
+    };
+    options.validate().map_err(|e| invalid("view", e))?;
+    py.detach(|| guarded(|| lp3d_viewer::run(options).map_err(PyRuntimeError::new_err)))
+}
+
 /// The GPU adapter the renderer runs on: backend, name, device type, driver.
 /// Raises RuntimeError (with the adapters seen) when none is usable.
 #[pyfunction]
@@ -369,6 +398,8 @@ fn _lp3d_render(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(render, m)?)?;
     m.add_function(wrap_pyfunction!(adapter_info, m)?)?;
     m.add_function(wrap_pyfunction!(look_at_camera, m)?)?;
+    #[cfg(feature = "viewer")]
+    m.add_function(wrap_pyfunction!(view, m)?)?;
     m.add("MAX_RESOLUTION", MAX_RESOLUTION)?;
     m.add("MAX_SAMPLES", MAX_SAMPLES)?;
     m.add("PLANE_AXES", lp3d_renderer::triplane::PLANE_AXES.map(|a| (a[0], a[1])).to_vec())?;

@@ -85,3 +85,26 @@ impl DecoderUniform {
         u
     }
 }
+
+/// Mirrors `struct Display` in `shaders/present.wgsl`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
+pub struct DisplayUniform {
+    pub mode: u32,
+    pub channel: u32,
+    pub depth_near: f32,
+    pub depth_far: f32,
+}
+
+impl DisplayUniform {
+    pub fn new(display: crate::renderer::Display) -> Self {
+        use crate::renderer::Display;
+        let (mode, channel, depth_near, depth_far) = match display {
+            Display::Rgb => (0, 0, 0.0, 1.0),
+            Display::Depth { near, far } => (1, 0, near, far),
+            Display::Weights => (2, 0, 0.0, 1.0),
+            Display::Channel(c) => (3, c, 0.0, 1.0),
+        };
+        DisplayUniform { mode, channel, depth_near, depth_far }
+    }
+}

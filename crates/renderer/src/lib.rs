@@ -19,6 +19,6 @@ pub mod triplane;
 pub use camera::Camera;
 pub use device::GpuContext;
 pub use error::{Error, Result};
-pub use renderer::{GpuTriplane, RenderOutput, Renderer};
+pub use renderer::{Display, GpuTriplane, RenderOutput, Renderer, DISPLAY_FORMAT};
 pub use settings::{Outputs, RenderSettings};
 pub use triplane::{Decoder, PlaneDtype, SceneInfo, Triplane};

@@ -8,12 +8,14 @@ use wgpu::util::DeviceExt;
 use crate::camera::Camera;
 use crate::device::GpuContext;
 use crate::error::{Error, Result};
-use crate::gpu_types::{DecoderUniform, Params};
+use crate::gpu_types::{DecoderUniform, DisplayUniform, Params};
 use crate::settings::{Outputs, RenderSettings};
 use crate::shaders;
 use crate::triplane::{SceneInfo, Triplane};
 
 const WORKGROUP: u32 = 64;
+/// Texel format of `render_to_texture` targets (an sRGB-unaware 8-bit RGBA storage texture).
+pub const DISPLAY_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 /// Most cameras per call (one dispatch row each).
 pub const MAX_CAMERAS: usize = 65535;
 
@@ -42,6 +44,36 @@ pub struct RenderOutput {
     pub weights_sum: Option<Vec<f32>>,
 }
 
+/// What the viewer shows: one render output mapped to colour.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Display {
+    Rgb,
+    /// Depth as a ramp, near (bright) to far (dark); rays with weights sum < 0.5 are black.
+    Depth {
+        near: f32,
+        far: f32,
+    },
+    Weights,
+    /// One of the 32 feature channels, [-1, 1] mapped to black..white.
+    Channel(u32),
+}
+
+/// Buffers and bindings of one render request (see `Renderer::prepare`).
+struct Frame {
+    params: Params,
+    params_buf: wgpu::Buffer,
+    bind_group: wgpu::BindGroup,
+    features: wgpu::Buffer,
+    depth: wgpu::Buffer,
+    weights_sum: wgpu::Buffer,
+    n_cam: usize,
+    n_pix: usize,
+    /// Feature channels per image in `features` (32, 3 or 0).
+    fc: usize,
+    /// Cameras per dispatch.
+    chunk: usize,
+}
+
 pub struct Renderer {
     device: wgpu::Device,
     queue: wgpu::Queue,
@@ -49,6 +81,8 @@ pub struct Renderer {
     layout: wgpu::BindGroupLayout,
     render_pipeline: wgpu::ComputePipeline,
     bounds_pipeline: wgpu::ComputePipeline,
+    present_layout: wgpu::BindGroupLayout,
+    present_pipeline: wgpu::ComputePipeline,
     /// Errors wgpu reports outside an error scope, kept instead of panicking.
     uncaptured: Arc<Mutex<Option<String>>>,
 }
@@ -115,18 +149,40 @@ impl Renderer {
             bind_group_layouts: &[Some(&layout)],
             immediate_size: 0,
         });
-        let make = |entry: &str, label: &str| {
+        let present_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("lp3d present bindings"),
+            entries: &[
+                wgpu::BindGroupLayoutEntry {
+                    binding: 0,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::StorageTexture {
+                        access: wgpu::StorageTextureAccess::WriteOnly,
+                        format: DISPLAY_FORMAT,
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                    },
+                    count: None,
+                },
+                uniform_entry(1),
+            ],
+        });
+        let present_pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("lp3d present pipeline layout"),
+            bind_group_layouts: &[Some(&layout), Some(&present_layout)],
+            immediate_size: 0,
+        });
+        let make = |entry: &str, label: &str, layout: &wgpu::PipelineLayout| {
             device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some(label),
-                layout: Some(&pipeline_layout),
+                layout: Some(layout),
                 module: &module,
                 entry_point: Some(entry),
                 compilation_options: Default::default(),
                 cache: None,
             })
         };
-        let render_pipeline = make(shaders::RENDER_ENTRY, "lp3d render_rays");
-        let bounds_pipeline = make(shaders::DEPTH_BOUNDS_ENTRY, "lp3d depth_bounds_pass");
+        let render_pipeline = make(shaders::RENDER_ENTRY, "lp3d render_rays", &pipeline_layout);
+        let bounds_pipeline = make(shaders::DEPTH_BOUNDS_ENTRY, "lp3d depth_bounds_pass", &pipeline_layout);
+        let present_pipeline = make(shaders::PRESENT_ENTRY, "lp3d present", &present_pipeline_layout);
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(Error::Gpu(format!("building the render pipelines failed: {e}")));
         }
@@ -137,6 +193,8 @@ impl Renderer {
             layout,
             render_pipeline,
             bounds_pipeline,
+            present_layout,
+            present_pipeline,
             uncaptured,
         })
     }
@@ -174,14 +232,14 @@ impl Renderer {
         Ok(GpuTriplane { planes, decoder, scene: tri.scene() })
     }
 
-    /// Renders `cameras` (one image each) of an uploaded triplane.
-    pub fn render(
+    /// Validates a render request and allocates its buffers and bind group.
+    fn prepare(
         &self,
         tri: &GpuTriplane,
         cameras: &[Camera],
         settings: &RenderSettings,
         outputs: Outputs,
-    ) -> Result<RenderOutput> {
+    ) -> Result<Frame> {
         settings.validate()?;
         if cameras.is_empty() || cameras.len() > MAX_CAMERAS {
             return Err(Error::invalid(
@@ -193,38 +251,27 @@ impl Renderer {
         let r = settings.resolution as usize;
         let n_pix = r * r;
         let fc = outputs.feature_channels() as usize;
-        let mut params = Params::new(&tri.scene, settings, fc as u32, n_cam as u32);
+        let params = Params::new(&tri.scene, settings, fc as u32, n_cam as u32);
 
         // Split the batch so each dispatch's output fits one storage binding.
         let max_binding =
             self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size) as usize;
         let per_cam = (fc.max(1) * n_pix * 4).max(1);
-        let chunk = (max_binding / per_cam).clamp(1, n_cam);
         if per_cam > max_binding {
             return Err(Error::invalid(
                 "resolution",
                 format!("one image's outputs ({} MiB) exceed the device's buffer limit", per_cam >> 20),
             ));
         }
+        let chunk = (max_binding / per_cam).clamp(1, n_cam);
 
-        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let oom_scope = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let dev = &self.device;
         let storage = |label: &str, size: usize| {
             dev.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(label),
                 size: (size.max(1) * 4) as u64,
-                usage: wgpu::BufferUsages::STORAGE
-                    | wgpu::BufferUsages::COPY_SRC
-                    | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            })
-        };
-        let readback = |label: &str, size: usize| {
-            dev.create_buffer(&wgpu::BufferDescriptor {
-                label: Some(label),
-                size: (size.max(1) * 4) as u64,
-                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
                 mapped_at_creation: false,
             })
         };
@@ -245,12 +292,9 @@ impl Renderer {
             contents: bytemuck::cast_slice(&[f32::INFINITY.to_bits(), 0u32]),
             usage: wgpu::BufferUsages::STORAGE,
         });
-        let feat_buf = storage("lp3d features out", chunk * fc * n_pix);
-        let depth_buf = storage("lp3d depth out", chunk * n_pix);
-        let wsum_buf = storage("lp3d weights_sum out", chunk * n_pix);
-        let feat_read = readback("lp3d features readback", chunk * fc * n_pix);
-        let depth_read = readback("lp3d depth readback", chunk * n_pix);
-        let wsum_read = readback("lp3d weights_sum readback", chunk * n_pix);
+        let features = storage("lp3d features out", chunk * fc * n_pix);
+        let depth = storage("lp3d depth out", chunk * n_pix);
+        let weights_sum = storage("lp3d weights_sum out", chunk * n_pix);
         let bind_group = dev.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("lp3d render bind group"),
             layout: &self.layout,
@@ -259,72 +303,97 @@ impl Renderer {
                 wgpu::BindGroupEntry { binding: 1, resource: camera_buf.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 2, resource: tri.planes.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 3, resource: tri.decoder.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 4, resource: feat_buf.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 5, resource: depth_buf.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 6, resource: wsum_buf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 4, resource: features.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 5, resource: depth.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 6, resource: weights_sum.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 7, resource: bounds_buf.as_entire_binding() },
             ],
         });
         if let Some(e) = pollster::block_on(oom_scope.pop()) {
-            drop(scope);
             return Err(Error::Gpu(format!("out of device memory allocating render buffers: {e}")));
         }
+        Ok(Frame { params, params_buf, bind_group, features, depth, weights_sum, n_cam, n_pix, fc, chunk })
+    }
 
-        let groups_x = (n_pix as u32).div_ceil(WORKGROUP);
-        let mut features = vec![0f32; if outputs.features || outputs.rgb { n_cam * fc * n_pix } else { 0 }];
+    /// Records the dispatches for cameras `first..first + count` of a prepared frame (the
+    /// batch-global depth bounds pass runs with the first chunk).
+    fn encode_chunk(&self, frame: &mut Frame, first: usize, count: usize) -> wgpu::CommandEncoder {
+        frame.params.camera_offset = first as u32;
+        self.queue.write_buffer(&frame.params_buf, 0, bytemuck::bytes_of(&frame.params));
+        let groups_x = (frame.n_pix as u32).div_ceil(WORKGROUP);
+        let mut encoder = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("lp3d render") });
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("lp3d render pass"),
+                timestamp_writes: None,
+            });
+            pass.set_bind_group(0, &frame.bind_group, &[]);
+            if first == 0 {
+                // Batch-global depth range first: render_rays clamps against it.
+                pass.set_pipeline(&self.bounds_pipeline);
+                pass.dispatch_workgroups(groups_x, frame.n_cam as u32, 1);
+            }
+            pass.set_pipeline(&self.render_pipeline);
+            pass.dispatch_workgroups(groups_x, count as u32, 1);
+        }
+        encoder
+    }
+
+    /// Renders `cameras` (one image each) of an uploaded triplane and reads the results back.
+    pub fn render(
+        &self,
+        tri: &GpuTriplane,
+        cameras: &[Camera],
+        settings: &RenderSettings,
+        outputs: Outputs,
+    ) -> Result<RenderOutput> {
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let mut frame = self.prepare(tri, cameras, settings, outputs)?;
+        let (n_cam, n_pix, fc, chunk) = (frame.n_cam, frame.n_pix, frame.fc, frame.chunk);
+        let readback = |label: &str, size: usize| {
+            self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: (size.max(1) * 4) as u64,
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
+        };
+        let feat_read = readback("lp3d features readback", chunk * fc * n_pix);
+        let depth_read = readback("lp3d depth readback", chunk * n_pix);
+        let wsum_read = readback("lp3d weights_sum readback", chunk * n_pix);
+
+        let mut features = vec![0f32; n_cam * fc * n_pix];
         let mut depth = vec![0f32; n_cam * n_pix];
         let mut weights_sum = vec![0f32; n_cam * n_pix];
         let mut first = 0usize;
         while first < n_cam {
             let count = chunk.min(n_cam - first);
-            params.camera_offset = first as u32;
-            self.queue.write_buffer(&params_buf, 0, bytemuck::bytes_of(&params));
-            let mut encoder =
-                dev.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("lp3d render") });
-            {
-                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                    label: Some("lp3d render pass"),
-                    timestamp_writes: None,
-                });
-                pass.set_bind_group(0, &bind_group, &[]);
-                if first == 0 {
-                    // Batch-global depth range first: render_rays clamps against it.
-                    pass.set_pipeline(&self.bounds_pipeline);
-                    pass.dispatch_workgroups(groups_x, n_cam as u32, 1);
-                }
-                pass.set_pipeline(&self.render_pipeline);
-                pass.dispatch_workgroups(groups_x, count as u32, 1);
-            }
+            let mut encoder = self.encode_chunk(&mut frame, first, count);
             let fbytes = (count * fc * n_pix * 4) as u64;
             let pbytes = (count * n_pix * 4) as u64;
             if fc > 0 {
-                encoder.copy_buffer_to_buffer(&feat_buf, 0, &feat_read, 0, fbytes);
+                encoder.copy_buffer_to_buffer(&frame.features, 0, &feat_read, 0, fbytes);
             }
-            encoder.copy_buffer_to_buffer(&depth_buf, 0, &depth_read, 0, pbytes);
-            encoder.copy_buffer_to_buffer(&wsum_buf, 0, &wsum_read, 0, pbytes);
+            encoder.copy_buffer_to_buffer(&frame.depth, 0, &depth_read, 0, pbytes);
+            encoder.copy_buffer_to_buffer(&frame.weights_sum, 0, &wsum_read, 0, pbytes);
             self.queue.submit([encoder.finish()]);
             let mut jobs: Vec<(&wgpu::Buffer, u64, &mut [f32])> = vec![
                 (&depth_read, pbytes, &mut depth[first * n_pix..(first + count) * n_pix]),
                 (&wsum_read, pbytes, &mut weights_sum[first * n_pix..(first + count) * n_pix]),
             ];
             if fc > 0 {
-                jobs.push((
-                    &feat_read,
-                    fbytes,
-                    &mut features[first * fc * n_pix..(first + count) * fc * n_pix],
-                ));
+                let range = first * fc * n_pix..(first + count) * fc * n_pix;
+                jobs.push((&feat_read, fbytes, &mut features[range]));
             }
             self.read_back(&mut jobs)?;
             first += count;
         }
-        if let Some(e) = pollster::block_on(scope.pop()) {
-            return Err(Error::Gpu(format!("render dispatch failed: {e}")));
-        }
-        if let Some(e) = self.uncaptured.lock().ok().and_then(|mut s| s.take()) {
-            return Err(Error::Gpu(e));
-        }
+        self.check(scope, "render dispatch")?;
 
-        let mut out = RenderOutput { n_cameras: n_cam, resolution: r, ..Default::default() };
+        let mut out =
+            RenderOutput { n_cameras: n_cam, resolution: settings.resolution as usize, ..Default::default() };
         if outputs.rgb {
             let rgb = if fc == 3 {
                 features.clone()
@@ -344,6 +413,74 @@ impl Renderer {
             out.weights_sum = Some(weights_sum);
         }
         Ok(out)
+    }
+
+    /// Renders one camera straight into `target` (an `Rgba8Unorm` storage texture of
+    /// `resolution`² texels), showing `display`. Nothing is read back: this is the viewer's path.
+    pub fn render_to_texture(
+        &self,
+        tri: &GpuTriplane,
+        camera: &Camera,
+        settings: &RenderSettings,
+        display: Display,
+        target: &wgpu::TextureView,
+    ) -> Result<()> {
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let outputs = match display {
+            Display::Rgb => Outputs { features: false, rgb: true, depth: false, weights_sum: false },
+            Display::Channel(c) if c < 3 => {
+                Outputs { features: false, rgb: true, depth: false, weights_sum: false }
+            }
+            Display::Channel(c) if c < 32 => {
+                Outputs { features: true, rgb: false, depth: false, weights_sum: false }
+            }
+            Display::Channel(c) => {
+                return Err(Error::invalid("display", format!("channel {c} is not in 0..32")))
+            }
+            Display::Depth { .. } | Display::Weights => {
+                Outputs { features: false, rgb: false, depth: true, weights_sum: true }
+            }
+        };
+        let mut frame = self.prepare(tri, std::slice::from_ref(camera), settings, outputs)?;
+        let uniform = DisplayUniform::new(display);
+        let display_buf = self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("lp3d display"),
+            contents: bytemuck::bytes_of(&uniform),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+        let group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("lp3d present bind group"),
+            layout: &self.present_layout,
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(target) },
+                wgpu::BindGroupEntry { binding: 1, resource: display_buf.as_entire_binding() },
+            ],
+        });
+        let mut encoder = self.encode_chunk(&mut frame, 0, 1);
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("lp3d present pass"),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(&self.present_pipeline);
+            pass.set_bind_group(0, &frame.bind_group, &[]);
+            pass.set_bind_group(1, &group, &[]);
+            let groups = settings.resolution.div_ceil(8);
+            pass.dispatch_workgroups(groups, groups, 1);
+        }
+        self.queue.submit([encoder.finish()]);
+        self.check(scope, "render to texture")
+    }
+
+    /// Pops a validation scope and reports any error wgpu raised meanwhile.
+    fn check(&self, scope: wgpu::ErrorScopeGuard, what: &str) -> Result<()> {
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(Error::Gpu(format!("{what} failed: {e}")));
+        }
+        if let Some(e) = self.uncaptured.lock().ok().and_then(|mut s| s.take()) {
+            return Err(Error::Gpu(e));
+        }
+        Ok(())
     }
 
     /// Maps readback buffers and copies `bytes` of each into its destination.

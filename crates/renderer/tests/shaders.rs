@@ -1,7 +1,7 @@
 //! Every WGSL file is listed in `shaders.rs`, the composed module validates with naga, and
 //! the Rust uniform mirrors have the sizes the WGSL layout gives.
 
-use lp3d_renderer::gpu_types::{DecoderUniform, Params};
+use lp3d_renderer::gpu_types::{DecoderUniform, DisplayUniform, Params};
 use lp3d_renderer::settings::MAX_SAMPLES;
 use lp3d_renderer::shaders;
 
@@ -29,7 +29,7 @@ fn render_module_validates() {
     naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::default())
         .validate(&module)
         .expect("WGSL validates");
-    for entry in [shaders::RENDER_ENTRY, shaders::DEPTH_BOUNDS_ENTRY] {
+    for entry in [shaders::RENDER_ENTRY, shaders::DEPTH_BOUNDS_ENTRY, shaders::PRESENT_ENTRY] {
         assert!(module.entry_points.iter().any(|e| e.name == entry), "missing entry point {entry}");
     }
 }
@@ -45,6 +45,7 @@ fn uniform_layouts_match_wgsl() {
     };
     assert_eq!(size_of("Params"), std::mem::size_of::<Params>());
     assert_eq!(size_of("Decoder"), std::mem::size_of::<DecoderUniform>());
+    assert_eq!(size_of("Display"), std::mem::size_of::<DisplayUniform>());
     let max_samples = module
         .constants
         .iter()

@@ -1,0 +1,53 @@
+//! `lp3d-view`: an egui/eframe viewer for EG3D-format triplanes. It renders with the same
+//! `lp3d-renderer` kernels as Python and the tests, on eframe's wgpu device. A library (so tests
+//! and the Python module can start it) plus a thin `main.rs`.
+
+mod app;
+mod options;
+mod orbit;
+mod screenshot;
+
+use std::sync::{Arc, Mutex};
+
+pub use options::{ViewerOptions, USAGE};
+pub use orbit::Orbit;
+
+use lp3d_renderer::Triplane;
+
+/// Opens the viewer window and blocks until it is closed. In `--screenshot` mode, renders a
+/// few frames, saves the PNG (plus a JSON sidecar) and returns. Must run on the main thread.
+pub fn run(options: ViewerOptions) -> Result<(), String> {
+    options.validate()?;
+    // Load before opening a window, so a bad file is a clear error and a non-zero exit.
+    let triplane = match &options.path {
+        Some(p) => Some((p.clone(), Triplane::load(p).map_err(|e| e.to_string())?)),
+        None => None,
+    };
+    let outcome: app::Outcome = Arc::new(Mutex::new(None));
+    let native = eframe::NativeOptions {
+        viewport: eframe::egui::ViewportBuilder::default()
+            .with_title("lp3d-view")
+            .with_inner_size([920.0, 700.0]),
+        renderer: eframe::Renderer::Wgpu,
+        ..Default::default()
+    };
+    let app_outcome = outcome.clone();
+    let opts = options.clone();
+    eframe::run_native(
+        "lp3d-view",
+        native,
+        Box::new(move |cc| {
+            let app = app::ViewerApp::new(cc, &opts, triplane, app_outcome)?;
+            Ok(Box::new(app))
+        }),
+    )
+    .map_err(|e| format!("could not open the viewer window: {e}"))?;
+    if options.screenshot.is_some() {
+        return match outcome.lock().ok().and_then(|mut o| o.take()) {
+            Some(Ok(_)) => Ok(()),
+            Some(Err(e)) => Err(format!("saving the screenshot failed: {e}")),
+            None => Err("the window closed before the screenshot was taken".into()),
+        };
+    }
+    Ok(())
+}
