@@ -12,7 +12,8 @@ if [ -f "$src" ] && [ ! -f "$bp" ] && grep -q '^Suites:.*bookworm' "$src"; then
   awk 'BEGIN{RS="";ORS="\n\n"} NR==1{print}' "$src" \
     | sed -E 's/^Suites:.*/Suites: bookworm-backports/' > "$bp"
 fi
-need=(mesa-vulkan-drivers libvulkan1 vulkan-tools xvfb xauth libxkbcommon-x11-0 libgl1 libegl1)
+# winit (the viewer) loads the X11 client libraries at run time.
+need=(mesa-vulkan-drivers libvulkan1 xvfb xauth libx11-6 libx11-xcb1 libxcursor1 libxrandr2 libxi6 libxkbcommon-x11-0)
 missing=()
 for p in "${need[@]}"; do dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p"); done
 # Upgrade to the backports Mesa when it is not installed yet.
