@@ -11,7 +11,7 @@ var<private> t_fine: array<f32, MAX_SAMPLES>;
 fn density_at(pos: vec3<f32>) -> f32 {
     sample_triplane(pos);
     decode_hidden();
-    return decode_output(0u);
+    return decode_density();
 }
 
 // sample_importance + sample_pdf: fills t_fine[0..N] (ascending).
@@ -121,13 +121,13 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
         sample_triplane(ray.origin + t * ray.dir);
         decode_hidden();
-        let sigma = decode_output(0u);
-        for (var q = 0u; q * 4u < n_feat; q++) {
-            var v = vec4<f32>(0.0);
-            for (var c = 0u; c < 4u; c++) {
-                v[c] = clamped_sigmoid(decode_output(1u + 4u * q + c));
-            }
-            cur_feat[q] = v;
+        let sigma = decode_density();
+        // Only the requested decoder rows: all 32 features, or the 4 that hold RGB.
+        // (Branches on a uniform, so every lane takes the same one; loops have constant bounds.)
+        if (n_feat == 32u) {
+            decode_features(&cur_feat);
+        } else if (n_feat > 0u) {
+            cur_feat[0] = decode_rgb();
         }
         if (i > 0u) {
             let alpha = interval_alpha(prev_sigma, sigma, t - prev_t);
@@ -135,15 +135,17 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
             transmittance = transmit(transmittance, alpha);
             weights_sum += w;
             depth_acc += w * ((prev_t + t) * 0.5);
-            for (var q = 0u; q * 4u < n_feat; q++) {
-                acc[q] += w * ((prev_feat[q] + cur_feat[q]) * 0.5);
+            if (n_feat == 32u) {
+                for (var q = 0u; q < 8u; q++) {
+                    acc[q] += w * ((prev_feat[q] + cur_feat[q]) * 0.5);
+                }
+            } else {
+                acc[0] += w * ((prev_feat[0] + cur_feat[0]) * 0.5);
             }
         }
         prev_t = t;
         prev_sigma = sigma;
-        for (var q = 0u; q * 4u < n_feat; q++) {
-            prev_feat[q] = cur_feat[q];
-        }
+        prev_feat = cur_feat;
     }
 
     // Depth: EG3D turns 0/0 into +inf and clamps to the batch-global depth range, so a ray

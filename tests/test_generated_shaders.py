@@ -1,0 +1,20 @@
+"""shaders/decoder.wgsl is generated (fully unrolled MLP); it must match its generator."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_decoder_wgsl_is_current() -> None:
+    generated = subprocess.run(
+        [sys.executable, str(ROOT / "scripts" / "gen_decoder_wgsl.py")],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
+    committed = (ROOT / "shaders" / "decoder.wgsl").read_text()
+    assert generated == committed, "run: python scripts/gen_decoder_wgsl.py > shaders/decoder.wgsl"
