@@ -1,0 +1,567 @@
+"""EG3D teacher: an adapter that turns a user-supplied EG3D generator into :class:`~lp3d.teachers.Teacher`.
+
+The paper distills from a frozen EG3D FFHQ generator (supplement, "EG3D pre-trained model":
+``ffhqrebalanced512-128.pkl``). Its weights cannot ship with lp3d, so :meth:`EG3DTeacher.from_pickle`
+loads an official network pickle that the user supplies, and :class:`EG3DTeacher` itself wraps any
+object with EG3D's ``TriPlaneGenerator`` interface (the tests use a small stand-in).
+
+What the adapter uses of the generator (``training/triplane.py`` in NVlabs/eg3d)::
+
+    G.z_dim, G.c_dim, G.w_dim
+    G.mapping(z (B, z_dim), c (B, c_dim), truncation_psi=, truncation_cutoff=) -> ws (B, num_ws, w_dim)
+    G.backbone.synthesis(ws, update_emas=False, noise_mode=) -> planes (B, 96, H, W)  [H = W = 256]
+    G.backbone.mapping.w_avg (w_dim,)                          only for sr_w="mean"
+    G.decoder.net = [FullyConnectedLayer(32, 64), Softplus(), FullyConnectedLayer(64, 33)]
+    G.superresolution(rgb (B, 3, R, R), feature_image (B, 32, R, R), ws, noise_mode=) -> (B, 3, 512, 512)
+    G.rendering_kwargs: box_warp, ray_start, ray_end, depth_resolution, depth_resolution_importance, ...
+    G.neural_rendering_resolution                               128 for the *-128.pkl checkpoints
+
+Choices (``shared/design/eg3d-rendering.md`` §4, §5, §10, §11):
+
+* **z**: ``np.random.RandomState(seed).randn(1, z_dim)``, exactly as EG3D's ``gen_samples.py`` and
+  ``gen_videos.py`` draw it, so ``sample(17)`` is the identity those scripts call seed 17 (same z; the
+  image also needs the same truncation, conditioning pose and noise).
+* **Pose conditioning** (mapping only): the frontal camera looking at ``avg_camera_pivot`` from
+  ``avg_camera_radius`` (FFHQ: (0, 0, 0.2) and 2.7; read from ``rendering_kwargs`` when present), focal
+  4.2647, as ``gen_videos.py``. ``G.mapping`` itself applies ``c_gen_conditioning_zero`` and ``c_scale``.
+* **Truncation**: ``truncation_psi = 0.7``, ``truncation_cutoff = 14`` (all 14 ws of the 256² backbone)
+  by default, the value of EG3D's README examples. The paper does not state one.
+* **Backbone noise**: ``noise_mode = "const"`` (the stored ``noise_const`` buffers) so a seed gives the
+  same planes on every call. EG3D's scripts leave StyleGAN2's default ``"random"``.
+* **Super-resolution w**: the supplement replaces "the latent code W injected to the StyleGAN2-based
+  super-resolution layer with a constant 1", i.e. ``w = (1, 1, ..., 1)`` (w_dim ones) for every sample,
+  and fine-tunes the whole EG3D model that way for 6.8M images. That is the default (``sr_w="ones"``), as
+  in :mod:`lp3d.superres`. Caveat: the *released* EG3D pickles were trained with the sample's own w, so
+  their SR module has never seen all-ones and its output is off-distribution; for those, ``sr_w="mean"``
+  (the mapping network's tracked average ``w_avg``, i.e. the w of truncation psi = 0) is the closest
+  constant. Noise: ``"none"`` (EG3D's FFHQ ``superresolution_noise_mode``).
+
+Loading a pickle executes code: EG3D pickles embed the Python source of their classes and run it when
+unpickled. lp3d only loads one through :meth:`EG3DTeacher.from_pickle` (or :func:`load_eg3d_generator`),
+on the user's explicit request; load only files you trust.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib.util
+import math
+import os
+import pickle
+import sys
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from lp3d.camera import FFHQ_FOCAL, FFHQ_PIVOT, FFHQ_RADIUS, look_at_camera, validate_camera
+from lp3d.settings import RenderSettings
+from lp3d.triplane import TriplaneData, effective_decoder_weights
+
+__all__ = [
+    "EG3D_HINT",
+    "EG3D_SOURCE_PACKAGES",
+    "EG3DLoadError",
+    "EG3DTeacher",
+    "SrW",
+    "default_conditioning_pose",
+    "load_eg3d_generator",
+]
+
+#: What to tell a user who has no (usable) EG3D generator.
+EG3D_HINT = (
+    "pass --eg3d-pkl PATH to an EG3D FFHQ generator pickle (e.g. ffhqrebalanced512-128.pkl) "
+    "and --eg3d-source PATH to a checkout of NVlabs/eg3d/eg3d"
+)
+#: Top-level packages of EG3D's source tree that its pickles import while being unpickled.
+EG3D_SOURCE_PACKAGES = ("torch_utils", "dnnlib", "training")
+
+NoiseMode = Literal["const", "none", "random"]
+#: The super-resolution w: "ones" (the paper), "mean" (``w_avg``) or an explicit (w_dim,) vector.
+SrW = Literal["ones", "mean"] | np.ndarray | Tensor
+
+
+class EG3DLoadError(RuntimeError):
+    """The EG3D pickle or EG3D's source tree is missing or unusable; the message says what to pass."""
+
+
+# --------------------------------------------------------------------------------------------------
+# Loading
+
+
+@contextlib.contextmanager
+def _on_sys_path(directory: Path | None) -> Iterator[None]:
+    """Put ``directory`` first on ``sys.path`` for the duration only (modules imported stay imported)."""
+    if directory is None:
+        yield
+        return
+    entry = str(directory)
+    sys.path.insert(0, entry)
+    try:
+        yield
+    finally:
+        with contextlib.suppress(ValueError):
+            sys.path.remove(entry)
+
+
+def _eg3d_source_importable() -> bool:
+    """Whether EG3D's source packages are already importable without ``eg3d_source``."""
+    return all(
+        name in sys.modules or importlib.util.find_spec(name) is not None for name in EG3D_SOURCE_PACKAGES
+    )
+
+
+def _check_not_shadowed(source: Path) -> None:
+    """Refuse when a package named like EG3D's is already imported from elsewhere.
+
+    Unpickling imports ``training`` etc. by name; a different, already imported ``training`` (another
+    project's) would be used silently instead of EG3D's.
+    """
+    src = source.resolve()
+    for name in EG3D_SOURCE_PACKAGES:
+        mod = sys.modules.get(name)
+        if mod is None:
+            continue
+        locations = [Path(p).resolve() for p in getattr(mod, "__path__", None) or []]
+        file = getattr(mod, "__file__", None)
+        if file:
+            locations.append(Path(file).resolve().parent)
+        if locations and not any(loc.is_relative_to(src) for loc in locations):
+            raise EG3DLoadError(
+                f"a module named {name!r} is already imported from {str(locations[0])!r}, which would shadow "
+                f"EG3D's in {str(src)!r}; load the EG3D pickle in a fresh process (or before importing it)"
+            )
+
+
+def _resolve_eg3d_source(eg3d_source: str | os.PathLike[str]) -> Path:
+    """The directory holding ``torch_utils/``, ``dnnlib/`` and ``training/``.
+
+    Accepts the ``eg3d/eg3d`` folder itself or the repository root above it (a common slip).
+    """
+    root = Path(eg3d_source).expanduser()
+    if not root.is_dir():
+        raise EG3DLoadError(f"EG3D source directory not found: {str(root)!r}; {EG3D_HINT}")
+    for candidate in (root, root / "eg3d"):
+        if all((candidate / pkg).is_dir() for pkg in EG3D_SOURCE_PACKAGES):
+            return candidate
+    missing = [pkg for pkg in EG3D_SOURCE_PACKAGES if not (root / pkg).is_dir()]
+    raise EG3DLoadError(
+        f"{str(root)!r} is not EG3D's source tree "
+        f"(missing {', '.join(p + '/' for p in missing)}); {EG3D_HINT}"
+    )
+
+
+def load_eg3d_generator(
+    path: str | os.PathLike[str] | None, *, eg3d_source: str | os.PathLike[str] | None = None
+) -> Any:
+    """Unpickle an official EG3D network pickle and return its ``G_ema`` (as ``legacy.load_network_pkl``).
+
+    **This executes code from the pickle** (EG3D pickles carry their classes' source and run it); only
+    call it on a file you trust, at the user's request. ``eg3d_source`` (a checkout of NVlabs/eg3d's
+    ``eg3d/`` folder, or the repository root) is put on ``sys.path`` while unpickling only; without it,
+    EG3D's ``torch_utils``, ``dnnlib`` and ``training`` must already be importable. Raises
+    :class:`EG3DLoadError` naming what to provide when the pickle or the source is missing, when
+    unpickling fails, or when the file is not a dict with ``G_ema``. The module is returned as
+    unpickled (on the CPU, in whatever train/eval mode it was saved).
+    """
+    if path is None:
+        raise EG3DLoadError(f"no EG3D generator pickle given; {EG3D_HINT}")
+    pkl = Path(path).expanduser()
+    if not pkl.is_file():
+        raise EG3DLoadError(f"EG3D generator pickle not found: {str(pkl)!r}; {EG3D_HINT}")
+    source: Path | None = None
+    if eg3d_source is not None:
+        source = _resolve_eg3d_source(eg3d_source)
+        _check_not_shadowed(source)
+    elif not _eg3d_source_importable():
+        raise EG3DLoadError(
+            f"unpickling {str(pkl)!r} needs EG3D's source tree ({', '.join(EG3D_SOURCE_PACKAGES)}), "
+            f"which is not importable; {EG3D_HINT}"
+        )
+    try:
+        with _on_sys_path(source), open(pkl, "rb") as f:
+            data = pickle.load(f)
+    except ModuleNotFoundError as e:
+        top = (e.name or "").split(".")[0]
+        if top in EG3D_SOURCE_PACKAGES:
+            where = f"not found in {str(source)!r}" if source is not None else "not importable"
+            raise EG3DLoadError(
+                f"unpickling {str(pkl)!r} needs module {e.name!r} from EG3D's source tree, {where}; "
+                f"{EG3D_HINT}"
+            ) from e
+        raise EG3DLoadError(
+            f"unpickling {str(pkl)!r} needs the Python package {e.name!r} (an EG3D dependency): install it"
+        ) from e
+    except Exception as e:  # a corrupt file or a source tree of another version: say which file
+        raise EG3DLoadError(f"could not unpickle {str(pkl)!r} ({type(e).__name__}: {e}); {EG3D_HINT}") from e
+    if not isinstance(data, dict) or "G_ema" not in data:
+        got = f"a dict with keys {sorted(map(str, data))}" if isinstance(data, dict) else type(data).__name__
+        raise EG3DLoadError(
+            f"{str(pkl)!r} is not an EG3D network pickle: expected a dict with key 'G_ema' "
+            f"(as written by EG3D's training loop), got {got}; {EG3D_HINT}"
+        )
+    return data["G_ema"]
+
+
+# --------------------------------------------------------------------------------------------------
+# The adapter
+
+
+def default_conditioning_pose(rendering_kwargs: dict[str, Any] | None = None) -> np.ndarray:
+    """The frontal camera (25,) float64 that EG3D's scripts condition the mapping on.
+
+    Looks at ``avg_camera_pivot`` from ``avg_camera_radius`` (from ``rendering_kwargs``; FFHQ defaults
+    (0, 0, 0.2) and 2.7) with focal 4.2647, like ``gen_videos.py``.
+    """
+    rk = rendering_kwargs or {}
+    pivot = tuple(float(v) for v in rk.get("avg_camera_pivot", FFHQ_PIVOT))
+    radius = float(rk.get("avg_camera_radius", FFHQ_RADIUS))
+    return look_at_camera(radius=radius, lookat=pivot, focal=FFHQ_FOCAL)
+
+
+def _get(obj: Any, dotted: str) -> Any:
+    """``obj.a.b`` for ``"a.b"``, or a TypeError naming the missing attribute."""
+    cur = obj
+    for i, part in enumerate(dotted.split(".")):
+        if not hasattr(cur, part):
+            have = ".".join(dotted.split(".")[:i]) or "the generator"
+            raise TypeError(
+                f"generator does not have EG3D's TriPlaneGenerator interface: {have} has no {part!r} "
+                f"(needed: generator.{dotted})"
+            )
+        cur = getattr(cur, part)
+    return cur
+
+
+def _fc_lr_multiplier(layer: Any, name: str) -> float:
+    """The ``lr_multiplier`` of a StyleGAN2 ``FullyConnectedLayer``, checked against its gains.
+
+    EG3D's layer stores ``weight_gain = lr_multiplier / sqrt(in_features)`` and ``bias_gain =
+    lr_multiplier`` (no ``lr_multiplier`` attribute); accept any of the three.
+    """
+    in_features = int(layer.weight.shape[1])
+    weight_gain = getattr(layer, "weight_gain", None)
+    lr: Any = getattr(layer, "bias_gain", None)
+    if lr is None:
+        lr = getattr(layer, "lr_multiplier", None)
+    if lr is None and weight_gain is not None:
+        lr = float(weight_gain) * math.sqrt(in_features)
+    if lr is None:
+        raise TypeError(
+            f"{name} does not look like StyleGAN2's FullyConnectedLayer (no weight_gain, bias_gain or "
+            "lr_multiplier), so its effective weights are unknown"
+        )
+    lr = float(lr)
+    if weight_gain is not None and not math.isclose(
+        float(weight_gain), lr / math.sqrt(in_features), rel_tol=1e-6
+    ):
+        raise ValueError(
+            f"{name}: weight_gain {float(weight_gain)!r} != lr_multiplier / sqrt(in_features) = "
+            f"{lr / math.sqrt(in_features)!r}; not a StyleGAN2 FullyConnectedLayer"
+        )
+    if getattr(layer, "activation", "linear") != "linear":
+        raise ValueError(f"{name}: activation must be 'linear' (EG3D's OSGDecoder), got {layer.activation!r}")
+    return lr
+
+
+def _decoder_effective_weights(decoder: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """EG3D ``OSGDecoder`` -> effective ``(w0 (64, 32), b0 (64,), w1 (33, 64), b1 (33,))`` float32."""
+    net = _get(decoder, "net")
+    if len(net) != 3:
+        raise ValueError(
+            f"decoder.net must be [FC, Softplus, FC] (EG3D's OSGDecoder), got {len(net)} modules"
+        )
+    act = net[1]
+    # lp3d's renderers hard-code torch's default softplus (beta 1, threshold 20), as EG3D uses.
+    if not isinstance(act, torch.nn.Softplus) or act.beta != 1 or act.threshold != 20:
+        raise ValueError(
+            f"decoder.net[1] must be torch.nn.Softplus() with default beta/threshold, got {act!r}"
+        )
+    lr0 = _fc_lr_multiplier(net[0], "decoder.net[0]")
+    lr2 = _fc_lr_multiplier(net[2], "decoder.net[2]")
+    if lr0 != lr2:  # OSGDecoder builds both layers with the same decoder_lr_mul
+        raise ValueError(f"decoder layers have different lr_multipliers ({lr0} and {lr2})")
+
+    def arrays(layer: Any) -> tuple[np.ndarray, np.ndarray]:
+        w = layer.weight.detach().to("cpu", torch.float32).numpy()
+        b = layer.bias
+        b = np.zeros(w.shape[0], np.float32) if b is None else b.detach().to("cpu", torch.float32).numpy()
+        return w, b
+
+    (w0, b0), (w1, b1) = arrays(net[0]), arrays(net[2])
+    return effective_decoder_weights(w0, b0, w1, b1, lr_multiplier=lr0)
+
+
+def _check_seed(seed: int) -> int:
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= int(seed) < 2**32:
+        raise ValueError(f"seed must be an int in [0, 2**32) (numpy RandomState, as EG3D), got {seed!r}")
+    return int(seed)
+
+
+class EG3DTeacher:
+    """A frozen EG3D generator as a :class:`~lp3d.teachers.Teacher` (see the module docstring).
+
+    ``generator``: any object with EG3D's ``TriPlaneGenerator`` interface (module docstring). If it is a
+    ``torch.nn.Module`` it is moved to ``device``, put in eval mode and frozen, in place.
+    ``truncation_psi``/``truncation_cutoff``: passed to ``G.mapping`` (``cutoff=None``: all ws).
+    ``conditioning_pose``: (25,) camera label for the mapping; None: :func:`default_conditioning_pose`.
+    ``noise_mode``: the backbone's StyleGAN2 noise ("const" keeps seeds deterministic).
+    ``sr_w``: the super-resolution w, "ones" (the paper's constant 1), "mean" (``w_avg``) or a (w_dim,)
+    vector. ``sr_noise_mode``: noise of the super-resolution network ("none", EG3D's FFHQ setting).
+    ``max_batch``: seeds per generator call in :meth:`sample_batch`.
+    """
+
+    def __init__(
+        self,
+        generator: Any,
+        *,
+        device: str | torch.device = "cpu",
+        truncation_psi: float = 0.7,
+        truncation_cutoff: int | None = 14,
+        conditioning_pose: np.ndarray | None = None,
+        noise_mode: NoiseMode = "const",
+        sr_w: SrW = "ones",
+        sr_noise_mode: NoiseMode = "none",
+        max_batch: int = 8,
+    ) -> None:
+        self.device = torch.device(device)
+        for attr in ("z_dim", "c_dim", "mapping", "backbone.synthesis", "decoder.net", "rendering_kwargs"):
+            _get(generator, attr)
+        if isinstance(generator, torch.nn.Module):
+            generator = generator.to(self.device).eval().requires_grad_(False)
+        self.generator = generator
+        self.z_dim = int(generator.z_dim)
+        self.c_dim = int(generator.c_dim)
+
+        psi = float(truncation_psi)
+        if not math.isfinite(psi):
+            raise ValueError(f"truncation_psi must be finite, got {truncation_psi!r}")
+        if truncation_cutoff is not None and (
+            isinstance(truncation_cutoff, bool) or int(truncation_cutoff) < 0
+        ):
+            raise ValueError(f"truncation_cutoff must be None or an int >= 0, got {truncation_cutoff!r}")
+        self.truncation_psi = psi
+        self.truncation_cutoff = None if truncation_cutoff is None else int(truncation_cutoff)
+        for name, mode in (("noise_mode", noise_mode), ("sr_noise_mode", sr_noise_mode)):
+            if mode not in ("const", "none", "random"):
+                raise ValueError(f"{name} must be 'const', 'none' or 'random', got {mode!r}")
+        self.noise_mode: NoiseMode = noise_mode
+        self.sr_noise_mode: NoiseMode = sr_noise_mode
+        if isinstance(max_batch, bool) or int(max_batch) < 1:
+            raise ValueError(f"max_batch must be an int >= 1, got {max_batch!r}")
+        self.max_batch = int(max_batch)
+
+        rk = generator.rendering_kwargs
+        if not isinstance(rk, dict):
+            raise TypeError(f"generator.rendering_kwargs must be a dict, got {type(rk).__name__}")
+        self.rendering_kwargs: dict[str, Any] = rk
+        self._bounds = self._scene_bounds(rk)
+
+        if conditioning_pose is None:
+            conditioning_pose = default_conditioning_pose(rk)
+        cams, batched = validate_camera(conditioning_pose)
+        if batched:
+            raise ValueError(
+                f"conditioning_pose must be one (25,) label, got shape {np.shape(conditioning_pose)}"
+            )
+        self.conditioning_pose: np.ndarray = cams[0]
+        if self.c_dim not in (0, cams.shape[1]):
+            raise ValueError(f"generator.c_dim must be 0 or 25 (an EG3D camera label), got {self.c_dim}")
+
+        self._decoder = _decoder_effective_weights(generator.decoder)
+        self._sr_w_spec = sr_w
+        self._sr_w_vec: Tensor | None = None
+        self.sr_w()  # resolve now so a bad sr_w fails at construction
+
+    @classmethod
+    def from_pickle(
+        cls,
+        path: str | os.PathLike[str] | None,
+        *,
+        eg3d_source: str | os.PathLike[str] | None = None,
+        device: str | torch.device = "cpu",
+        truncation_psi: float = 0.7,
+        truncation_cutoff: int | None = 14,
+        conditioning_pose: np.ndarray | None = None,
+        noise_mode: NoiseMode = "const",
+        sr_w: SrW = "ones",
+        sr_noise_mode: NoiseMode = "none",
+        max_batch: int = 8,
+    ) -> EG3DTeacher:
+        """Load an official EG3D generator pickle (its ``G_ema``) and wrap it.
+
+        **Unpickling executes code from the file**: call this only when the user asked for it, on a
+        pickle they trust. ``eg3d_source``: a checkout of NVlabs/eg3d's ``eg3d/`` folder, on
+        ``sys.path`` for unpickling only. Errors: :class:`EG3DLoadError` (see :func:`load_eg3d_generator`).
+        The other arguments are those of :class:`EG3DTeacher`.
+        """
+        generator = load_eg3d_generator(path, eg3d_source=eg3d_source)
+        return cls(
+            generator,
+            device=device,
+            truncation_psi=truncation_psi,
+            truncation_cutoff=truncation_cutoff,
+            conditioning_pose=conditioning_pose,
+            noise_mode=noise_mode,
+            sr_w=sr_w,
+            sr_noise_mode=sr_noise_mode,
+            max_batch=max_batch,
+        )
+
+    # -- scene ---------------------------------------------------------------------------------------
+
+    @staticmethod
+    def _scene_bounds(rk: dict[str, Any]) -> tuple[float, float, float]:
+        """``(box_warp, ray_start, ray_end)`` from rendering_kwargs, refusing what lp3d cannot render."""
+        missing = [k for k in ("box_warp", "ray_start", "ray_end") if k not in rk]
+        if missing:
+            raise ValueError(f"generator.rendering_kwargs lacks {missing}")
+        if rk["ray_start"] == "auto" or rk["ray_end"] == "auto":
+            raise ValueError(
+                "rendering_kwargs ray_start/ray_end 'auto' (per-ray box bounds) is not supported"
+            )
+        if rk.get("clamp_mode", "softplus") != "softplus":
+            raise ValueError(f"rendering_kwargs clamp_mode must be 'softplus', got {rk['clamp_mode']!r}")
+        if rk.get("disparity_space_sampling", False):
+            raise ValueError(
+                "rendering_kwargs disparity_space_sampling=True is not supported by lp3d's renderer"
+            )
+        return float(rk["box_warp"]), float(rk["ray_start"]), float(rk["ray_end"])
+
+    def render_settings(self, *, resolution: int | None = None) -> RenderSettings:
+        """The generator's render settings: its neural rendering resolution (128 for *-128.pkl) and S/N."""
+        rk = self.rendering_kwargs
+        res = (
+            resolution
+            if resolution is not None
+            else getattr(self.generator, "neural_rendering_resolution", 128)
+        )
+        settings = RenderSettings(
+            resolution=int(res),
+            depth_resolution=int(rk.get("depth_resolution", 48)),
+            depth_resolution_importance=int(rk.get("depth_resolution_importance", 48)),
+            white_back=bool(rk.get("white_back", False)),
+        )
+        settings.validate()
+        return settings
+
+    # -- Teacher protocol ----------------------------------------------------------------------------
+
+    def decoder(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Effective decoder weights ``(w0 (64, 32), b0 (64,), w1 (33, 64), b1 (33,))`` float32 (copies).
+
+        ``W_eff = W * lr_multiplier / sqrt(in_features)``, ``b_eff = b * lr_multiplier``
+        (``eg3d-rendering.md`` §4): ``h = softplus(w0 f + b0)``, ``o = w1 h + b1`` is the decoder's forward.
+        """
+        w0, b0, w1, b1 = self._decoder
+        return w0.copy(), b0.copy(), w1.copy(), b1.copy()
+
+    def latents(self, seeds: Sequence[int]) -> Tensor:
+        """Truncated, pose-conditioned ws (B, num_ws, w_dim) float32 on ``device`` for ``seeds``."""
+        seeds = [_check_seed(s) for s in seeds]
+        if not seeds:
+            raise ValueError("latents needs at least one seed")
+        # z drawn as EG3D's gen_samples.py does, on the CPU, so seeds mean the same on every device.
+        z_np = np.concatenate([np.random.RandomState(s).randn(1, self.z_dim) for s in seeds])
+        z = torch.from_numpy(z_np).to(self.device, torch.float32)
+        c = torch.from_numpy(self.conditioning_pose[: self.c_dim]).to(self.device, torch.float32)
+        c = c.unsqueeze(0).repeat(len(seeds), 1)
+        with torch.no_grad():
+            ws = self.generator.mapping(
+                z, c, truncation_psi=self.truncation_psi, truncation_cutoff=self.truncation_cutoff
+            )
+        return ws
+
+    def planes(self, seeds: Sequence[int]) -> Tensor:
+        """Triplanes (B, 3, 32, H, W) float32 on ``device`` (EG3D: H = W = 256) for ``seeds``."""
+        ws = self.latents(seeds)
+        with torch.no_grad():
+            planes = self.generator.backbone.synthesis(ws, update_emas=False, noise_mode=self.noise_mode)
+        if planes.ndim != 4 or planes.shape[1] != 96:
+            raise ValueError(f"backbone.synthesis must return (B, 96, H, W), got {tuple(planes.shape)}")
+        # Same reshape as TriPlaneGenerator.synthesis: channel 32 * p + k is channel k of plane p.
+        return planes.float().reshape(len(planes), 3, 32, planes.shape[-2], planes.shape[-1])
+
+    def sample(self, seed: int) -> TriplaneData:
+        """One identity: planes (3, 32, 256, 256) float32, the effective decoder and the scene bounds."""
+        return self.sample_batch([seed])[0]
+
+    def sample_batch(self, seeds: Sequence[int]) -> list[TriplaneData]:
+        """``[sample(s) for s in seeds]``, ``max_batch`` seeds per generator call.
+
+        Each seed's z is drawn alone, so batching changes no input; outputs can differ from
+        :meth:`sample`'s in the last float32 bits where batched kernels round differently.
+        """
+        out: list[TriplaneData] = []
+        seeds = list(seeds)
+        box_warp, ray_start, ray_end = self._bounds
+        for i in range(0, len(seeds), self.max_batch):
+            chunk = seeds[i : i + self.max_batch]
+            planes = self.planes(chunk).cpu().numpy()
+            for seed, p in zip(chunk, planes, strict=True):
+                w0, b0, w1, b1 = self.decoder()
+                out.append(
+                    TriplaneData(
+                        planes=np.ascontiguousarray(p, dtype=np.float32),
+                        w0=w0,
+                        b0=b0,
+                        w1=w1,
+                        b1=b1,
+                        box_warp=box_warp,
+                        ray_start=ray_start,
+                        ray_end=ray_end,
+                        source=f"eg3d seed {int(seed)}",
+                    )
+                )
+        return out
+
+    # -- super-resolution ----------------------------------------------------------------------------
+
+    def sr_w(self) -> Tensor:
+        """The constant super-resolution w (w_dim,) float32 on ``device`` (see ``sr_w`` in the class doc)."""
+        if self._sr_w_vec is None:
+            spec = self._sr_w_spec
+            w_avg = getattr(
+                getattr(getattr(self.generator, "backbone", None), "mapping", None), "w_avg", None
+            )
+            w_dim = getattr(self.generator, "w_dim", None)
+            if w_dim is None and w_avg is not None:
+                w_dim = int(w_avg.shape[-1])
+            if isinstance(spec, str) and spec == "ones":
+                if w_dim is None:
+                    raise TypeError("sr_w='ones' needs generator.w_dim")
+                vec = torch.ones(int(w_dim))  # the paper's "constant 1"
+            elif isinstance(spec, str) and spec == "mean":
+                if w_avg is None:
+                    raise TypeError("sr_w='mean' needs generator.backbone.mapping.w_avg")
+                vec = torch.as_tensor(w_avg).detach().clone()
+            elif isinstance(spec, str):
+                raise ValueError(f"sr_w must be 'ones', 'mean' or a (w_dim,) vector, got {spec!r}")
+            else:
+                vec = torch.as_tensor(spec).detach().clone()
+                if vec.ndim != 1 or (w_dim is not None and vec.shape[0] != int(w_dim)):
+                    raise ValueError(f"sr_w must have shape ({w_dim},), got {tuple(vec.shape)}")
+            self._sr_w_vec = vec.to(self.device, torch.float32)
+        return self._sr_w_vec
+
+    def superresolve(self, feature_image: Tensor | np.ndarray) -> Tensor:
+        """EG3D's super-resolution of a rendered feature image with the constant w.
+
+        ``feature_image`` (B, 32, 128, 128) (rgb = its first 3 channels, as ``TriPlaneGenerator``)
+        -> image (B, 3, 512, 512) float32 on ``device``, about [-1, 1]. The w fed to
+        ``G.superresolution`` is :meth:`sr_w` repeated to (B, num_ws, w_dim) (EG3D's module reads
+        only ``ws[:, -1]``); noise mode ``sr_noise_mode``. No gradients: the teacher is frozen.
+        """
+        sr = _get(self.generator, "superresolution")
+        x = torch.as_tensor(feature_image).to(self.device, torch.float32)
+        if x.ndim != 4 or x.shape[1] != 32:
+            raise ValueError(f"feature_image must have shape (B, 32, R, R), got {tuple(x.shape)}")
+        num_ws = int(getattr(self.generator.backbone, "num_ws", 1) or 1)
+        w = self.sr_w()
+        ws = w.reshape(1, 1, -1).repeat(x.shape[0], num_ws, 1)
+        with torch.no_grad():
+            img = sr(x[:, :3], x, ws, noise_mode=self.sr_noise_mode)
+        return img.float()
