@@ -1,0 +1,1167 @@
+"""``lp3d``: the command line. One entry point, one subcommand per job::
+
+    lp3d encode photo.jpg -o head.npz            photo(s) -> triplane(s) (face detection + alignment)
+    lp3d render head.npz --yaw 30 -o view.png    one view (also --depth, --features-channel)
+    lp3d orbit head.npz -o orbit.mp4             a turntable video (.gif or .mp4)
+    lp3d mesh head.npz -o head.glb               marching cubes (.ply, .obj or .glb)
+    lp3d info head.npz                           what is in a triplane file
+    lp3d video in.mp4 -o out.mp4 --yaw 20        lift a talking-head video frame by frame
+    lp3d demo                                    the end-to-end demo
+
+Every subcommand has ``--help``. Errors go to stderr as ``lp3d <command>: error: <what and where>``,
+with exit status 1 (2 for a usage error); set ``LP3D_DEBUG=1`` for the traceback. Outputs are written
+to temporary files beside their destination and renamed into place only when everything succeeded,
+so a failed command leaves no partial files. Rendering uses ``lp3d_render`` (wgpu); on a machine
+without a GPU set ``VK_DRIVER_FILES`` to Mesa's lavapipe ICD (see README).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import math
+import os
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+PROG = "lp3d"
+
+#: Output formats per kind of output.
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+VIDEO_SUFFIXES = (".mp4", ".gif")
+MESH_SUFFIXES = (".ply", ".obj", ".glb")
+#: Crop smoothing in ``lp3d video`` (exponential, per frame): damps the Haar box's frame-to-frame jitter.
+VIDEO_CROP_SMOOTHING = 0.6
+
+
+class CLIError(Exception):
+    """A user-facing error: printed as one line, exit status 1."""
+
+
+# ============================================================================================ helpers
+
+
+def _say(message: str) -> None:
+    """Progress and results go to stdout; errors and warnings to stderr."""
+    print(message, flush=True)
+
+
+def _warn(message: str) -> None:
+    print(f"warning: {message}", file=sys.stderr, flush=True)
+
+
+def _human_bytes(n: int) -> str:
+    size = float(n)
+    for unit in ("B", "KiB", "MiB"):
+        if size < 1024:
+            return f"{size:.0f} {unit}" if unit == "B" else f"{size:.1f} {unit}"
+        size /= 1024
+    return f"{size:.1f} GiB"
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+class Staged:
+    """Outputs written to temporary files beside their destinations, published together by :meth:`commit`.
+
+    Leaving the ``with`` block without committing (an error, Ctrl-C) deletes every temporary file and
+    every folder this object created, so a failed command leaves nothing behind.
+    """
+
+    def __init__(self) -> None:
+        self._files: list[tuple[Path, Path]] = []
+        self._dirs: list[Path] = []
+
+    def __enter__(self) -> Staged:
+        return self
+
+    def __exit__(self, exc_type: object, exc: BaseException | None, tb: object) -> None:
+        finals = {str(tmp): final for tmp, final in self._files}
+        self.discard()
+        if isinstance(exc, OSError) and str(exc.filename) in finals:
+            # Name the destination, not our temporary file.
+            raise CLIError(f"cannot write {finals[str(exc.filename)]}: {exc.strerror or exc}") from exc
+
+    def mkdir(self, folder: Path) -> None:
+        """Create ``folder`` (its parent must exist); it is removed again on failure if still empty."""
+        if not folder.exists():
+            folder.mkdir()
+            self._dirs.append(folder)
+
+    def temp(self, final: Path) -> Path:
+        """A new temporary path for ``final`` in the same folder (so the rename is atomic); it keeps
+        ``final``'s suffix, which imageio/ffmpeg read the format from."""
+        try:
+            fd, tmp = tempfile.mkstemp(
+                dir=final.parent, prefix=f".{final.name}.", suffix=f".tmp{final.suffix}"
+            )
+        except OSError as e:
+            raise CLIError(f"cannot write {final}: {e.strerror or e}") from None
+        os.close(fd)
+        self._files.append((Path(tmp), final))
+        return Path(tmp)
+
+    def commit(self) -> list[Path]:
+        """Rename every temporary file onto its destination; returns the destinations."""
+        done = []
+        mode = 0o666 & ~_umask()  # mkstemp makes 0600 files; outputs get the usual permissions
+        for tmp, final in self._files:
+            os.chmod(tmp, mode)
+            os.replace(tmp, final)
+            done.append(final)
+        self._files, self._dirs = [], []
+        return done
+
+    def discard(self) -> None:
+        for tmp, _ in self._files:
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+        for folder in reversed(self._dirs):
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+        self._files, self._dirs = [], []
+
+
+def check_output(path: Path, suffixes: Sequence[str], what: str = "output") -> Path:
+    """Fail early (before any slow work) if ``path`` cannot be written as one of ``suffixes``."""
+    suffix = path.suffix.lower()
+    if suffix not in suffixes:
+        raise CLIError(
+            f"{what} {path}: unsupported format {suffix or '(no suffix)'}; use one of {', '.join(suffixes)}"
+        )
+    if path.is_dir():
+        raise CLIError(f"{what} {path} is a folder; give a file name")
+    _check_folder(path.parent, what, path)
+    return path
+
+
+def _check_folder(folder: Path, what: str, path: Path) -> None:
+    if not folder.exists():
+        raise CLIError(f"{what} {path}: folder {folder} does not exist")
+    if not folder.is_dir():
+        raise CLIError(f"{what} {path}: {folder} is not a folder")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise CLIError(f"{what} {path}: folder {folder} is not writable")
+
+
+def load_triplane_file(path: Path) -> Any:
+    """A validated :class:`~lp3d.triplane.TriplaneData` from ``path`` with one-line errors."""
+    from lp3d.triplane_io import load_triplane
+
+    if not path.exists():
+        raise CLIError(f"{path}: no such file")
+    if path.is_dir():
+        raise CLIError(f"{path}: is a folder, not a triplane .npz")
+    if path.stat().st_size == 0:
+        raise CLIError(f"{path}: empty file (not a triplane .npz)")
+    return load_triplane(path)  # TriplaneFileError (ValueError) names the file and key
+
+
+def renderer() -> Any:
+    """The ``lp3d_render`` module (imported on first use: it creates the GPU device)."""
+    try:
+        import lp3d_render
+    except ImportError as e:
+        raise CLIError(
+            f"the renderer lp3d_render is not installed ({e}); build it with ./dev setup"
+        ) from None
+    return lp3d_render
+
+
+def render_triplane_file(path: Path) -> Any:
+    """``(TriplaneData, lp3d_render.Triplane)`` of a file: validated in Python first (clear errors), then
+    loaded by the renderer itself, which keeps everything it uses (such as a baked occupancy grid)."""
+    tri = load_triplane_file(path)
+    return tri, renderer().Triplane.load(str(path))
+
+
+def render_triplane(tri: Any) -> Any:
+    """An ``lp3d_render.Triplane`` from a TriplaneData (planes, decoder and bounds)."""
+    return renderer().Triplane(
+        tri.planes, tri.w0, tri.b0, tri.w1, tri.b1, tri.box_warp, tri.ray_start, tri.ray_end
+    )
+
+
+def parse_samples(text: str) -> tuple[int, int]:
+    """``"48+48"`` -> (48, 48) coarse + fine samples per ray; ``"64"`` -> (64, 0) (no importance pass)."""
+    from lp3d.settings import MAX_SAMPLES
+
+    parts = text.split("+")
+    try:
+        values = [int(p) for p in parts]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected COARSE+FINE such as 48+48, got {text!r}") from None
+    if len(values) == 1:
+        values.append(0)
+    if len(values) != 2:
+        raise argparse.ArgumentTypeError(f"expected COARSE+FINE such as 48+48, got {text!r}")
+    coarse, fine = values
+    if fine and not 4 <= coarse <= MAX_SAMPLES:
+        raise argparse.ArgumentTypeError(f"coarse samples must be in [4, {MAX_SAMPLES}] with a fine pass")
+    if not 2 <= coarse <= MAX_SAMPLES or not (fine == 0 or 2 <= fine <= MAX_SAMPLES):
+        raise argparse.ArgumentTypeError(
+            f"samples must be in [2, {MAX_SAMPLES}] (fine may be 0 to skip importance sampling), got {text!r}"
+        )
+    return coarse, fine
+
+
+def _int_in(lo: int, hi: int) -> Callable[[str], int]:
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"must be in [{lo}, {hi}], got {value}")
+        return value
+
+    return parse
+
+
+def _float_in(lo: float, hi: float, *, hi_open: bool = False) -> Callable[[str], float]:
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not (math.isfinite(value) and lo <= value and (value < hi if hi_open else value <= hi)):
+            raise argparse.ArgumentTypeError(
+                f"must be in [{lo:g}, {hi:g}{')' if hi_open else ']'}, got {text}"
+            )
+        return value
+
+    return parse
+
+
+def _resolution(text: str) -> int:
+    from lp3d.settings import MAX_RESOLUTION
+
+    return _int_in(8, MAX_RESOLUTION)(text)
+
+
+def _camera_args(p: argparse.ArgumentParser, *, yaw: float | None = 0.0, pitch: float = 0.0) -> None:
+    if yaw is not None:
+        p.add_argument(
+            "--yaw",
+            type=float,
+            default=yaw,
+            help="camera yaw in degrees, > 0 toward the subject's left (default: %(default)s)",
+        )
+    p.add_argument(
+        "--pitch", type=float, default=pitch, help="camera pitch in degrees, > 0 above (default: %(default)s)"
+    )
+    p.add_argument("--roll", type=float, default=0.0, help="camera roll in degrees (default: 0)")
+    p.add_argument(
+        "--radius",
+        type=_float_in(0.1, 100.0),
+        default=2.7,
+        help="camera distance from the origin (default: EG3D's 2.7)",
+    )
+    p.add_argument(
+        "--focal",
+        type=_float_in(0.1, 100.0),
+        default=4.2647,
+        help="normalised focal length (default: EG3D's FFHQ 4.2647)",
+    )
+
+
+def _render_args(p: argparse.ArgumentParser, resolution: int) -> None:
+    p.add_argument(
+        "--resolution",
+        type=_resolution,
+        default=resolution,
+        help="pixels per image side (default: %(default)s)",
+    )
+    p.add_argument(
+        "--samples",
+        type=parse_samples,
+        default=(48, 48),
+        metavar="COARSE+FINE",
+        help="samples per ray, EG3D's depth_resolution + depth_resolution_importance "
+        "(default: 48+48; 64 alone skips the importance pass)",
+    )
+
+
+def make_camera(
+    args: argparse.Namespace, *, yaw: float | None = None, pitch: float | None = None
+) -> np.ndarray:
+    """A (25,) camera label from the camera arguments (yaw/pitch overridable)."""
+    from lp3d.camera import look_at_camera
+
+    return look_at_camera(
+        yaw_deg=args.yaw if yaw is None else yaw,
+        pitch_deg=args.pitch if pitch is None else pitch,
+        roll_deg=args.roll,
+        radius=args.radius,
+        focal=args.focal,
+    )
+
+
+def render_views(
+    tri: Any, cameras: np.ndarray, args: argparse.Namespace, outputs: Sequence[str] = ("rgb",)
+) -> dict[str, np.ndarray]:
+    """Render (B, 25) cameras; every output has a leading B axis."""
+    coarse, fine = args.samples
+    out = renderer().render(
+        tri,
+        np.atleast_2d(cameras),
+        resolution=args.resolution,
+        depth_resolution=coarse,
+        depth_resolution_importance=fine,
+        outputs=list(outputs),
+    )
+    return dict(out)
+
+
+def write_image(path: Path, image: np.ndarray, fmt_suffix: str) -> None:
+    """Write (H, W, 3) or (H, W) uint8 as PNG or JPEG (by ``fmt_suffix``)."""
+    from PIL import Image
+
+    fmt = "PNG" if fmt_suffix.lower() == ".png" else "JPEG"
+    kwargs = {"quality": 95} if fmt == "JPEG" else {}
+    Image.fromarray(np.ascontiguousarray(image)).save(path, format=fmt, **kwargs)
+
+
+class VideoWriter:
+    """Frames (H, W, 3) uint8 into a ``.gif`` (imageio/Pillow, written on :meth:`close`) or an ``.mp4``
+    (H.264 via the ffmpeg binary bundled with imageio-ffmpeg, streamed)."""
+
+    def __init__(self, path: Path, fmt_suffix: str, fps: float) -> None:
+        self.path, self.fps, self.suffix = path, fps, fmt_suffix.lower()
+        self.frames: list[np.ndarray] = []
+        self._mp4: Any = None
+        self.count = 0
+
+    def add(self, frame: np.ndarray) -> None:
+        frame = np.ascontiguousarray(frame, dtype=np.uint8)
+        if self.suffix == ".gif":
+            self.frames.append(frame)
+        else:
+            if self._mp4 is None:
+                self._mp4 = self._open_mp4(frame.shape[1], frame.shape[0])
+            self._mp4.send(frame.tobytes())
+        self.count += 1
+
+    def _open_mp4(self, width: int, height: int) -> Any:
+        try:
+            import imageio_ffmpeg
+
+            imageio_ffmpeg.get_ffmpeg_exe()
+        except (ImportError, RuntimeError) as e:
+            raise CLIError(f"MP4 output needs imageio-ffmpeg (pip install imageio-ffmpeg): {e}") from None
+        gen = imageio_ffmpeg.write_frames(
+            str(self.path),
+            (width, height),
+            fps=self.fps,
+            codec="libx264",
+            quality=8,
+            macro_block_size=2,  # yuv420p needs even sides; 16 would rescale most sizes
+            ffmpeg_log_level="error",
+        )
+        gen.send(None)  # start ffmpeg
+        return gen
+
+    def close(self) -> None:
+        if self.suffix == ".gif":
+            if not self.frames:
+                raise CLIError("no frames to write")
+            import imageio.v3 as iio
+
+            iio.imwrite(
+                self.path, np.stack(self.frames), extension=".gif", duration=1000.0 / self.fps, loop=0
+            )
+        elif self._mp4 is not None:
+            gen, self._mp4 = self._mp4, None
+            gen.close()
+        elif self.count == 0:
+            raise CLIError("no frames to write")
+
+    def abort(self) -> None:
+        if self._mp4 is not None:
+            with contextlib.suppress(Exception):
+                self._mp4.close()
+            self._mp4 = None
+
+
+def progress(total: int | None, desc: str) -> Any:
+    """A tqdm progress bar on stderr (a no-op object when tqdm is missing)."""
+    try:
+        from tqdm import tqdm
+    except ImportError:  # pragma: no cover - tqdm is a dependency
+
+        class _Null:
+            def update(self, n: int = 1) -> None: ...
+            def close(self) -> None: ...
+            def set_postfix_str(self, s: str) -> None: ...
+
+        return _Null()
+    return tqdm(total=total, desc=desc, unit="frame", file=sys.stderr, dynamic_ncols=True, leave=True)
+
+
+# ============================================================================================ render
+
+
+def cmd_render(args: argparse.Namespace) -> int:
+    out_path = check_output(args.output, IMAGE_SUFFIXES)
+    depth_path = check_output(args.depth, IMAGE_SUFFIXES, "--depth") if args.depth else None
+    if depth_path is not None and depth_path.resolve() == out_path.resolve():
+        raise CLIError("--depth and -o name the same file")
+    _, rtri = render_triplane_file(args.triplane)
+    from lp3d.images import depth_to_uint8, rgb_to_uint8
+
+    outputs = ["features"] if args.features_channel is not None else ["rgb"]
+    if depth_path is not None:
+        outputs += ["depth", "weights_sum"]
+    start = time.perf_counter()
+    out = render_views(rtri, make_camera(args)[None], args, outputs)
+    seconds = time.perf_counter() - start
+    if args.features_channel is not None:
+        channel = out["features"][0, args.features_channel]
+        image = np.round((np.clip(channel, -1.0, 1.0) + 1.0) * 127.5).astype(np.uint8)
+    else:
+        image = rgb_to_uint8(out["rgb"][0])
+    with Staged() as staged:
+        write_image(staged.temp(out_path), image, out_path.suffix)
+        if depth_path is not None:
+            depth = depth_to_uint8(out["depth"][0], out["weights_sum"][0])
+            write_image(staged.temp(depth_path), depth, depth_path.suffix)
+        written = staged.commit()
+    coarse, fine = args.samples
+    what = f"feature channel {args.features_channel}" if args.features_channel is not None else "rgb"
+    _say(
+        f"rendered {args.resolution}² ({coarse}+{fine} samples, yaw {args.yaw:+g}°, pitch {args.pitch:+g}°, "
+        f"{what}) in {seconds:.2f} s"
+    )
+    for path in written:
+        _say(f"wrote {path}")
+    return 0
+
+
+# ============================================================================================= orbit
+
+
+def orbit_angles(frames: int, yaw_range: float, pitch_range: float) -> list[tuple[float, float]]:
+    """(yaw, pitch offset) per frame of a closed loop, as EG3D's videos: ``yaw = R_y sin(2 pi t)``,
+    ``pitch = R_p cos(2 pi t)`` with ``t = i / frames`` (the last frame leads back to the first)."""
+    out = []
+    for i in range(frames):
+        t = 2.0 * math.pi * i / frames
+        out.append((yaw_range * math.sin(t), pitch_range * math.cos(t)))
+    return out
+
+
+def cmd_orbit(args: argparse.Namespace) -> int:
+    out_path = check_output(args.output, VIDEO_SUFFIXES)
+    _, rtri = render_triplane_file(args.triplane)
+    angles = orbit_angles(args.frames, args.yaw_range, args.pitch_range)
+    cams = np.stack([make_camera(args, yaw=y, pitch=args.pitch + p) for y, p in angles])
+    from lp3d.images import rgb_to_uint8
+
+    start = time.perf_counter()
+    with Staged() as staged:
+        writer = VideoWriter(staged.temp(out_path), out_path.suffix, args.fps)
+        bar = progress(len(cams), "orbit")
+        try:
+            for i in range(0, len(cams), args.batch):
+                rgb = render_views(rtri, cams[i : i + args.batch], args)["rgb"]
+                for frame in rgb:
+                    writer.add(rgb_to_uint8(frame))
+                bar.update(len(rgb))
+            writer.close()
+        finally:
+            writer.abort()
+            bar.close()
+        staged.commit()
+    seconds = time.perf_counter() - start
+    _say(
+        f"rendered {len(cams)} frames at {args.resolution}² in {seconds:.1f} s "
+        f"({seconds / len(cams):.2f} s/frame); wrote {out_path}"
+    )
+    return 0
+
+
+# ============================================================================================== mesh
+
+
+def cmd_mesh(args: argparse.Namespace) -> int:
+    out_path = check_output(args.output, MESH_SUFFIXES)
+    tri = load_triplane_file(args.triplane)
+    from lp3d.mesh import extract_mesh, write_mesh
+
+    start = time.perf_counter()
+    mesh = extract_mesh(tri, grid=args.grid, threshold=args.threshold)
+    seconds = time.perf_counter() - start
+    with Staged() as staged:
+        write_mesh(staged.temp(out_path), mesh, fmt=out_path.suffix, ascii_ply=args.ascii)
+        staged.commit()
+    _say(
+        f"marching cubes on a {args.grid}³ density grid at threshold {args.threshold:g}: "
+        f"{len(mesh.vertices):,} vertices, {len(mesh.faces):,} triangles in {seconds:.1f} s"
+    )
+    _say(f"wrote {out_path} ({_human_bytes(out_path.stat().st_size)})")
+    return 0
+
+
+# ============================================================================================== info
+
+
+def camera_summary(label: np.ndarray) -> dict[str, float]:
+    """A camera label as yaw/pitch of its centre about the origin (as ``look_at_camera`` takes them),
+    radius and focal length."""
+    c2w = np.asarray(label, np.float64)[:16].reshape(4, 4)
+    centre = c2w[:3, 3]
+    radius = float(np.linalg.norm(centre))
+    yaw = math.degrees(math.atan2(centre[0], centre[2]))
+    pitch = math.degrees(math.asin(max(-1.0, min(1.0, centre[1] / radius)))) if radius > 0 else 0.0
+    return {"yaw_deg": yaw, "pitch_deg": pitch, "radius": radius, "focal": float(label[16])}
+
+
+def triplane_info(path: Path) -> dict[str, Any]:
+    """Everything ``lp3d info`` prints, as plain data."""
+    tri = load_triplane_file(path)
+    with np.load(path, allow_pickle=False) as npz:
+        version = int(npz["format_version"])
+    planes = tri.planes.astype(np.float32)
+    info: dict[str, Any] = {
+        "file": str(path),
+        "file_size": path.stat().st_size,
+        "format_version": version,
+        "planes": {
+            "shape": list(tri.planes.shape),
+            "dtype": str(tri.planes.dtype),
+            "min": float(planes.min()),
+            "max": float(planes.max()),
+            "mean": float(planes.mean()),
+            "std": float(planes.std()),
+            "per_plane_std": [float(planes[p].std()) for p in range(3)],
+        },
+        "decoder": {
+            name: {
+                "shape": list(a.shape),
+                "min": float(a.min()),
+                "max": float(a.max()),
+                "mean": float(a.mean()),
+                "rms": float(np.sqrt(np.mean(np.square(a, dtype=np.float64)))),
+            }
+            for name, a in (("w0", tri.w0), ("b0", tri.b0), ("w1", tri.w1), ("b1", tri.b1))
+        },
+        "box_warp": tri.box_warp,
+        "box": [-tri.box_warp / 2.0, tri.box_warp / 2.0],
+        "ray_start": tri.ray_start,
+        "ray_end": tri.ray_end,
+        "camera": None if tri.camera is None else camera_summary(tri.camera),
+        "source": tri.source,
+        "occupancy": None,
+    }
+    # A hidden unit does nothing when its input row or its output column is all zeros.
+    used = np.abs(tri.w0).sum(axis=1) * np.abs(tri.w1).sum(axis=0)
+    info["decoder"]["hidden_units_used"] = int(np.count_nonzero(used))
+    info["decoder"]["density_bias"] = float(tri.b1[0])
+    if tri.occupancy is not None:
+        occ = tri.occupancy
+        info["occupancy"] = {
+            "shape": list(occ.shape),
+            "min": float(occ.min()),
+            "max": float(occ.max()),
+            "fraction_nonzero": float(np.count_nonzero(occ) / occ.size),
+        }
+    return info
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    info = triplane_info(args.triplane)
+    if args.json:
+        print(json.dumps(info, indent=2))
+        return 0
+    p, d = info["planes"], info["decoder"]
+    lines = [
+        f"file:           {info['file']} ({_human_bytes(info['file_size'])}, "
+        f"format_version {info['format_version']})",
+        f"planes:         {tuple(p['shape'])} {p['dtype']}  (3 planes x 32 channels x "
+        f"{p['shape'][2]}x{p['shape'][3]})",
+        f"  values:       min {p['min']:.4g}, max {p['max']:.4g}, mean {p['mean']:.4g}, std {p['std']:.4g}; "
+        f"std per plane {', '.join(f'{s:.3g}' for s in p['per_plane_std'])}",
+        f"decoder:        w0 {tuple(d['w0']['shape'])}, b0 {tuple(d['b0']['shape'])}, "
+        f"w1 {tuple(d['w1']['shape'])}, b1 {tuple(d['b1']['shape'])}; "
+        f"{d['hidden_units_used']} of {d['w0']['shape'][0]} hidden units used",
+    ]
+    for name in ("w0", "b0", "w1", "b1"):
+        s = d[name]
+        lines.append(
+            f"  {name}:           min {s['min']:.4g}, max {s['max']:.4g}, mean {s['mean']:.4g}, "
+            f"rms {s['rms']:.4g}"
+        )
+    lines.append(f"  density bias: b1[0] = {d['density_bias']:.4g} (raw density output)")
+    lines += [
+        f"box:            [{info['box'][0]:g}, {info['box'][1]:g}]^3 (box_warp {info['box_warp']:g})",
+        f"rays:           t in [{info['ray_start']:g}, {info['ray_end']:g}]",
+    ]
+    cam = info["camera"]
+    lines.append(
+        "camera:         none (the input view is not stored)"
+        if cam is None
+        else f"camera:         yaw {cam['yaw_deg']:+.1f}°, pitch {cam['pitch_deg']:+.1f}°, "
+        f"radius {cam['radius']:.3g}, focal {cam['focal']:.4g}"
+    )
+    lines.append(f"source:         {info['source'] if info['source'] is not None else 'none'}")
+    occ = info["occupancy"]
+    lines.append(
+        "occupancy:      none (not baked)"
+        if occ is None
+        else f"occupancy:      {tuple(occ['shape'])} grid, {100 * occ['fraction_nonzero']:.1f}% non-zero, "
+        f"range [{occ['min']:.3g}, {occ['max']:.3g}]"
+    )
+    print("\n".join(lines))
+    return 0
+
+
+# ============================================================================================ encode
+
+
+def _collect_images(inputs: Sequence[Path]) -> list[Path]:
+    """Files as given; folders expand to their images (non-recursive, sorted)."""
+    from lp3d.photo import IMAGE_SUFFIXES as PHOTO_SUFFIXES
+
+    found: list[Path] = []
+    for item in inputs:
+        if item.is_dir():
+            images = sorted(p for p in item.iterdir() if p.is_file() and p.suffix.lower() in PHOTO_SUFFIXES)
+            if not images:
+                raise CLIError(f"{item}: folder holds no images ({', '.join(PHOTO_SUFFIXES)})")
+            found += images
+        elif not item.exists():
+            raise CLIError(f"{item}: no such file or folder")
+        else:
+            found.append(item)
+    return found
+
+
+def _plan_outputs(images: Sequence[Path], output: Path) -> tuple[list[Path], Path | None]:
+    """Destination per image, and the folder to create (if any). One image and a ``.npz`` name: that
+    file; otherwise ``output`` is a folder (created if missing) holding ``<stem>.npz`` per image."""
+    if output.suffix.lower() == ".npz" and not output.is_dir():
+        if len(images) != 1:
+            raise CLIError(f"-o {output}: {len(images)} images need an output folder, not one .npz file")
+        check_output(output, (".npz",))
+        return [output], None
+    if output.exists() and not output.is_dir():
+        raise CLIError(f"-o {output}: exists and is not a folder (name a .npz file for a single image)")
+    if output.suffix and not output.exists():
+        raise CLIError(f"-o {output}: unsupported format {output.suffix}; name a .npz file or a folder")
+    _check_folder(output.parent if not output.exists() else output, "output folder", output)
+    stems: dict[str, Path] = {}
+    for img in images:
+        if img.stem in stems:
+            raise CLIError(f"{img} and {stems[img.stem]} would both write {output / (img.stem + '.npz')}")
+        stems[img.stem] = img
+    return [output / f"{img.stem}.npz" for img in images], (None if output.exists() else output)
+
+
+def _model_path(arg: Path | None) -> Path:
+    from lp3d.inference import DEFAULT_MODEL
+
+    path = arg if arg is not None else DEFAULT_MODEL
+    if not path.exists():
+        if arg is None:
+            raise CLIError(
+                f"no model given and the default model {path} does not exist yet; pass --model "
+                "MODEL.onnx (with its MODEL.json) or CHECKPOINT.pt, or train one with python -m lp3d.train"
+            )
+        raise CLIError(f"--model {path}: no such file")
+    return path
+
+
+def prepare_photo(rgb: np.ndarray, size: int, *, detect: bool, name: str) -> tuple[np.ndarray, str]:
+    """(crop (size, size, 3) uint8, a one-line description) of one photo; NoFaceError without a face."""
+    from lp3d.photo import NoFaceError, centre_crop, crop_image, detect_face
+
+    h, w = rgb.shape[:2]
+    if not detect:
+        crop = centre_crop(rgb.shape)
+        return crop_image(rgb, crop, size), f"{w}x{h}, centre crop {crop.side:.0f} px (no detection)"
+    found = detect_face(rgb)
+    if found is None:
+        raise NoFaceError(
+            f"{name}: no face found; if the photo is already a centred portrait crop, pass --no-detect"
+        )
+    x, y, bw, bh = found.box
+    eyes = f"roll {found.angle_deg:+.1f}°" if found.eyes is not None else "eyes not found, not levelled"
+    more = f", {found.n_faces} face candidates (the largest clear one used)" if found.n_faces > 1 else ""
+    desc = (
+        f"{w}x{h}, face {bw:.0f}x{bh:.0f} at ({x:.0f}, {y:.0f}){more}, {eyes}, crop {found.crop.side:.0f} px"
+    )
+    return crop_image(rgb, found.crop, size), desc
+
+
+def cmd_encode(args: argparse.Namespace) -> int:
+    from lp3d.inference import load_encoder
+    from lp3d.photo import PhotoError, load_image, to_encoder_input
+    from lp3d.triplane_io import save_triplane
+
+    images = _collect_images(args.inputs)
+    destinations, new_folder = _plan_outputs(images, args.output)
+    model_path = _model_path(args.model)
+
+    t0 = time.perf_counter()
+    encoder = load_encoder(model_path, args.backend)
+    pkg = encoder.package
+    _say(
+        f"model: {encoder.description}, config {pkg.config_name!r}, {pkg.image_size}² -> "
+        f"{pkg.triplane_resolution}² triplane, loaded in {time.perf_counter() - t0:.2f} s"
+    )
+
+    # Read, detect and crop everything first: one bad photo fails the run before anything is written.
+    t0 = time.perf_counter()
+    crops: list[np.ndarray] = []
+    failures: list[str] = []
+    for img in images:
+        try:
+            rgb, notes = load_image(img)
+            for note in notes:
+                _warn(note)
+            crop, desc = prepare_photo(rgb, pkg.image_size, detect=not args.no_detect, name=str(img))
+        except PhotoError as e:
+            failures.append(str(e))
+            continue
+        crops.append(crop)
+        _say(f"{img}: {desc}")
+    if failures:
+        if len(failures) == 1:
+            raise CLIError(failures[0])
+        raise CLIError(f"{len(failures)} of {len(images)} photos cannot be used:\n  " + "\n  ".join(failures))
+    t_prep = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    batch = to_encoder_input(np.stack(crops))
+    planes = np.concatenate(
+        [encoder.run(batch[i : i + args.batch_size]) for i in range(0, len(batch), args.batch_size)]
+    )
+    t_enc = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    with Staged() as staged:
+        if new_folder is not None:
+            staged.mkdir(new_folder)
+        for img, dest, plane, crop in zip(images, destinations, planes, crops, strict=True):
+            source = f"lp3d encode {img.name} (model {pkg.config_name}, {encoder.backend})"
+            tri = pkg.triplane(plane.astype(np.float16) if args.half else plane, source=source)
+            save_triplane(staged.temp(dest), tri)
+            if args.save_crop:
+                crop_path = dest.with_name(dest.stem + ".crop.png")
+                write_image(staged.temp(crop_path), crop, ".png")
+        written = staged.commit()
+    t_write = time.perf_counter() - t0
+    n = len(images)
+    _say(
+        f"timings: detect+crop {t_prep:.2f} s ({t_prep / n:.3f} s/image), encode {t_enc:.2f} s "
+        f"({t_enc / n:.3f} s/image, {encoder.backend}), write {t_write:.2f} s"
+    )
+    for path in written:
+        _say(f"wrote {path}")
+    return 0
+
+
+# ============================================================================================= video
+
+
+def _ffmpeg_reason(e: Exception) -> str:
+    """The informative last line of an imageio-ffmpeg error (its message embeds ffmpeg's whole log)."""
+    lines = [ln.strip() for ln in str(e).splitlines() if ln.strip()]
+    tail = [ln for ln in lines if "rror" in ln or "nvalid" in ln or "No such" in ln]
+    return (tail[-1] if tail else lines[0] if lines else type(e).__name__)[:300]
+
+
+def read_video(path: Path, max_frames: int | None) -> tuple[dict[str, Any], Iterator[np.ndarray]]:
+    """(metadata, frames (H, W, 3) uint8) of a video file read by the bundled ffmpeg; ``max_frames=0``
+    only reads the metadata."""
+    if not path.exists():
+        raise CLIError(f"{path}: no such file")
+    if path.is_dir():
+        raise CLIError(f"{path}: is a folder, not a video")
+    if path.stat().st_size == 0:
+        raise CLIError(f"{path}: empty file")
+    try:
+        import imageio_ffmpeg
+    except ImportError as e:
+        raise CLIError(f"reading videos needs imageio-ffmpeg: {e}") from None
+    try:
+        gen = imageio_ffmpeg.read_frames(str(path))
+        meta = next(gen)
+    except (OSError, RuntimeError, StopIteration) as e:
+        raise CLIError(f"{path}: cannot read as a video ({_ffmpeg_reason(e)})") from None
+    if max_frames == 0:  # a probe: metadata only, stop ffmpeg now
+        gen.close()
+        return meta, iter(())
+    w, h = meta["size"]
+
+    def frames() -> Iterator[np.ndarray]:
+        try:
+            for i, raw in enumerate(gen):
+                if max_frames is not None and i >= max_frames:
+                    break
+                yield np.frombuffer(raw, np.uint8).reshape(h, w, 3)
+        except (OSError, RuntimeError) as e:
+            raise CLIError(f"{path}: error while decoding ({_ffmpeg_reason(e)})") from None
+        finally:
+            gen.close()
+
+    return meta, frames()
+
+
+def _frame_estimate(meta: dict[str, Any], max_frames: int | None) -> int | None:
+    """Frames to expect (for the progress bar) from ffmpeg's duration and fps, capped by --max-frames."""
+    try:
+        n = round(float(meta["duration"]) * float(meta["fps"]))
+    except (KeyError, TypeError, ValueError, OverflowError):
+        return max_frames
+    n = n if n > 0 else None
+    return n if max_frames is None else min(max_frames, n or max_frames)
+
+
+def _nearest(hits: np.ndarray, n: int) -> np.ndarray:
+    """For each of ``n`` frames, the index in sorted ``hits`` (frames with a face) nearest to it."""
+    frames = np.arange(n)
+    right = np.clip(np.searchsorted(hits, frames), 0, len(hits) - 1)
+    left = np.clip(right - 1, 0, len(hits) - 1)
+    use_left = np.abs(hits[left] - frames) <= np.abs(hits[right] - frames)
+    return np.where(use_left, hits[left], hits[right])
+
+
+def _smooth_crops(crops: list[Any], alpha: float) -> list[Any]:
+    """Exponential smoothing of the crop parameters, run forward then backward (no lag)."""
+    if alpha <= 0 or len(crops) < 2:
+        return crops
+    keys = ("cx", "cy", "side", "angle_deg")
+    vals = np.array([[getattr(c, k) for k in keys] for c in crops], np.float64)
+    for i in range(1, len(vals)):
+        vals[i] = alpha * vals[i - 1] + (1 - alpha) * vals[i]
+    for i in range(len(vals) - 2, -1, -1):
+        vals[i] = alpha * vals[i + 1] + (1 - alpha) * vals[i]
+    return [
+        replace(c, **dict(zip(keys, map(float, v), strict=True))) for c, v in zip(crops, vals, strict=True)
+    ]
+
+
+def cmd_video(args: argparse.Namespace) -> int:
+    from lp3d.images import rgb_to_uint8
+    from lp3d.inference import load_encoder
+    from lp3d.photo import (
+        DETECT_MAX_SIDE,
+        NoFaceError,
+        centre_crop,
+        crop_image,
+        detect_face,
+        to_encoder_input,
+    )
+
+    out_path = check_output(args.output, VIDEO_SUFFIXES)
+    if args.input.resolve() == out_path.resolve():
+        raise CLIError("the output would overwrite the input video")
+    encoder = load_encoder(_model_path(args.model), args.backend)
+    pkg = encoder.package
+    meta, _ = read_video(args.input, 0)  # fail fast on an unreadable file
+    fps = float(args.fps or meta.get("fps") or 25.0)
+    w, h = meta["size"]
+    _say(f"video: {args.input} {w}x{h} at {fps:g} fps; model {encoder.description}")
+    if max(w, h) > 4 * DETECT_MAX_SIDE:
+        _warn(f"{w}x{h} frames are large; detection runs on downscaled copies")
+
+    # Pass 1: where the face is in each frame (gaps filled from the nearest detection, then smoothed).
+    crops: list[Any] = []
+    if args.no_detect:
+        crops = []
+    else:
+        _, frames = read_video(args.input, args.max_frames)
+        bar = progress(_frame_estimate(meta, args.max_frames), "detect")
+        try:
+            for frame in frames:
+                found = detect_face(frame)
+                crops.append(None if found is None else found.crop)
+                bar.update()
+        finally:
+            bar.close()
+        if not crops:
+            raise CLIError(f"{args.input}: the video has no frames")
+        hits = [i for i, c in enumerate(crops) if c is not None]
+        if not hits:
+            raise NoFaceError(
+                f"{args.input}: no face found in any frame; for a centred portrait video pass --no-detect"
+            )
+        if len(hits) < len(crops):
+            _warn(f"no face in {len(crops) - len(hits)} of {len(crops)} frames; using the nearest detection")
+        crops = [crops[j] for j in _nearest(np.asarray(hits), len(crops))]
+        crops = _smooth_crops(crops, VIDEO_CROP_SMOOTHING)
+
+    # Pass 2: crop, encode, smooth the triplane over time, render the new view.
+    camera = make_camera(args)[None]
+    _, frames = read_video(args.input, args.max_frames)
+    start = time.perf_counter()
+    t_enc = t_render = 0.0
+    state: np.ndarray | None = None
+    with Staged() as staged:
+        writer = VideoWriter(staged.temp(out_path), out_path.suffix, fps)
+        bar = progress(len(crops) if crops else _frame_estimate(meta, args.max_frames), "video")
+        try:
+            for i, frame in enumerate(frames):
+                crop = crops[min(i, len(crops) - 1)] if crops else centre_crop(frame.shape)
+                face = crop_image(frame, crop, pkg.image_size)
+                t0 = time.perf_counter()
+                planes = encoder.run(to_encoder_input(face[None]))[0]
+                t_enc += time.perf_counter() - t0
+                state = planes if state is None else args.smooth * state + (1.0 - args.smooth) * planes
+                t0 = time.perf_counter()
+                rgb = render_views(render_triplane(pkg.triplane(state)), camera, args)["rgb"][0]
+                t_render += time.perf_counter() - t0
+                image = rgb_to_uint8(rgb)
+                if args.side_by_side:
+                    import cv2
+
+                    small = cv2.resize(face, (args.resolution, args.resolution), interpolation=cv2.INTER_AREA)
+                    image = np.concatenate([small, image], axis=1)
+                writer.add(image)
+                bar.update()
+            if writer.count == 0:
+                raise CLIError(f"{args.input}: the video has no frames")
+            writer.close()
+        finally:
+            writer.abort()
+            bar.close()
+        staged.commit()
+    n = writer.count
+    total = time.perf_counter() - start
+    _say(
+        f"lifted {n} frames in {total:.1f} s (encode {t_enc / n:.3f} s/frame, render {t_render / n:.3f} "
+        f"s/frame at {args.resolution}²); wrote {out_path}"
+    )
+    return 0
+
+
+# ============================================================================================== demo
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from lp3d.demo import main as demo_main
+
+    return int(demo_main(["--out", str(args.out), "--resolution", str(args.resolution)]) or 0)
+
+
+# ============================================================================================ parser
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description="lp3d: single portrait photo -> 3D (EG3D triplane), rendered in real time.",
+        epilog="Run 'lp3d COMMAND --help' for each command's options.",
+    )
+    from lp3d import __version__ as version
+
+    parser.add_argument("--version", action="version", version=f"lp3d {version}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    # encode
+    p = sub.add_parser(
+        "encode",
+        help="photo(s) -> triplane .npz (detect, align, crop, encode)",
+        description="Encode portrait photos into triplane files. Each photo is read, the "
+        "largest face is detected (OpenCV Haar cascades), levelled by its eye line and "
+        "cropped to the training framing, then encoded.",
+    )
+    p.add_argument(
+        "inputs", nargs="+", type=Path, metavar="PHOTO", help="image files and/or folders of images"
+    )
+    p.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        required=True,
+        help="a .npz file (one photo) or a folder (several photos: FOLDER/<name>.npz)",
+    )
+    p.add_argument(
+        "--model",
+        type=Path,
+        default=None,
+        help="MODEL.onnx (with MODEL.json beside it) or CHECKPOINT.pt (default: the shipped "
+        "lp3d/models/small.onnx in the package)",
+    )
+    p.add_argument(
+        "--backend",
+        choices=("onnx", "torch"),
+        default=None,
+        help="onnx (onnxruntime) or torch (default: by the model file's suffix)",
+    )
+    p.add_argument(
+        "--no-detect",
+        action="store_true",
+        help="skip face detection: the photo is already a centred portrait (centre square crop)",
+    )
+    p.add_argument(
+        "--batch-size", type=_int_in(1, 256), default=4, help="images per encoder call (default: 4)"
+    )
+    p.add_argument("--half", action="store_true", help="store the planes as float16 (half the file size)")
+    p.add_argument(
+        "--save-crop", action="store_true", help="also write the aligned input crop as <name>.crop.png"
+    )
+    p.set_defaults(func=cmd_encode)
+
+    # render
+    p = sub.add_parser(
+        "render",
+        help="render one view of a triplane to an image",
+        description="Render one view of a triplane .npz to a PNG/JPEG image.",
+    )
+    p.add_argument("triplane", type=Path, help="triplane .npz file")
+    p.add_argument("-o", "--output", type=Path, required=True, help="output image (.png, .jpg)")
+    _camera_args(p)
+    _render_args(p, 256)
+    p.add_argument("--depth", type=Path, default=None, help="also write the depth map (near = bright) here")
+    p.add_argument(
+        "--features-channel",
+        type=_int_in(0, 31),
+        default=None,
+        metavar="K",
+        help="write decoder feature channel K (0-31, grayscale) instead of the RGB image",
+    )
+    p.set_defaults(func=cmd_render)
+
+    # orbit
+    p = sub.add_parser(
+        "orbit",
+        help="render a turntable video (.gif or .mp4)",
+        description="Render a closed camera loop around a triplane: yaw = R sin(2 pi t), "
+        "pitch = pitch + P cos(2 pi t).",
+    )
+    p.add_argument("triplane", type=Path, help="triplane .npz file")
+    p.add_argument("-o", "--output", type=Path, required=True, help="output video (.gif or .mp4)")
+    p.add_argument("--frames", type=_int_in(1, 10000), default=36, help="frames in the loop (default: 36)")
+    p.add_argument(
+        "--yaw-range", type=_float_in(0.0, 89.0), default=35.0, help="yaw amplitude in degrees (default: 35)"
+    )
+    p.add_argument(
+        "--pitch-range",
+        type=_float_in(0.0, 60.0),
+        default=0.0,
+        help="pitch amplitude in degrees (default: 0)",
+    )
+    p.add_argument("--fps", type=_float_in(0.1, 120.0), default=18.0, help="frames per second (default: 18)")
+    p.add_argument("--batch", type=_int_in(1, 64), default=4, help="frames per render call (default: 4)")
+    _camera_args(p, yaw=None)
+    _render_args(p, 128)
+    p.set_defaults(func=cmd_orbit)
+
+    # mesh
+    from lp3d.mesh import EG3D_MESH_THRESHOLD
+
+    p = sub.add_parser(
+        "mesh",
+        help="extract a coloured mesh (.ply, .obj, .glb) with marching cubes",
+        description="Sample the decoder's raw density on a grid inside the triplane box, "
+        "run marching cubes and colour the vertices with the decoder's RGB.",
+    )
+    p.add_argument("triplane", type=Path, help="triplane .npz file")
+    p.add_argument("-o", "--output", type=Path, required=True, help="output mesh (.ply, .obj or .glb)")
+    p.add_argument("--grid", type=_int_in(8, 512), default=128, help="grid points per axis (default: 128)")
+    p.add_argument(
+        "--threshold",
+        type=float,
+        default=EG3D_MESH_THRESHOLD,
+        help="raw density level of the surface (default: %(default)s, as EG3D)",
+    )
+    p.add_argument("--ascii", action="store_true", help="ASCII instead of binary PLY")
+    p.set_defaults(func=cmd_mesh)
+
+    # info
+    p = sub.add_parser(
+        "info",
+        help="describe a triplane file",
+        description="Print what a triplane .npz holds: planes, decoder, bounds, camera, "
+        "source, occupancy, size and format version.",
+    )
+    p.add_argument("triplane", type=Path, help="triplane .npz file")
+    p.add_argument("--json", action="store_true", help="print JSON instead of text")
+    p.set_defaults(func=cmd_info)
+
+    # video
+    p = sub.add_parser(
+        "video",
+        help="lift a portrait video to a new viewpoint, frame by frame",
+        description="For every frame: detect and crop the face, encode it, optionally "
+        "smooth the triplane over time, and render it from the given view.",
+    )
+    p.add_argument("input", type=Path, help="input video (anything ffmpeg reads)")
+    p.add_argument("-o", "--output", type=Path, required=True, help="output video (.mp4 or .gif)")
+    p.add_argument(
+        "--smooth",
+        type=_float_in(0.0, 1.0, hi_open=True),
+        default=0.0,
+        help="temporal smoothing of the triplane, state = s * state + (1 - s) * new "
+        "(0 = off, default; 0.5 is moderate)",
+    )
+    p.add_argument("--no-detect", action="store_true", help="skip face detection (centre square crop)")
+    p.add_argument("--model", type=Path, default=None, help="as for encode")
+    p.add_argument("--backend", choices=("onnx", "torch"), default=None, help="as for encode")
+    p.add_argument("--max-frames", type=_int_in(1, 10**7), default=None, help="stop after this many frames")
+    p.add_argument(
+        "--fps", type=_float_in(0.1, 240.0), default=None, help="output fps (default: the input's)"
+    )
+    p.add_argument("--side-by-side", action="store_true", help="put the input crop left of the new view")
+    _camera_args(p, yaw=20.0)
+    _render_args(p, 128)
+    p.set_defaults(func=cmd_video)
+
+    # demo
+    p = sub.add_parser(
+        "demo",
+        help="the end-to-end demo (currently: the sample-scene demo)",
+        description="Write a sample triplane and its renders to a folder.",
+    )
+    p.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder (default: demo_out)")
+    p.add_argument("--resolution", type=_resolution, default=128, help="pixels per side (default: 128)")
+    p.set_defaults(func=cmd_demo)
+    return parser
+
+
+def _format_error(e: BaseException) -> str:
+    if isinstance(e, OSError) and e.filename is not None:
+        return f"{e.filename}: {e.strerror or e}"
+    return str(e) or type(e).__name__
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit status (0 ok, 1 error, 2 usage, 130 interrupted)."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(None if argv is None else list(argv))
+    except SystemExit as e:  # --help/--version (0) or a usage error (2); argparse has printed it
+        return e.code if isinstance(e.code, int) else (0 if e.code is None else 2)
+    if args.command is None:
+        parser.print_help(sys.stderr)
+        return 2
+    from lp3d.model_package import ModelPackageError
+
+    try:
+        return int(args.func(args))
+    except KeyboardInterrupt:
+        print(f"{PROG} {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except (CLIError, ModelPackageError, ValueError, OSError) as e:
+        if os.environ.get("LP3D_DEBUG"):
+            raise
+        print(f"{PROG} {args.command}: error: {_format_error(e)}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,701 @@
+"""The ``lp3d`` command line, run in-process through ``lp3d.cli.main``: every subcommand, its bad
+inputs (clear one-line error, non-zero exit status, no output files left behind) and the pieces
+behind it (model package, photo loading/alignment, mesh extraction and writers).
+
+Renders are tiny (32², 12+12 samples) and the encoder is the randomly initialised ``tiny``
+configuration exported to ONNX here, so the whole file runs in about a minute on two cores.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import struct
+import warnings
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from lp3d.cli import main
+from lp3d.model_package import ModelPackageError, load_model_package, save_model_package
+from lp3d.sample_scenes import coloured_sphere
+from lp3d.triplane_io import load_triplane, save_triplane
+
+SMALL = ["--resolution", "32", "--samples", "12+12"]
+SPHERE_RADIUS = 0.3
+
+
+# =========================================================================================== fixtures
+
+
+def run(capsys: pytest.CaptureFixture[str], *argv: object) -> tuple[int, str, str]:
+    """``lp3d ARGV`` in-process: (exit status, stdout, stderr)."""
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def listing(folder: Path) -> set[str]:
+    """Every name in ``folder`` (temporary files included: they start with a dot)."""
+    return {p.name for p in folder.iterdir()}
+
+
+@pytest.fixture(scope="module")
+def sphere(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A small sample triplane (a coloured sphere of radius 0.3) as a .npz file."""
+    path = tmp_path_factory.mktemp("scene") / "sphere.npz"
+    save_triplane(path, coloured_sphere(size=32, radius=SPHERE_RADIUS))
+    return path
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """A randomly initialised ``tiny`` encoder: ONNX + sidecar, an export-style checkpoint and a
+    training-style checkpoint, all with the sphere's decoder."""
+    import torch
+
+    from lp3d.encoder import build_encoder
+
+    folder = tmp_path_factory.mktemp("model")
+    torch.manual_seed(0)
+    enc = build_encoder("tiny").eval()
+    s = enc.config.image_size
+    onnx_path = folder / "tiny.onnx"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # legacy-exporter deprecation and tracer warnings
+        torch.onnx.export(
+            enc,
+            (torch.zeros(1, 3, s, s),),
+            str(onnx_path),
+            input_names=["image"],
+            output_names=["planes"],
+            dynamic_axes={"image": {0: "batch"}, "planes": {0: "batch"}},
+            dynamo=False,
+        )
+    tri = coloured_sphere(size=8)
+    bounds = {"box_warp": tri.box_warp, "ray_start": tri.ray_start, "ray_end": tri.ray_end}
+    save_model_package(onnx_path, (tri.w0, tri.b0, tri.w1, tri.b1), enc.config, bounds)
+    decoder = {k: torch.from_numpy(getattr(tri, k)) for k in ("w0", "b0", "w1", "b1")}
+    plain = folder / "tiny.pt"
+    torch.save(
+        {"config": enc.config.to_dict(), "encoder": enc.state_dict(), "decoder": decoder, "bounds": bounds},
+        plain,
+    )
+    # The layout python -m lp3d.train writes: JSON configs, one 'student' state dict with prefixes.
+    student = {f"encoder.{k}": v for k, v in enc.state_dict().items()}
+    student.update({f"decoder.{k}": v for k, v in decoder.items()})
+    train = folder / "step-000010.pt"
+    torch.save(
+        {
+            "format": "lp3d-train-checkpoint-v1",
+            "config": json.dumps({"encoder": enc.config.to_dict()}),
+            "scene": json.dumps(bounds),
+            "student": student,
+        },
+        train,
+    )
+    return {"onnx": onnx_path, "pt": plain, "train": train, "folder": folder}
+
+
+@pytest.fixture(scope="module")
+def photos(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """Test photos: a face (skimage's astronaut), a face-free image and assorted bad files."""
+    from skimage.data import astronaut
+
+    folder = tmp_path_factory.mktemp("photos")
+    face = astronaut()
+    out = {"face": folder / "face.jpg", "face_crop": folder / "face_crop.png"}
+    Image.fromarray(face).save(out["face"], quality=92)
+    Image.fromarray(face[:300, 80:380]).save(out["face_crop"])
+    rng = np.random.default_rng(0)
+    out["noface"] = folder / "noface.png"
+    Image.fromarray(np.broadcast_to(np.linspace(40, 200, 256, dtype=np.uint8), (256, 256))).convert(
+        "RGB"
+    ).save(out["noface"])
+    out["grey"] = folder / "grey.png"
+    Image.fromarray(face[:300, 80:380].mean(axis=2).astype(np.uint8)).save(out["grey"])
+    out["rgba"] = folder / "rgba.png"
+    rgba = np.concatenate([face[:300, 80:380], np.full((300, 300, 1), 200, np.uint8)], axis=2)
+    Image.fromarray(rgba, "RGBA").save(out["rgba"])
+    out["text"] = folder / "notes.jpg"
+    out["text"].write_text("this is not an image\n")
+    out["empty"] = folder / "empty.png"
+    out["empty"].write_bytes(b"")
+    out["truncated"] = folder / "truncated.jpg"
+    out["truncated"].write_bytes(out["face"].read_bytes()[:2000])
+    out["noise"] = folder / "noise.png"
+    Image.fromarray(rng.integers(0, 255, (64, 64, 3), dtype=np.uint8)).save(out["noise"])
+    # A PNG whose header claims 12000 x 12000 pixels (144 MP): rejected before any pixel is decoded.
+    out["huge"] = folder / "huge.png"
+    ihdr = struct.pack(">IIBBBBB", 12000, 12000, 8, 2, 0, 0, 0)
+    chunk = b"IHDR" + ihdr
+    out["huge"].write_bytes(
+        b"\x89PNG\r\n\x1a\n"
+        + struct.pack(">I", 13)
+        + chunk
+        + struct.pack(">I", zlib.crc32(chunk))
+        + struct.pack(">I", 0)
+        + b"IEND"
+        + struct.pack(">I", zlib.crc32(b"IEND"))
+    )
+    return out
+
+
+@pytest.fixture()
+def bad_npz(tmp_path: Path, sphere: Path) -> dict[str, Path]:
+    """A corrupt (random bytes), a truncated and an empty .npz."""
+    out = {
+        "garbage": tmp_path / "garbage.npz",
+        "truncated": tmp_path / "truncated.npz",
+        "empty": tmp_path / "e.npz",
+    }
+    out["garbage"].write_bytes(np.random.default_rng(1).integers(0, 255, 4000, dtype=np.uint8).tobytes())
+    out["truncated"].write_bytes(sphere.read_bytes()[:3000])
+    out["empty"].write_bytes(b"")
+    return out
+
+
+# =============================================================================================== main
+
+
+def test_help_for_every_command(capsys) -> None:
+    code, out, _ = run(capsys, "--help")
+    assert code == 0
+    for cmd in ("encode", "render", "orbit", "mesh", "info", "video", "demo"):
+        assert cmd in out
+        code, out_cmd, _ = run(capsys, cmd, "--help")
+        assert code == 0 and out_cmd.startswith(f"usage: lp3d {cmd}"), cmd
+
+
+def test_usage_errors_exit_2(capsys, sphere) -> None:
+    assert (
+        run(
+            capsys,
+        )[0]
+        == 2
+    )  # no command
+    assert run(capsys, "frobnicate")[0] == 2
+    code, _, err = run(capsys, "render", sphere, "-o", "x.png", "--samples", "12+x")
+    assert code == 2 and "COARSE+FINE" in err
+    assert run(capsys, "render", sphere)[0] == 2  # -o is required
+    assert run(capsys, "render", sphere, "-o", "x.png", "--features-channel", "32")[0] == 2
+
+
+# ============================================================================================= render
+
+
+def test_render_rgb_and_depth(capsys, sphere, tmp_path) -> None:
+    view, depth = tmp_path / "view.png", tmp_path / "depth.png"
+    code, out, err = run(
+        capsys, "render", sphere, "--yaw", 30, "--pitch", -10, *SMALL, "-o", view, "--depth", depth
+    )
+    assert code == 0, err
+    assert "wrote" in out and listing(tmp_path) == {"view.png", "depth.png"}
+    rgb = np.asarray(Image.open(view))
+    assert rgb.shape == (32, 32, 3)
+    assert rgb[16, 16].astype(int).sum() > rgb[0, 0].astype(int).sum() + 60  # the sphere on a dark background
+    assert np.asarray(Image.open(depth)).shape == (32, 32, 3)
+
+
+def test_render_feature_channel(capsys, sphere, tmp_path) -> None:
+    code, _, err = run(capsys, "render", sphere, *SMALL, "--features-channel", 1, "-o", tmp_path / "f.png")
+    assert code == 0, err
+    assert np.asarray(Image.open(tmp_path / "f.png")).shape == (32, 32)
+
+
+@pytest.mark.parametrize("which", ["garbage", "truncated", "empty", "missing"])
+def test_render_bad_triplane(capsys, bad_npz, tmp_path, which) -> None:
+    src = bad_npz.get(which, tmp_path / "missing.npz")
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    code, out, err = run(capsys, "render", src, *SMALL, "-o", out_dir / "v.png")
+    assert code == 1
+    assert err.startswith("lp3d render: error:") and str(src) in err and "Traceback" not in err
+    assert listing(out_dir) == set()
+
+
+def test_render_bad_outputs(capsys, sphere, tmp_path) -> None:
+    (tmp_path / "file.txt").write_text("x")
+    cases = [
+        (tmp_path / "view.bmp", "unsupported format"),
+        (tmp_path / "nowhere" / "view.png", "does not exist"),
+        (tmp_path / "file.txt" / "view.png", "not a folder"),
+        (tmp_path, "unsupported format"),
+    ]
+    for target, words in cases:
+        code, _, err = run(capsys, "render", sphere, *SMALL, "-o", target)
+        assert code == 1 and words in err, (target, err)
+    # Passes the up-front checks as root, then fails to create the file: still one clear line.
+    code, _, err = run(capsys, "mesh", sphere, "--grid", 8, "-o", "/proc/lp3d-test.glb")
+    assert code == 1 and "/proc" in err and ".tmp" not in err, err
+    code, _, err = run(capsys, "render", sphere, *SMALL, "--pitch", 95, "-o", tmp_path / "v.png")
+    assert code == 1 and "pitch" in err
+    assert listing(tmp_path) == {"file.txt"}
+
+
+# ============================================================================================== orbit
+
+
+def test_orbit_gif_and_mp4(capsys, sphere, tmp_path) -> None:
+    import imageio.v3 as iio
+    import imageio_ffmpeg
+
+    gif, mp4 = tmp_path / "orbit.gif", tmp_path / "orbit.mp4"
+    code, out, err = run(capsys, "orbit", sphere, "-o", gif, "--frames", 4, "--yaw-range", 30, *SMALL)
+    assert code == 0, err
+    assert "orbit" in err  # the progress bar
+    frames = iio.imread(gif, index=None)
+    assert frames.shape[:3] == (4, 32, 32)
+    code, out, err = run(capsys, "orbit", sphere, "-o", mp4, "--frames", 3, "--batch", 2, *SMALL)
+    assert code == 0, err
+    reader = imageio_ffmpeg.read_frames(str(mp4))
+    meta = next(reader)
+    assert meta["size"] == (32, 32) and sum(1 for _ in reader) == 3
+    assert listing(tmp_path) == {"orbit.gif", "orbit.mp4"}
+
+
+def test_orbit_bad_inputs(capsys, sphere, bad_npz, tmp_path) -> None:
+    code, _, err = run(capsys, "orbit", sphere, "-o", tmp_path / "o.avi", *SMALL)
+    assert code == 1 and ".mp4" in err
+    code, _, err = run(capsys, "orbit", bad_npz["garbage"], "-o", tmp_path / "o.gif", *SMALL)
+    assert code == 1 and "garbage.npz" in err
+    assert not (tmp_path / "o.gif").exists() and not list(tmp_path.glob(".o.gif*"))
+
+
+# =============================================================================================== mesh
+
+
+def _read_glb(path: Path) -> tuple[dict, bytes]:
+    data = path.read_bytes()
+    magic, version, length = struct.unpack_from("<III", data, 0)
+    assert (magic, version, length) == (0x46546C67, 2, len(data))
+    json_len, json_type = struct.unpack_from("<II", data, 12)
+    assert json_type == 0x4E4F534A and json_len % 4 == 0
+    doc = json.loads(data[20 : 20 + json_len])
+    bin_len, bin_type = struct.unpack_from("<II", data, 20 + json_len)
+    assert bin_type == 0x004E4942 and bin_len % 4 == 0
+    binary = data[28 + json_len : 28 + json_len + bin_len]
+    assert 28 + json_len + bin_len == len(data)
+    return doc, binary
+
+
+def test_mesh_glb_structure_and_geometry(capsys, sphere, tmp_path) -> None:
+    glb = tmp_path / "head.glb"
+    code, out, err = run(capsys, "mesh", sphere, "-o", glb, "--grid", 40)
+    assert code == 0, err
+    doc, binary = _read_glb(glb)
+    assert doc["asset"]["version"] == "2.0"
+    prim = doc["meshes"][0]["primitives"][0]
+    assert set(prim["attributes"]) == {"POSITION", "NORMAL", "COLOR_0"} and prim["mode"] == 4
+    assert doc["buffers"][0]["byteLength"] == len(binary)
+
+    def accessor(i: int) -> np.ndarray:
+        acc = doc["accessors"][i]
+        view = doc["bufferViews"][acc["bufferView"]]
+        assert view["byteOffset"] % 4 == 0 and view["byteOffset"] + view["byteLength"] <= len(binary)
+        dtype = {5126: "<f4", 5125: "<u4"}[acc["componentType"]]
+        width = {"VEC3": 3, "SCALAR": 1}[acc["type"]]
+        arr = np.frombuffer(binary, dtype, acc["count"] * width, view["byteOffset"])
+        return arr.reshape(acc["count"], width) if width > 1 else arr
+
+    pos = accessor(prim["attributes"]["POSITION"])
+    normals = accessor(prim["attributes"]["NORMAL"])
+    colors = accessor(prim["attributes"]["COLOR_0"])
+    tris = accessor(prim["indices"]).reshape(-1, 3)
+    acc = doc["accessors"][prim["attributes"]["POSITION"]]
+    np.testing.assert_allclose(acc["min"], pos.min(axis=0), rtol=1e-6)
+    np.testing.assert_allclose(acc["max"], pos.max(axis=0), rtol=1e-6)
+    assert tris.max() < len(pos) and len(colors) == len(pos)
+    assert colors.min() >= 0.0 and colors.max() <= 1.0
+    # The sphere of radius 0.3, with outward normals and counter-clockwise (outward) triangles.
+    np.testing.assert_allclose(np.linalg.norm(pos, axis=1), SPHERE_RADIUS, atol=0.02)
+    assert np.mean(np.sum(normals * pos, axis=1) > 0) > 0.99
+    face_n = np.cross(pos[tris[:, 1]] - pos[tris[:, 0]], pos[tris[:, 2]] - pos[tris[:, 0]])
+    assert np.mean(np.sum(face_n * pos[tris].mean(axis=1), axis=1) > 0) > 0.99
+
+
+def test_mesh_ply_and_obj(capsys, sphere, tmp_path) -> None:
+    for name, extra in (("b.ply", []), ("a.ply", ["--ascii"]), ("m.obj", [])):
+        code, out, err = run(capsys, "mesh", sphere, "-o", tmp_path / name, "--grid", 24, *extra)
+        assert code == 0, err
+    binary, ascii_ = (tmp_path / "b.ply").read_bytes(), (tmp_path / "a.ply").read_text()
+    assert b"format binary_little_endian 1.0" in binary and "format ascii 1.0" in ascii_
+    header, _, body = ascii_.partition("end_header\n")
+    n_vert = int(header.split("element vertex ")[1].split()[0])
+    n_face = int(header.split("element face ")[1].split()[0])
+    rows = body.splitlines()
+    assert len(rows) == n_vert + n_face and len(rows[0].split()) == 9 and rows[-1].startswith("3 ")
+    # Binary body: 27 bytes per vertex (9 fields) and 13 per face.
+    bheader, _, bbody = binary.partition(b"end_header\n")
+    assert len(bbody) == 27 * n_vert + 13 * n_face
+    obj = (tmp_path / "m.obj").read_text().splitlines()
+    v = [ln.split() for ln in obj if ln.startswith("v ")]
+    f = [ln for ln in obj if ln.startswith("f ")]
+    assert len(v) == n_vert and len(f) == n_face and len(v[0]) == 7  # x y z r g b
+
+
+def test_mesh_bad_inputs(capsys, sphere, bad_npz, tmp_path) -> None:
+    code, _, err = run(capsys, "mesh", sphere, "-o", tmp_path / "m.glb", "--grid", 16, "--threshold", 1e6)
+    assert code == 1 and "no surface at threshold" in err
+    code, _, err = run(capsys, "mesh", sphere, "-o", tmp_path / "m.stl")
+    assert code == 1 and "unsupported format" in err
+    code, _, err = run(capsys, "mesh", bad_npz["truncated"], "-o", tmp_path / "m.glb", "--grid", 16)
+    assert code == 1 and "truncated.npz" in err
+    assert listing(tmp_path) == {p.name for p in bad_npz.values()}
+
+
+def test_density_grid_matches_reference(sphere) -> None:
+    from lp3d.mesh import density_grid
+    from lp3d.reference import decode, sample_triplane
+
+    tri = load_triplane(sphere)
+    grid = density_grid(tri, 20)
+    idx = np.random.default_rng(0).integers(0, 20, (200, 3))
+    points = np.linspace(-0.5, 0.5, 20)[idx]
+    ref, _ = decode(
+        sample_triplane(tri.planes, points, box_warp=tri.box_warp), tri.w0, tri.b0, tri.w1, tri.b1
+    )
+    np.testing.assert_allclose(grid[idx[:, 0], idx[:, 1], idx[:, 2]], ref, rtol=1e-4, atol=1e-4)
+
+
+# =============================================================================================== info
+
+
+def test_info_text_and_json(capsys, sphere, bad_npz) -> None:
+    code, out, err = run(capsys, "info", sphere)
+    assert code == 0, err
+    for words in (
+        "(3, 32, 32, 32) float32",
+        "format_version 1",
+        "w0 (64, 32)",
+        "box_warp 1",
+        "2.25",
+        "3.3",
+        "coloured_sphere",
+        "occupancy:",
+        "camera:",
+        "KiB",
+    ):
+        assert words in out, words
+    code, out, _ = run(capsys, "info", sphere, "--json")
+    info = json.loads(out)
+    assert info["planes"]["shape"] == [3, 32, 32, 32] and info["format_version"] == 1
+    assert info["file_size"] == sphere.stat().st_size
+    code, _, err = run(capsys, "info", bad_npz["garbage"])
+    assert code == 1 and "not an .npz" in err
+
+
+# ============================================================================================= encode
+
+
+def test_encode_onnx_single_photo(capsys, model, photos, tmp_path) -> None:
+    out = tmp_path / "head.npz"
+    code, stdout, err = run(
+        capsys, "encode", photos["face"], "-o", out, "--model", model["onnx"], "--save-crop"
+    )
+    assert code == 0, err
+    assert "face" in stdout and "roll" in stdout and "encode" in stdout and "s/image" in stdout
+    tri = load_triplane(out)
+    pkg = load_model_package(model["onnx"])
+    assert tri.planes.shape == (3, 32, 64, 64) and tri.planes.dtype == np.float32
+    np.testing.assert_array_equal(tri.w1, pkg.w1)
+    assert tri.box_warp == pkg.box_warp and "face.jpg" in (tri.source or "")
+    crop = np.asarray(Image.open(tmp_path / "head.crop.png"))
+    assert crop.shape == (128, 128, 3)
+    assert listing(tmp_path) == {"head.npz", "head.crop.png"}
+
+
+def test_encode_folder_batch_and_torch_backends(capsys, model, photos, tmp_path) -> None:
+    folder = tmp_path / "in"
+    folder.mkdir()
+    shutil.copy(photos["face"], folder / "a.jpg")
+    shutil.copy(photos["face_crop"], folder / "b.png")
+    (folder / "readme.txt").write_text("not a photo; ignored by the folder scan")
+    outdir = tmp_path / "out"
+    code, _, err = run(capsys, "encode", folder, "-o", outdir, "--model", model["onnx"], "--batch-size", 2)
+    assert code == 0, err
+    assert listing(outdir) == {"a.npz", "b.npz"}
+    onnx_planes = load_triplane(outdir / "a.npz").planes
+    # Torch, both checkpoint layouts: the same planes as ONNX Runtime.
+    for key in ("pt", "train"):
+        dest = tmp_path / f"{key}.npz"
+        code, stdout, err = run(
+            capsys, "encode", folder / "a.jpg", "-o", dest, "--model", model[key], "--half"
+        )
+        assert code == 0, err
+        tri = load_triplane(dest)
+        assert tri.planes.dtype == np.float16 and "torch" in stdout
+        np.testing.assert_allclose(tri.planes.astype(np.float32), onnx_planes, atol=5e-3, rtol=5e-3)
+
+
+def test_encode_conversions_and_no_detect(capsys, model, photos, tmp_path) -> None:
+    code, _, err = run(capsys, "encode", photos["grey"], "-o", tmp_path / "g.npz", "--model", model["onnx"])
+    assert code == 0 and "warning:" in err and "grayscale" in err
+    code, _, err = run(capsys, "encode", photos["rgba"], "-o", tmp_path / "r.npz", "--model", model["onnx"])
+    assert code == 0 and "alpha" in err
+    code, out, err = run(
+        capsys, "encode", photos["noise"], "-o", tmp_path / "n.npz", "--model", model["onnx"], "--no-detect"
+    )
+    assert code == 0 and "no detection" in out, err
+    assert listing(tmp_path) == {"g.npz", "r.npz", "n.npz"}
+
+
+@pytest.mark.parametrize(
+    ("photo", "words"),
+    [
+        ("noface", "--no-detect"),
+        ("text", "not an image"),
+        ("empty", "empty file"),
+        ("truncated", "truncated"),
+        ("huge", "MP limit"),
+    ],
+)
+def test_encode_bad_photos(capsys, model, photos, tmp_path, photo, words) -> None:
+    code, _, err = run(capsys, "encode", photos[photo], "-o", tmp_path / "x.npz", "--model", model["onnx"])
+    assert code == 1 and words in err and err.startswith("lp3d encode: error:"), err
+    assert listing(tmp_path) == set()
+
+
+def test_encode_one_bad_photo_fails_the_batch(capsys, model, photos, tmp_path) -> None:
+    outdir = tmp_path / "out"
+    code, _, err = run(
+        capsys, "encode", photos["face"], photos["noface"], "-o", outdir, "--model", model["onnx"]
+    )
+    assert code == 1 and "noface.png" in err
+    assert listing(tmp_path) == set()  # the output folder it would have created is gone too
+
+
+def test_encode_large_photo_is_downscaled_for_detection(capsys, model, photos, tmp_path) -> None:
+    big = tmp_path / "big.jpg"
+    Image.open(photos["face"]).resize((2600, 2600), Image.Resampling.BILINEAR).save(big, quality=85)
+    code, out, err = run(capsys, "encode", big, "-o", tmp_path / "big.npz", "--model", model["onnx"])
+    assert code == 0, err
+    assert "2600x2600, face" in out
+
+
+def test_encode_model_errors(capsys, model, photos, tmp_path, monkeypatch) -> None:
+    import lp3d.inference
+
+    monkeypatch.setattr(lp3d.inference, "DEFAULT_MODEL", tmp_path / "models" / "small.onnx")
+    code, _, err = run(capsys, "encode", photos["face"], "-o", tmp_path / "x.npz")
+    assert code == 1 and "--model" in err and "python -m lp3d.train" in err
+    lone = tmp_path / "lone.onnx"
+    shutil.copy(model["onnx"], lone)
+    code, _, err = run(capsys, "encode", photos["face"], "-o", tmp_path / "x.npz", "--model", lone)
+    assert code == 1 and "sidecar" in err and "lone.json" in err
+    broken = tmp_path / "broken.onnx"
+    broken.write_bytes(b"not a protobuf")
+    shutil.copy(model["onnx"].with_suffix(".json"), broken.with_suffix(".json"))
+    code, _, err = run(capsys, "encode", photos["face"], "-o", tmp_path / "x.npz", "--model", broken)
+    assert code == 1 and "cannot load the ONNX model" in err
+    import torch
+
+    odd = tmp_path / "odd.pt"
+    torch.save({"weights": torch.zeros(3)}, odd)
+    code, _, err = run(capsys, "encode", photos["face"], "-o", tmp_path / "x.npz", "--model", odd)
+    assert code == 1 and "layout not understood" in err
+    code, _, err = run(
+        capsys,
+        "encode",
+        photos["face"],
+        photos["face_crop"],
+        "-o",
+        tmp_path / "x.npz",
+        "--model",
+        model["onnx"],
+    )
+    assert code == 1 and "output folder" in err
+    code, _, err = run(
+        capsys, "encode", photos["face"], "-o", tmp_path / "no" / "x.npz", "--model", model["onnx"]
+    )
+    assert code == 1 and "does not exist" in err
+    assert not list(tmp_path.glob("*.npz"))
+
+
+# ============================================================================================== video
+
+
+@pytest.fixture(scope="module")
+def face_video(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Four 160² frames of a slowly panning face."""
+    import cv2
+    import imageio_ffmpeg
+    from skimage.data import astronaut
+
+    path = tmp_path_factory.mktemp("video") / "in.mp4"
+    face = astronaut()[:320, 60:380]
+    writer = imageio_ffmpeg.write_frames(
+        str(path), (160, 160), fps=10, macro_block_size=2, ffmpeg_log_level="error"
+    )
+    writer.send(None)
+    for i in range(4):
+        frame = cv2.warpAffine(face, np.float32([[0.5, 0, -2 * i], [0, 0.5, 0]]), (160, 160))
+        writer.send(np.ascontiguousarray(frame).tobytes())
+    writer.close()
+    return path
+
+
+def test_video_lifts_every_frame(capsys, model, face_video, tmp_path) -> None:
+    import imageio_ffmpeg
+
+    out = tmp_path / "out.mp4"
+    code, stdout, err = run(
+        capsys,
+        "video",
+        face_video,
+        "-o",
+        out,
+        "--yaw",
+        20,
+        "--smooth",
+        0.5,
+        "--model",
+        model["onnx"],
+        "--side-by-side",
+        *SMALL,
+    )
+    assert code == 0, err
+    assert "lifted 4 frames" in stdout and "video" in err  # summary and progress bar
+    reader = imageio_ffmpeg.read_frames(str(out))
+    assert next(reader)["size"] == (64, 32) and sum(1 for _ in reader) == 4
+
+
+def test_video_gif_no_detect_and_bad_inputs(capsys, model, face_video, photos, tmp_path) -> None:
+    code, _, err = run(
+        capsys,
+        "video",
+        face_video,
+        "-o",
+        tmp_path / "o.gif",
+        "--no-detect",
+        "--max-frames",
+        2,
+        "--model",
+        model["onnx"],
+        *SMALL,
+    )
+    assert code == 0, err
+    code, _, err = run(
+        capsys, "video", photos["text"], "-o", tmp_path / "x.mp4", "--model", model["onnx"], *SMALL
+    )
+    assert code == 1 and "cannot read as a video" in err
+    code, _, err = run(capsys, "video", face_video, "-o", tmp_path / "x.avi", "--model", model["onnx"])
+    assert code == 1 and "unsupported format" in err
+    code, _, err = run(capsys, "video", face_video, "-o", tmp_path / "x.mp4", "--smooth", 1.0)
+    assert code == 2
+    assert listing(tmp_path) == {"o.gif"}
+
+
+def test_video_without_faces(capsys, model, tmp_path) -> None:
+    import imageio_ffmpeg
+
+    src = tmp_path / "noise.mp4"
+    writer = imageio_ffmpeg.write_frames(
+        str(src), (64, 64), fps=5, macro_block_size=2, ffmpeg_log_level="error"
+    )
+    writer.send(None)
+    for _ in range(2):
+        writer.send(np.full((64, 64, 3), 128, np.uint8).tobytes())
+    writer.close()
+    code, _, err = run(capsys, "video", src, "-o", tmp_path / "o.mp4", "--model", model["onnx"], *SMALL)
+    assert code == 1 and "no face found" in err and "--no-detect" in err
+    assert listing(tmp_path) == {"noise.mp4"}
+
+
+# =============================================================================================== demo
+
+
+def test_demo(capsys, tmp_path) -> None:
+    code, out, err = run(capsys, "demo", "--out", tmp_path / "demo", "--resolution", 16)
+    assert code == 0, err
+    assert {"sphere.npz", "sphere_views.png"} <= listing(tmp_path / "demo")
+
+
+# ============================================================================== model package, photo
+
+
+def test_model_package_round_trip_and_errors(model, tmp_path) -> None:
+    pkg = load_model_package(model["onnx"])
+    assert load_model_package(model["onnx"].with_suffix(".json")).model_path == model["onnx"]
+    assert pkg.image_size == 128 and pkg.triplane_resolution == 64 and pkg.config_name == "tiny"
+    tri = coloured_sphere(size=8)
+    np.testing.assert_array_equal(pkg.w0, tri.w0)  # JSON round trip is exact
+    np.testing.assert_array_equal(pkg.b1, tri.b1)
+    data = json.loads(model["onnx"].with_suffix(".json").read_text())
+    side = tmp_path / "m.json"
+    for change, words in (
+        ({"format": "other"}, "not an lp3d model package"),
+        ({"format_version": 99}, "format_version 99"),
+        ({"decoder": {**data["decoder"], "w0": [[0.0] * 32] * 63}}, "decoder.w0: shape"),
+        ({"ray_end": 1.0}, "ray_end"),
+        ({"image_size": "big"}, "image_size"),
+    ):
+        side.write_text(json.dumps({**data, **change}))
+        with pytest.raises(ModelPackageError, match=words.replace("(", r"\(")):
+            load_model_package(side)
+    side.write_text("{ not json")
+    with pytest.raises(ModelPackageError, match="unreadable"):
+        load_model_package(side)
+    with pytest.raises(ModelPackageError, match="shape"):
+        save_model_package(tmp_path / "x.onnx", (tri.w0[:5], tri.b0, tri.w1, tri.b1), "tiny", (1, 2, 3))
+
+
+def test_load_image_modes(tmp_path) -> None:
+    from lp3d.photo import load_image
+
+    deep = tmp_path / "deep.png"
+    Image.fromarray(np.full((20, 20), 65535, np.uint16)).save(deep)
+    rgb, notes = load_image(deep)
+    assert rgb.shape == (20, 20, 3) and rgb.max() == 255 and any("grayscale" in n for n in notes)
+    pal = tmp_path / "pal.png"
+    Image.new("P", (20, 20), 3).save(pal, transparency=0)
+    rgb, notes = load_image(pal)
+    assert rgb.shape == (20, 20, 3) and any("alpha" in n for n in notes)
+    cmyk = tmp_path / "cmyk.jpg"
+    Image.new("CMYK", (20, 20), (0, 255, 255, 0)).save(cmyk)
+    rgb, notes = load_image(cmyk)
+    assert rgb.shape == (20, 20, 3) and rgb[10, 10, 0] > 200 and any("CMYK" in n for n in notes)
+    tiny = tmp_path / "tiny.png"
+    Image.new("RGB", (8, 8)).save(tiny)
+    with pytest.raises(ValueError, match="too small"):
+        load_image(tiny)
+
+
+def test_alignment_levels_a_tilted_face(photos) -> None:
+    import cv2
+
+    from lp3d.photo import FACE_BOX_CENTER_OFFSET_Y, FACE_BOX_WIDTH_FRACTION, Crop, crop_for_face, detect_face
+
+    face = np.asarray(Image.open(photos["face"]))
+    base = detect_face(face)
+    assert base is not None and base.eyes is not None
+    # Turn the photo 8° counter-clockwise on screen: the eye line's angle drops by 8°.
+    turned = cv2.warpAffine(face, cv2.getRotationMatrix2D((224.0, 113.0), 8.0, 1.0), (512, 512))
+    found = detect_face(turned)
+    assert found is not None and found.eyes is not None
+    assert abs((base.angle_deg - found.angle_deg) - 8.0) < 3.0
+    # The crop centre maps to the output centre; the framing puts the face box where training expects.
+    crop = Crop(cx=100.0, cy=50.0, side=40.0, angle_deg=30.0)
+    m = crop.matrix(64)
+    np.testing.assert_allclose(m @ [100.0, 50.0, 1.0], [31.5, 31.5], atol=1e-9)
+    c = crop_for_face((0.0, 0.0, 48.0, 48.0))
+    assert c.side == pytest.approx(100.0) and c.cy > 23.5  # the face sits above the crop centre
+    # A face box framed exactly as in training maps the whole (teacher-framed) image onto itself.
+    size = 256
+    w = FACE_BOX_WIDTH_FRACTION * size
+    centre = (size - 1) / 2.0
+    box = (centre - (w - 1) / 2.0, centre + FACE_BOX_CENTER_OFFSET_Y * size - (w - 1) / 2.0, w, w)
+    np.testing.assert_allclose(crop_for_face(box).matrix(size), [[1, 0, 0], [0, 1, 0]], atol=1e-9)
+
+
+def test_video_helpers() -> None:
+    from lp3d.cli import _nearest, _smooth_crops
+    from lp3d.photo import Crop
+
+    np.testing.assert_array_equal(_nearest(np.array([2, 5, 9]), 11), [2, 2, 2, 2, 5, 5, 5, 5, 9, 9, 9])
+    crops = [Crop(10.0, 10.0, 50.0), Crop(20.0, 10.0, 50.0), Crop(10.0, 10.0, 50.0)]
+    smooth = _smooth_crops(crops, 0.5)
+    assert 10.0 < smooth[0].cx < smooth[1].cx < 20.0 and smooth[1].side == 50.0
