@@ -34,6 +34,12 @@ struct Params {
     u_step: f32,
     // Cameras in the whole batch (the depth clamp is batch-global, as in EG3D).
     n_cameras: u32,
+    // Skips (0 = exact EG3D semantics). Early ray termination below this transmittance:
+    transmittance_threshold: f32,
+    // No importance pass for rays whose coarse opacity is below this:
+    empty_threshold: f32,
+    _pad0: u32,
+    _pad1: u32,
 }
 
 // EG3D OSGDecoder with effective weights, packed as vec4 rows for uniform layout.

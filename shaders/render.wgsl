@@ -14,23 +14,32 @@ fn density_at(pos: vec3<f32>) -> f32 {
     return decode_density();
 }
 
-// sample_importance + sample_pdf: fills t_fine[0..N] (ascending).
-fn importance_depths(ray: Ray, ray_index: u32) {
+// sample_importance + sample_pdf: fills t_fine[0..N] (ascending). Returns the number of fine
+// samples to use: N, or 0 when the skip "no importance pass for (nearly) empty rays" applies.
+fn importance_depths(ray: Ray, ray_index: u32) -> u32 {
     let s = params.depth_resolution;
     let n = params.depth_resolution_importance;
-    // 1. Raw density at the coarse samples.
-    for (var k = 0u; k < s; k++) {
-        scratch[k] = density_at(ray.origin + coarse_depth(ray_index, k) * ray.dir);
-    }
-    // 2. Coarse weights w_0..w_{S-2} (MipRayMarcher2 on the coarse samples), in place.
+    // 1-2. Raw densities at the coarse samples and the coarse weights w_0..w_{S-2}
+    //      (MipRayMarcher2 on the coarse samples), in one front-to-back loop so that early
+    //      termination can stop evaluating densities; weights behind it are set to 0.
     var transmittance = 1.0;
     var t_prev = coarse_depth(ray_index, 0u);
+    var sigma_prev = density_at(ray.origin + t_prev * ray.dir);
     for (var i = 0u; i + 1u < s; i++) {
+        if (transmittance < params.transmittance_threshold) {
+            scratch[i] = 0.0;
+            continue;
+        }
         let t_next = coarse_depth(ray_index, i + 1u);
-        let alpha = interval_alpha(scratch[i], scratch[i + 1u], t_next - t_prev);
+        let sigma_next = density_at(ray.origin + t_next * ray.dir);
+        let alpha = interval_alpha(sigma_prev, sigma_next, t_next - t_prev);
         scratch[i] = alpha * transmittance;
         transmittance = transmit(transmittance, alpha);
         t_prev = t_next;
+        sigma_prev = sigma_next;
+    }
+    if (1.0 - transmittance < params.empty_threshold) {
+        return 0u;
     }
     // 3. max_pool1d(2, 1, pad 1) -> avg_pool1d(2, 1) -> + 0.01, keeping a[1:S-2]
     //    (S - 3 bin weights), then sample_pdf's + 1e-5. In place, front to back.
@@ -78,6 +87,7 @@ fn importance_depths(ray: Ray, ray_index: u32) {
         let b1 = coarse_mid(ray_index, above);
         t_fine[j] = b0 + (u - c0) / denom * (b1 - b0);
     }
+    return n;
 }
 
 @compute @workgroup_size(64)
@@ -92,10 +102,10 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
     let out_index = gid.y * n_pix + pixel;
     let ray = camera_ray(cam, pixel);
     let s = params.depth_resolution;
-    let n = params.depth_resolution_importance;
+    var n = params.depth_resolution_importance;
     let n_feat = params.feature_channels;
     if (n > 0u) {
-        importance_depths(ray, ray_index);
+        n = importance_depths(ray, ray_index);
     }
 
     // Streaming composite over the merged samples (coarse k, fine j).
@@ -110,6 +120,10 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
     var prev_t = 0.0;
     var prev_sigma = 0.0;
     for (var i = 0u; i < s + n; i++) {
+        // Early ray termination (a skip; the exact mode's threshold is 0, so it never fires).
+        if (transmittance < params.transmittance_threshold) {
+            break;
+        }
         var t = 0.0;
         let take_fine = j < n && (k >= s || t_fine[j] < coarse_depth(ray_index, k));
         if (take_fine) {

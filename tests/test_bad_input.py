@@ -116,6 +116,9 @@ def test_bad_camera_in_a_batch_names_its_index(gpu) -> None:
         ({"outputs": []}, "outputs"),
         ({"seed": 3}, "seed"),  # a seed only applies to jittered rendering
         ({"deterministic": False, "seed": -1}, "seed"),
+        ({"transmittance_threshold": 1.0}, "transmittance_threshold"),
+        ({"transmittance_threshold": -0.1}, "transmittance_threshold"),
+        ({"empty_threshold": float("nan")}, "empty_threshold"),
     ],
 )
 def test_bad_settings(gpu, kwargs, field) -> None:

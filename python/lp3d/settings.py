@@ -38,6 +38,10 @@ class RenderSettings:
     white_back: bool = False
     deterministic: bool = True
     seed: int = 0
+    #: Skips (0 = exact EG3D semantics): early ray termination below this transmittance ...
+    transmittance_threshold: float = 0.0
+    #: ... and no importance pass for rays whose coarse opacity is below this.
+    empty_threshold: float = 0.0
 
     def validate(self) -> None:
         if not isinstance(self.resolution, int) or not 1 <= self.resolution <= MAX_RESOLUTION:
@@ -54,6 +58,10 @@ class RenderSettings:
                 "depth_resolution_importance must be 0 (no importance pass) or an int in "
                 f"[2, {MAX_SAMPLES}], got {n!r}"
             )
+        for name in ("transmittance_threshold", "empty_threshold"):
+            value = getattr(self, name)
+            if not 0.0 <= value < 1.0:
+                raise ValueError(f"{name} must be in [0, 1), got {value!r}")
         if not isinstance(self.seed, int) or not 0 <= self.seed < 2**32:
             raise ValueError(f"seed must be an int in [0, 2**32), got {self.seed!r}")
 

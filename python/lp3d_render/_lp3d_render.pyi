@@ -65,6 +65,9 @@ def render(
     seed: int | None = None,
     outputs: Iterable[str] | None = None,
     white_back: bool = False,
+    *,
+    transmittance_threshold: float = 0.0,
+    empty_threshold: float = 0.0,
 ) -> dict[str, npt.NDArray[np.float32]]: ...
 def adapter_info() -> dict[str, str]: ...
 def look_at_camera(

@@ -12,7 +12,7 @@ use std::sync::{Arc, Mutex, OnceLock};
 use lp3d_renderer::settings::{MAX_RESOLUTION, MAX_SAMPLES};
 use lp3d_renderer::triplane::{HIDDEN, N_CHANNELS, N_OUT};
 use lp3d_renderer::{
-    Camera, Decoder, GpuContext, GpuTriplane, Outputs, PlaneDtype, RenderSettings, Renderer,
+    Camera, Decoder, GpuContext, GpuTriplane, Outputs, PlaneDtype, RenderSettings, Renderer, Skips,
 };
 use numpy::{PyArray1, PyArrayMethods};
 use pyo3::exceptions::PyRuntimeError;
@@ -229,10 +229,14 @@ impl Triplane {
 ///
 /// Returns a dict of float32 arrays: ``features`` (32, R, R), ``rgb`` (3, R, R), ``depth``
 /// (R, R), ``weights_sum`` (R, R), each with a leading B axis for a batch of cameras.
-/// ``outputs`` restricts what is computed and returned.
+/// ``outputs`` restricts what is computed and returned. The defaults are exact EG3D semantics;
+/// ``transmittance_threshold`` > 0 stops rays once they are that opaque (features change by at
+/// most twice it) and ``empty_threshold`` > 0 skips the importance pass of rays whose coarse
+/// opacity is below it.
 #[pyfunction]
 #[pyo3(signature = (triplane, camera, resolution=128, depth_resolution=48, depth_resolution_importance=48,
-                    deterministic=true, seed=None, outputs=None, white_back=false))]
+                    deterministic=true, seed=None, outputs=None, white_back=false, *,
+                    transmittance_threshold=0.0, empty_threshold=0.0))]
 #[allow(clippy::too_many_arguments)]
 fn render<'py>(
     py: Python<'py>,
@@ -245,6 +249,8 @@ fn render<'py>(
     seed: Option<&Bound<'py, PyAny>>,
     outputs: Option<Vec<String>>,
     white_back: bool,
+    transmittance_threshold: f64,
+    empty_threshold: f64,
 ) -> PyResult<Bound<'py, PyDict>> {
     guarded(|| {
         let tri = triplane.cast::<Triplane>().map_err(|_| {
@@ -276,6 +282,10 @@ fn render<'py>(
             white_back,
             deterministic,
             seed,
+            skips: Skips {
+                transmittance_threshold: finite_f32(transmittance_threshold, "transmittance_threshold")?,
+                empty_threshold: finite_f32(empty_threshold, "empty_threshold")?,
+            },
         };
         settings.validate().map_err(to_py)?;
         let outputs = match &outputs {

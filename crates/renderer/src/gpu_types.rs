@@ -29,6 +29,10 @@ pub struct Params {
     pub jitter_step: f32,
     pub u_step: f32,
     pub n_cameras: u32,
+    pub transmittance_threshold: f32,
+    pub empty_threshold: f32,
+    pub _pad0: u32,
+    pub _pad1: u32,
 }
 
 impl Params {
@@ -61,6 +65,10 @@ impl Params {
             jitter_step: ((tri.ray_end as f64 - tri.ray_start as f64) / (s - 1) as f64) as f32,
             u_step: if n > 1 { 1.0f32 / (n - 1) as f32 } else { 0.0 },
             n_cameras,
+            transmittance_threshold: settings.skips.transmittance_threshold,
+            empty_threshold: settings.skips.empty_threshold,
+            _pad0: 0,
+            _pad1: 0,
         }
     }
 }

@@ -20,5 +20,5 @@ pub use camera::Camera;
 pub use device::GpuContext;
 pub use error::{Error, Result};
 pub use renderer::{Display, GpuTriplane, RenderOutput, Renderer, DISPLAY_FORMAT};
-pub use settings::{Outputs, RenderSettings};
+pub use settings::{Outputs, RenderSettings, Skips};
 pub use triplane::{Decoder, PlaneDtype, SceneInfo, Triplane};

@@ -23,6 +23,37 @@ pub struct RenderSettings {
     /// No coarse jitter and EG3D's `det=True` importance draw. Otherwise jittered with `seed`.
     pub deterministic: bool,
     pub seed: u32,
+    /// Work the renderer may skip; the default skips nothing (exact EG3D semantics).
+    pub skips: Skips,
+}
+
+/// Approximations that trade a bounded error for speed (`bench/RESULTS.md` measures each).
+/// Zero thresholds are exact.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Skips {
+    /// Stop a ray once its transmittance is below this. Every skipped contribution is weighted
+    /// by less than it, so features, rgb and weights sum change by at most this (times 2 for
+    /// features after EG3D's ×2−1).
+    pub transmittance_threshold: f32,
+    /// No importance pass for rays whose coarse opacity is below this: they are composited
+    /// from the coarse samples alone.
+    pub empty_threshold: f32,
+}
+
+impl Skips {
+    pub const EXACT: Skips = Skips { transmittance_threshold: 0.0, empty_threshold: 0.0 };
+
+    pub fn validate(&self) -> Result<()> {
+        for (name, v) in [
+            ("transmittance_threshold", self.transmittance_threshold),
+            ("empty_threshold", self.empty_threshold),
+        ] {
+            if !(v.is_finite() && (0.0..1.0).contains(&v)) {
+                return Err(Error::invalid(name, format!("must be in [0, 1), got {v}")));
+            }
+        }
+        Ok(())
+    }
 }
 
 impl Default for RenderSettings {
@@ -34,6 +65,7 @@ impl Default for RenderSettings {
             white_back: false,
             deterministic: true,
             seed: 0,
+            skips: Skips::EXACT,
         }
     }
 }
@@ -64,7 +96,7 @@ impl RenderSettings {
                 format!("must be 0 (no importance pass) or in [2, {MAX_SAMPLES}], got {n}"),
             ));
         }
-        Ok(())
+        self.skips.validate()
     }
 }
 
