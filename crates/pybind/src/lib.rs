@@ -230,9 +230,9 @@ impl Triplane {
 /// Returns a dict of float32 arrays: ``features`` (32, R, R), ``rgb`` (3, R, R), ``depth``
 /// (R, R), ``weights_sum`` (R, R), each with a leading B axis for a batch of cameras.
 /// ``outputs`` restricts what is computed and returned. The defaults are exact EG3D semantics;
-/// ``transmittance_threshold`` > 0 stops rays once they are that opaque (features change by at
-/// most twice it) and ``empty_threshold`` > 0 skips the importance pass of rays whose coarse
-/// opacity is below it.
+/// ``transmittance_threshold`` > 0 stops rays once their transmittance falls below it and
+/// ``empty_threshold`` > 0 skips the importance pass of rays whose coarse opacity is below it;
+/// their accuracy cost is measured in bench/RESULTS.md.
 #[pyfunction]
 #[pyo3(signature = (triplane, camera, resolution=128, depth_resolution=48, depth_resolution_importance=48,
                     deterministic=true, seed=None, outputs=None, white_back=false, *,
