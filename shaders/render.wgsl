@@ -171,7 +171,9 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
         depth = clamp(depth_acc / weights_sum, lo, hi);
     }
     out_depth[out_index] = depth;
-    out_weights_sum[out_index] = weights_sum;
+    // A sum of weights that telescopes to 1 - T can round a few ulps above 1 in float32
+    // (1.0000005 at 48+48); the output is clamped to its mathematical range (docs/numerics.md).
+    out_weights_sum[out_index] = min(weights_sum, 1.0);
 
     var background = 0.0;
     if ((params.flags & FLAG_WHITE_BACK) != 0u) {
