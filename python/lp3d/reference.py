@@ -237,7 +237,7 @@ def march(t: np.ndarray, sigma_raw: np.ndarray, feat: np.ndarray, *, white_back:
     c_mid = 0.5 * (c[..., :-1, :] + c[..., 1:, :])
     t_mid = 0.5 * (t[..., :-1] + t[..., 1:])
     sigma = softplus(0.5 * (s[..., :-1] + s[..., 1:]) - 1.0)
-    alpha = 1.0 - np.exp(-sigma * delta)
+    alpha = -np.expm1(-sigma * delta)  # exact for tiny sigma*delta, where 1 - exp(-x) rounds to 0
     shifted = np.concatenate([np.ones_like(alpha[..., :1]), (1.0 - alpha) + 1e-10], axis=-1)
     T = np.cumprod(shifted, axis=-1)[..., :-1]
     weights = alpha * T
