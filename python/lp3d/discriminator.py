@@ -89,7 +89,7 @@ class DiscriminatorConfig:
 
 DISCRIMINATOR_CONFIGS: dict[str, DiscriminatorConfig] = {
     "eg3d": DiscriminatorConfig(),
-    "small": DiscriminatorConfig(name="small", resolution=256, channel_base=4096, channel_max=128),
+    "small": DiscriminatorConfig(name="small", resolution=128, channel_base=4096, channel_max=128),
     "tiny": DiscriminatorConfig(name="tiny", resolution=128, channel_base=2048, channel_max=64),
 }
 

@@ -171,6 +171,8 @@ def _load_torch(path: Path) -> LoadedEncoder:
         state = _strip(student, "encoder.")
     else:
         raise ModelPackageError(layout_hint)
+    # A training checkpoint's student may add a learned mean triplane to the encoder's output.
+    offset = student.get("plane_offset") if student is not None else None
     decoder: dict[str, Any] | None = None
     if isinstance(ckpt.get("decoder"), Mapping):
         decoder = dict(ckpt["decoder"])
@@ -236,6 +238,8 @@ def _load_torch(path: Path) -> LoadedEncoder:
     def run(images: np.ndarray) -> np.ndarray:
         with torch.inference_mode():
             out = encoder(torch.from_numpy(np.ascontiguousarray(images, dtype=np.float32)))
+            if offset is not None:
+                out = out + offset
         return _reshape_planes(out.float().numpy(), images.shape[0], str(p))
 
     return LoadedEncoder(package, "torch", run, f"{p.name} (torch {torch.__version__}, CPU)")

@@ -103,7 +103,7 @@ class SuperresConfig:
 SUPERRES_CONFIGS: dict[str, SuperresConfig] = {
     "eg3d": SuperresConfig(),
     "small": SuperresConfig(
-        name="small", input_resolution=64, output_resolution=256, block_channels=(128, 64), w_dim=128
+        name="small", input_resolution=64, output_resolution=128, block_channels=(128,), w_dim=128
     ),
     "tiny": SuperresConfig(
         name="tiny", input_resolution=64, output_resolution=128, block_channels=(64,), w_dim=64

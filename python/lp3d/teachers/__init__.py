@@ -45,7 +45,16 @@ class Teacher(Protocol):
         ...
 
 
-from lp3d.teachers.eg3d import EG3DLoadError, EG3DTeacher  # noqa: E402  (after the protocol)
-from lp3d.teachers.procedural import HeadParams, ProceduralTeacher  # noqa: E402
+from lp3d.teachers.procedural import HeadParams, ProceduralTeacher  # noqa: E402  (after the protocol)
+
+
+def __getattr__(name: str) -> object:
+    # The EG3D adapter needs torch; import it only when asked, so that the procedural teacher (and
+    # ``lp3d demo``) work on an install without the [train] extra.
+    if name in ("EG3DTeacher", "EG3DLoadError"):
+        from lp3d.teachers import eg3d
+
+        return getattr(eg3d, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 __all__ = ["EG3DLoadError", "EG3DTeacher", "HeadParams", "ProceduralTeacher", "Teacher"]
