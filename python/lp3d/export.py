@@ -31,7 +31,7 @@ from lp3d.encoder import LP3DEncoder
 from lp3d.model_package import save_model_package
 from lp3d.train import CheckpointError, Student, load_checkpoint, student_from_checkpoint
 
-__all__ = ["ExportError", "check_onnx", "export_encoder", "main"]
+__all__ = ["ExportError", "check_onnx", "export_encoder", "main", "save_weights"]
 
 #: Lowest opset accepted (LayerNorm and the attention ops export as single nodes from 17 on).
 MIN_OPSET = 17
@@ -92,6 +92,39 @@ def export_encoder(
     return path
 
 
+def save_weights(student: Student, path: str | os.PathLike[str], *, half: bool = True) -> Path:
+    """The student's inference weights as a plain ``torch.load(weights_only=True)`` dict that
+    ``lp3d encode --backend torch --model PATH`` reads: ``config`` (EncoderConfig), ``encoder`` (state
+    dict), ``plane_offset`` (or None), ``decoder`` {w0, b0, w1, b1} and ``bounds``. ``half`` stores the
+    encoder and offset in float16 (half the size; they load back into float32 parameters)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+
+    def cast(t: Tensor) -> Tensor:
+        t = t.detach().cpu()
+        return t.half() if half and t.is_floating_point() else t.clone()
+
+    w0, b0, w1, b1 = (t.detach().cpu().clone() for t in student.decoder.weights())
+    scene = student.scene
+    data = {
+        "format": "lp3d-encoder-weights-v1",
+        "config": student.config.encoder.to_dict(),
+        "encoder": {k: cast(v) for k, v in student.encoder.state_dict().items()},
+        "plane_offset": None if student.plane_offset is None else cast(student.plane_offset),
+        "decoder": {"w0": w0, "b0": b0, "w1": w1, "b1": b1},
+        "bounds": {"box_warp": scene.box_warp, "ray_start": scene.ray_start, "ray_end": scene.ray_end},
+    }
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        torch.save(data, tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
 def check_onnx(
     model: LP3DEncoder | Student, path: str | os.PathLike[str], *, batch: int = 2, seed: int = 0
 ) -> float:
@@ -118,6 +151,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("-o", "--output", required=True, help="ONNX file to write")
     p.add_argument("--opset", type=int, default=MIN_OPSET, help=f"ONNX opset (>= {MIN_OPSET})")
     p.add_argument("--tolerance", type=float, default=1e-3, help="max abs error allowed on the triplane")
+    p.add_argument(
+        "--weights", default=None, help="also write the inference weights (float16 .pt) for the torch backend"
+    )
     args = p.parse_args(argv)
     try:
         ckpt = load_checkpoint(args.checkpoint)
@@ -145,6 +181,9 @@ def main(argv: list[str] | None = None) -> int:
         f"onnxruntime vs PyTorch max abs error {err:.2e} <= {args.tolerance:g}"
     )
     print(f"wrote {sidecar} (decoder weights and scene bounds; lp3d encode --model {path})")
+    if args.weights:
+        weights = save_weights(student, args.weights)
+        print(f"wrote {weights} (float16 inference weights; lp3d encode --backend torch --model {weights})")
     return 0
 
 

@@ -172,7 +172,9 @@ def _load_torch(path: Path) -> LoadedEncoder:
     else:
         raise ModelPackageError(layout_hint)
     # A training checkpoint's student may add a learned mean triplane to the encoder's output.
-    offset = student.get("plane_offset") if student is not None else None
+    offset = student.get("plane_offset") if student is not None else ckpt.get("plane_offset")
+    if offset is not None:
+        offset = torch.as_tensor(offset).float()
     decoder: dict[str, Any] | None = None
     if isinstance(ckpt.get("decoder"), Mapping):
         decoder = dict(ckpt["decoder"])
