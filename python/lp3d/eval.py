@@ -35,7 +35,7 @@ import statistics
 import sys
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -76,6 +76,8 @@ class EvalSettings:
     baseline_lr: float = 0.02
     baseline_mean_of: int = 16
     timing_repeats: int = 3
+    #: A progress bar (stderr) over identities and baseline fits.
+    progress: bool = False
 
 
 # --------------------------------------------------------------------------------------------------
@@ -225,6 +227,7 @@ def fit_triplane(
     steps: int,
     lr: float,
     perceptual: nn.Module | None,
+    on_step: Callable[[], Any] | None = None,
 ) -> Tensor:
     """The baseline: planes (1, 3, 32, T, T) fitted to one view by Adam, student renderer frozen."""
     planes = init.clone().requires_grad_(True)
@@ -237,6 +240,8 @@ def fit_triplane(
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
+        if on_step is not None:
+            on_step()
     return planes.detach()
 
 
@@ -295,7 +300,16 @@ def _evaluate(
     def to_u8(x: Tensor) -> np.ndarray:
         return rgb_to_uint8(x.detach().cpu().numpy())
 
+    bar = None
+    if settings.progress:
+        from tqdm import tqdm
+
+        bar = tqdm(
+            total=len(seeds) * (1 + settings.baseline_steps), desc="eval", unit="step", file=sys.stderr
+        )
     for seed in seeds:
+        if bar is not None:
+            bar.set_postfix_str(f"identity seed {seed}")
         tri = teacher.sample(seed)
         planes_t = torch.from_numpy(tri.planes.astype(np.float32)).unsqueeze(0).to(device)
         cam_rng = np.random.Generator(np.random.PCG64(seed))
@@ -333,6 +347,7 @@ def _evaluate(
                     steps=settings.baseline_steps,
                     lr=settings.baseline_lr,
                     perceptual=perceptual,
+                    on_step=None if bar is None else bar.update,
                 )
             _sync(device)
             fit_s.append(time.perf_counter() - t0)
@@ -343,6 +358,10 @@ def _evaluate(
             metrics["baseline"].add("novel", base_nv, truth_nv, lpips)
             figure.append([to_u8(base_in["high"][0])] + [to_u8(v) for v in base_nv["high"]])
         rows.append(figure)
+        if bar is not None:
+            bar.update(1)
+    if bar is not None:
+        bar.close()
 
     report: dict[str, Any] = {
         "config": cfg.name,
@@ -475,12 +494,15 @@ def main(argv: list[str] | None = None) -> int:
         "--eg3d-source", default=None, help="NVlabs/eg3d's eg3d/ folder, to unpickle the generator"
     )
     p.add_argument("--device", default="cpu", help="cpu or cuda")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = p.parse_args(argv)
     if args.n_identities < 1:
         p.error("--n-identities must be >= 1")
     if args.baseline_steps < 0:
         p.error("--baseline-steps must be >= 0")
-    settings = EvalSettings(n_identities=args.n_identities, baseline_steps=args.baseline_steps)
+    settings = EvalSettings(
+        n_identities=args.n_identities, baseline_steps=args.baseline_steps, progress=not args.no_progress
+    )
     try:
         report_path, png, report = run(
             args.checkpoint,
