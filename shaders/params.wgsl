@@ -9,6 +9,10 @@ const HIDDEN: u32 = 64u;
 
 const FLAG_JITTER: u32 = 1u;
 const FLAG_WHITE_BACK: u32 = 2u;
+// Planes are packed float16 pairs (the triplane's planes were float16).
+const FLAG_HALF_PLANES: u32 = 4u;
+// The occupancy skip applies to the coarse pass too (not only the final composite).
+const FLAG_OCCUPANCY_COARSE: u32 = 8u;
 
 // Per-render settings. Field names follow EG3D's rendering_kwargs.
 struct Params {
@@ -38,7 +42,8 @@ struct Params {
     transmittance_threshold: f32,
     // No importance pass for rays whose coarse opacity is below this:
     empty_threshold: f32,
-    _pad0: u32,
+    // Occupancy grid cells per axis (docs/occupancy.md); 0 = no occupancy skip.
+    occupancy_resolution: u32,
     _pad1: u32,
 }
 
@@ -53,8 +58,9 @@ struct Decoder {
 @group(0) @binding(0) var<uniform> params: Params;
 // 25 floats per camera: cam2world 4x4 row-major, then 3x3 normalised intrinsics.
 @group(0) @binding(1) var<storage, read> cameras: array<f32>;
-// Planes channel-last: texel (p, y, x) holds 8 vec4 = 32 channels.
-@group(0) @binding(2) var<storage, read> planes: array<vec4<f32>>;
+// Planes channel-last: texel (p, y, x) holds 32 channels, as 8 vec4 of float32 bits, or with
+// FLAG_HALF_PLANES as 4 vec4 of packed float16 pairs (channel 2i low, 2i + 1 high).
+@group(0) @binding(2) var<storage, read> planes: array<vec4<u32>>;
 @group(0) @binding(3) var<uniform> decoder: Decoder;
 // Outputs of this dispatch: features (cameras, feature_channels, R, R), depth and weights sum (cameras, R, R).
 @group(0) @binding(4) var<storage, read_write> out_features: array<f32>;
@@ -62,3 +68,5 @@ struct Decoder {
 @group(0) @binding(6) var<storage, read_write> out_weights_sum: array<f32>;
 // Batch-global [min, max] of all sample depths, as float bits (depths are >= 0, so bit order = value order).
 @group(0) @binding(7) var<storage, read_write> depth_bounds: array<atomic<u32>, 2>;
+// Occupancy bits, one per grid cell (ix * G + iy) * G + iz: set = the cell may hold density.
+@group(0) @binding(8) var<storage, read> occupancy_bits: array<u32>;

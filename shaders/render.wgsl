@@ -14,6 +14,69 @@ fn density_at(pos: vec3<f32>) -> f32 {
     return decode_density();
 }
 
+// A walk over a ray's samples in depth order (coarse k and fine j merged; n = 0 walks the
+// coarse samples alone) with the occupancy of samples i - 1, i and i + 1 (docs/occupancy.md).
+// An interval whose two ends are in empty cells has alpha <= occupancy_epsilon and is taken as
+// 0, so sample i needs decoding only if occ_prev, occ_cur or occ_next (always, when the skip
+// is off). The passes skip unneeded samples in an inner loop that tests bits only: lavapipe
+// runs 8 rays in lock-step and executes an `if` body unless all 8 skip it, whereas a loop lets
+// each ray move on to its own next needed sample.
+struct Walk {
+    // Test the occupancy grid (else every sample counts as occupied).
+    use_grid: bool,
+    i: u32,
+    k: u32,
+    j: u32,
+    total: u32,
+    t_cur: f32,
+    t_next: f32,
+    occ_prev: bool,
+    occ_cur: bool,
+    occ_next: bool,
+}
+
+// The next depth of the merged coarse + fine list (both ascending), advancing k or j.
+fn next_depth(w: ptr<function, Walk>, ray_index: u32, n: u32) -> f32 {
+    if ((*w).j < n && ((*w).k >= params.depth_resolution || t_fine[(*w).j] < coarse_depth(ray_index, (*w).k))) {
+        let t = t_fine[(*w).j];
+        (*w).j += 1u;
+        return t;
+    }
+    let t = coarse_depth(ray_index, (*w).k);
+    (*w).k += 1u;
+    return t;
+}
+
+fn walk_start(ray: Ray, ray_index: u32, n: u32, use_grid: bool) -> Walk {
+    var w = Walk(use_grid, 0u, 0u, 0u, params.depth_resolution + n, 0.0, 0.0, false, false, false);
+    w.t_cur = next_depth(&w, ray_index, n);
+    w.occ_cur = !use_grid || occupied(ray.origin + w.t_cur * ray.dir);
+    if (w.total > 1u) {
+        w.t_next = next_depth(&w, ray_index, n);
+        w.occ_next = !use_grid || occupied(ray.origin + w.t_next * ray.dir);
+    }
+    return w;
+}
+
+fn walk_advance(w: ptr<function, Walk>, ray: Ray, ray_index: u32, n: u32) {
+    (*w).occ_prev = (*w).occ_cur;
+    (*w).t_cur = (*w).t_next;
+    (*w).occ_cur = (*w).occ_next;
+    (*w).occ_next = false;
+    if ((*w).i + 2u < (*w).total) {
+        (*w).t_next = next_depth(w, ray_index, n);
+        (*w).occ_next = !(*w).use_grid || occupied(ray.origin + (*w).t_next * ray.dir);
+    }
+    (*w).i += 1u;
+}
+
+// Moves to the next sample that needs decoding (or past the end).
+fn walk_to_needed(w: ptr<function, Walk>, ray: Ray, ray_index: u32, n: u32) {
+    while ((*w).i < (*w).total && !((*w).occ_prev || (*w).occ_cur || (*w).occ_next)) {
+        walk_advance(w, ray, ray_index, n);
+    }
+}
+
 // sample_importance + sample_pdf: fills t_fine[0..N] (ascending). Returns the number of fine
 // samples to use: N, or 0 when the skip "no importance pass for (nearly) empty rays" applies.
 fn importance_depths(ray: Ray, ray_index: u32) -> u32 {
@@ -21,22 +84,31 @@ fn importance_depths(ray: Ray, ray_index: u32) -> u32 {
     let n = params.depth_resolution_importance;
     // 1-2. Raw densities at the coarse samples and the coarse weights w_0..w_{S-2}
     //      (MipRayMarcher2 on the coarse samples), in one front-to-back loop so that early
-    //      termination can stop evaluating densities; weights behind it are set to 0.
-    var transmittance = 1.0;
-    var t_prev = coarse_depth(ray_index, 0u);
-    var sigma_prev = density_at(ray.origin + t_prev * ray.dir);
+    //      termination can stop evaluating densities; weights behind it, and of intervals
+    //      the occupancy grid skips, stay 0.
     for (var i = 0u; i + 1u < s; i++) {
-        if (transmittance < params.transmittance_threshold) {
-            scratch[i] = 0.0;
-            continue;
+        scratch[i] = 0.0;
+    }
+    var transmittance = 1.0;
+    var t_prev = 0.0;
+    var sigma_prev = 0.0;
+    // Skipping here too is faster but moves the importance samples (docs/occupancy.md).
+    var w = walk_start(ray, ray_index, 0u, (params.flags & FLAG_OCCUPANCY_COARSE) != 0u);
+    loop {
+        walk_to_needed(&w, ray, ray_index, 0u);
+        if (w.i >= s || transmittance < params.transmittance_threshold) {
+            break;
         }
-        let t_next = coarse_depth(ray_index, i + 1u);
-        let sigma_next = density_at(ray.origin + t_next * ray.dir);
-        let alpha = interval_alpha(sigma_prev, sigma_next, t_next - t_prev);
-        scratch[i] = alpha * transmittance;
-        transmittance = transmit(transmittance, alpha);
-        t_prev = t_next;
-        sigma_prev = sigma_next;
+        let sigma = density_at(ray.origin + w.t_cur * ray.dir);
+        if (w.i > 0u && (w.occ_prev || w.occ_cur)) {
+            // Both ends were decoded (each is the other's neighbour).
+            let alpha = interval_alpha(sigma_prev, sigma, w.t_cur - t_prev);
+            scratch[w.i - 1u] = alpha * transmittance;
+            transmittance = transmit(transmittance, alpha);
+        }
+        t_prev = w.t_cur;
+        sigma_prev = sigma;
+        walk_advance(&w, ray, ray_index, 0u);
     }
     if (1.0 - transmittance < params.empty_threshold) {
         return 0u;
@@ -108,9 +180,8 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
         n = importance_depths(ray, ray_index);
     }
 
-    // Streaming composite over the merged samples (coarse k, fine j).
-    var k = 0u;
-    var j = 0u;
+    // Streaming composite over the merged samples, skipping as the coarse pass does.
+    var walk = walk_start(ray, ray_index, n, true);
     var transmittance = 1.0;
     var weights_sum = 0.0;
     var depth_acc = 0.0;
@@ -119,20 +190,13 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
     var cur_feat = array<vec4<f32>, 8>();
     var prev_t = 0.0;
     var prev_sigma = 0.0;
-    for (var i = 0u; i < s + n; i++) {
+    loop {
+        walk_to_needed(&walk, ray, ray_index, n);
         // Early ray termination (a skip; the exact mode's threshold is 0, so it never fires).
-        if (transmittance < params.transmittance_threshold) {
+        if (walk.i >= s + n || transmittance < params.transmittance_threshold) {
             break;
         }
-        var t = 0.0;
-        let take_fine = j < n && (k >= s || t_fine[j] < coarse_depth(ray_index, k));
-        if (take_fine) {
-            t = t_fine[j];
-            j++;
-        } else {
-            t = coarse_depth(ray_index, k);
-            k++;
-        }
+        let t = walk.t_cur;
         sample_triplane(ray.origin + t * ray.dir);
         decode_hidden();
         let sigma = decode_density();
@@ -143,7 +207,7 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
         } else if (n_feat > 0u) {
             cur_feat[0] = decode_rgb();
         }
-        if (i > 0u) {
+        if (walk.i > 0u && (walk.occ_prev || walk.occ_cur)) {
             let alpha = interval_alpha(prev_sigma, sigma, t - prev_t);
             let w = alpha * transmittance;
             transmittance = transmit(transmittance, alpha);
@@ -160,6 +224,7 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
         prev_t = t;
         prev_sigma = sigma;
         prev_feat = cur_feat;
+        walk_advance(&walk, ray, ray_index, n);
     }
 
     // Depth: EG3D turns 0/0 into +inf and clamps to the batch-global depth range, so a ray

@@ -7,15 +7,40 @@
 // The aggregated 32-channel feature of the current sample.
 var<private> feat: array<vec4<f32>, 8>;
 
+// Two float16 (low, high half of `v`) to float32, exactly. By hand rather than
+// unpack2x16float, which naga gates behind a capability (SHADER_FLOAT16_IN_FLOAT32) that not
+// every backend has; subnormals are scaled from an integer so flush-to-zero cannot drop them.
+// Planes are finite (validated), so Inf/NaN encodings never occur.
+fn halves_to_f32(v: u32) -> vec2<f32> {
+    let h = vec2<u32>(v & 0xffffu, v >> 16u);
+    let e = (h >> vec2<u32>(10u)) & vec2<u32>(0x1fu);
+    let m = h & vec2<u32>(0x3ffu);
+    let normal = bitcast<vec2<f32>>(((e + 112u) << vec2<u32>(23u)) | (m << vec2<u32>(13u)));
+    let subnormal = vec2<f32>(m) * 5.9604645e-8; // m * 2^-24
+    let mag = select(normal, subnormal, e == vec2<u32>(0u));
+    return bitcast<vec2<f32>>(bitcast<vec2<u32>>(mag) | ((h & vec2<u32>(0x8000u)) << vec2<u32>(16u)));
+}
+
 fn add_tap(p: u32, x: i32, y: i32, w: f32) {
     let h = i32(params.plane_h);
     let wd = i32(params.plane_w);
     if (x < 0 || y < 0 || x >= wd || y >= h) {
         return; // zeros padding, per tap
     }
-    let base = ((p * params.plane_h + u32(y)) * params.plane_w + u32(x)) * 8u;
-    for (var q = 0u; q < 8u; q++) {
-        feat[q] += w * planes[base + q];
+    let texel = (p * params.plane_h + u32(y)) * params.plane_w + u32(x);
+    if ((params.flags & FLAG_HALF_PLANES) != 0u) {
+        // Float16 planes: half the bytes per tap, float32 arithmetic (unpacking is exact).
+        let base = texel * 4u;
+        for (var q = 0u; q < 4u; q++) {
+            let h = planes[base + q];
+            feat[2u * q] += w * vec4<f32>(halves_to_f32(h.x), halves_to_f32(h.y));
+            feat[2u * q + 1u] += w * vec4<f32>(halves_to_f32(h.z), halves_to_f32(h.w));
+        }
+    } else {
+        let base = texel * 8u;
+        for (var q = 0u; q < 8u; q++) {
+            feat[q] += w * bitcast<vec4<f32>>(planes[base + q]);
+        }
     }
 }
 
@@ -39,9 +64,28 @@ fn add_plane(p: u32, u: f32, v: f32) {
     add_tap(p, xi + 1, yi + 1, fx * fy);
 }
 
+// World point -> plane coordinates ([-1, 1] inside the box).
+fn plane_coords(pos: vec3<f32>) -> vec3<f32> {
+    return pos * (2.0 / params.box_warp);
+}
+
+// Whether `pos` lies in a cell of the occupancy grid that may hold density (always, when the
+// skip is off). Outside the box the index clamps to the edge cells, which the bake extends to
+// infinity (crates/renderer/src/occupancy.rs).
+fn occupied(pos: vec3<f32>) -> bool {
+    let g = params.occupancy_resolution;
+    if (g == 0u) {
+        return true;
+    }
+    let gf = f32(g);
+    let cell = vec3<u32>(clamp(floor((plane_coords(pos) + 1.0) * (0.5 * gf)), vec3<f32>(0.0), vec3<f32>(gf - 1.0)));
+    let idx = (cell.x * g + cell.y) * g + cell.z;
+    return ((occupancy_bits[idx >> 5u] >> (idx & 31u)) & 1u) != 0u;
+}
+
 // Mean of the three plane features at world point `pos` into `feat`.
 fn sample_triplane(pos: vec3<f32>) {
-    let q = pos * (2.0 / params.box_warp);
+    let q = plane_coords(pos);
     for (var i = 0u; i < 8u; i++) {
         feat[i] = vec4<f32>(0.0);
     }

@@ -111,7 +111,7 @@ def test_file_round_trips_across_languages(gpu, tmp_path: Path) -> None:
         # Python writes (with the optional keys), Rust reads.
         py_file = tmp_path / f"py-{np.dtype(dtype).name}.npz"
         cam = pycam.look_at_camera(yaw_deg=12.0)
-        occ = np.linspace(0, 1, 4 * 5 * 6, dtype=np.float32).reshape(4, 5, 6)
+        occ = np.linspace(0, 1, 4 * 4 * 4, dtype=np.float32).reshape(4, 4, 4)
         save_triplane(
             py_file,
             scene.data.__class__(
@@ -168,6 +168,10 @@ def test_settings_agree_across_languages() -> None:
         "depth_resolution_importance",
         "white_back",
         "deterministic",
+        "transmittance_threshold",
+        "empty_threshold",
+        "occupancy_epsilon",
+        "occupancy_coarse",
     ):
         assert sig.parameters[name].default == getattr(defaults, name), name
     assert lp3d_render.MAX_RESOLUTION == settings.MAX_RESOLUTION

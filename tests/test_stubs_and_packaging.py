@@ -35,7 +35,12 @@ def stub_signatures() -> dict[str, list[tuple[str, str | None, str]]]:
             out[node.name] = params(node)
         if isinstance(node, ast.ClassDef) and node.name == "Triplane":
             for item in node.body:
-                if isinstance(item, ast.FunctionDef) and item.name in ("__init__", "load", "save"):
+                if isinstance(item, ast.FunctionDef) and item.name in (
+                    "__init__",
+                    "load",
+                    "save",
+                    "bake_occupancy",
+                ):
                     out[f"Triplane.{item.name}"] = params(item)
     return out
 
@@ -57,6 +62,8 @@ def test_stub_signatures_match_runtime() -> None:
     runtime = {
         "render": _lp3d_render.render,
         "adapter_info": _lp3d_render.adapter_info,
+        "last_frame_device_bytes": _lp3d_render.last_frame_device_bytes,
+        "Triplane.bake_occupancy": _lp3d_render.Triplane.bake_occupancy,
         "look_at_camera": _lp3d_render.look_at_camera,
         "Triplane.__init__": _lp3d_render.Triplane,
         "Triplane.load": _lp3d_render.Triplane.load,

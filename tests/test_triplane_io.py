@@ -22,7 +22,7 @@ def make_triplane(dtype: type = np.float32, *, optional: bool = False, size: int
     if optional:
         extra = {
             "camera": look_at_camera(yaw_deg=10.0),
-            "occupancy": rng.random((4, 5, 6), dtype=np.float32),
+            "occupancy": rng.random((4, 4, 4), dtype=np.float32),
             "source": "procedural teacher, seed 7 — ünïcode",
         }
     return TriplaneData(
@@ -176,6 +176,7 @@ def test_file_layout_is_plain_little_endian(tmp_path: Path) -> None:
             "format_version",
             "camera",
             "occupancy",
+            "occupancy_checksum",
             "source",
         }
         assert npz["planes"].dtype.str == "<f2"
@@ -184,6 +185,7 @@ def test_file_layout_is_plain_little_endian(tmp_path: Path) -> None:
         assert npz["format_version"].dtype.str == "<i8" and int(npz["format_version"]) == FORMAT_VERSION
         assert npz["source"].shape == () and npz["source"].dtype.kind == "U"
         assert npz["camera"].dtype.str == "<f8" and npz["occupancy"].dtype.str == "<f4"
+        assert npz["occupancy_checksum"].shape == () and npz["occupancy_checksum"].dtype.str == "<i8"
     with zipfile.ZipFile(path) as zf:
         assert all(info.compress_type == zipfile.ZIP_STORED for info in zf.infolist())
 

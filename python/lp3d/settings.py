@@ -42,6 +42,11 @@ class RenderSettings:
     transmittance_threshold: float = 0.0
     #: ... and no importance pass for rays whose coarse opacity is below this.
     empty_threshold: float = 0.0
+    #: Occupancy grid skip (docs/occupancy.md): intervals between two samples in empty cells of the
+    #: triplane's grid have opacity <= this and are taken as 0 without decoding. 0 = off.
+    occupancy_epsilon: float = 0.0
+    #: ... in the coarse pass too (faster; moves the importance samples, error measured not bounded).
+    occupancy_coarse: bool = False
 
     def validate(self) -> None:
         if not isinstance(self.resolution, int) or not 1 <= self.resolution <= MAX_RESOLUTION:
@@ -58,10 +63,12 @@ class RenderSettings:
                 "depth_resolution_importance must be 0 (no importance pass) or an int in "
                 f"[2, {MAX_SAMPLES}], got {n!r}"
             )
-        for name in ("transmittance_threshold", "empty_threshold"):
+        for name in ("transmittance_threshold", "empty_threshold", "occupancy_epsilon"):
             value = getattr(self, name)
             if not 0.0 <= value < 1.0:
                 raise ValueError(f"{name} must be in [0, 1), got {value!r}")
+        if self.occupancy_coarse and self.occupancy_epsilon == 0.0:
+            raise ValueError("occupancy_coarse needs occupancy_epsilon > 0")
         if not isinstance(self.seed, int) or not 0 <= self.seed < 2**32:
             raise ValueError(f"seed must be an int in [0, 2**32), got {self.seed!r}")
 

@@ -9,6 +9,7 @@ applied, see :func:`effective_decoder_weights`).
 from __future__ import annotations
 
 import math
+import zlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -25,6 +26,9 @@ from lp3d.settings import DEFAULT_BOX_WARP, DEFAULT_RAY_END, DEFAULT_RAY_START, 
 #: Portrait) was trained this way (NVlabs/eg3d issue #67), so EG3D triplanes only render correctly
 #: with exactly these axes.
 PLANE_AXES: tuple[tuple[int, int], ...] = ((0, 1), (0, 2), (2, 0))
+
+#: Largest occupancy grid side G (the Rust bake and loader accept the same).
+MAX_OCCUPANCY_RESOLUTION = 512
 
 
 class TriplaneError(ValueError):
@@ -59,8 +63,9 @@ class TriplaneData:
 
     Arrays: ``planes`` (3, 32, H, W) float16 or float32 (dtype kept), ``w0`` (64, 32), ``b0`` (64,),
     ``w1`` (33, 64), ``b1`` (33,) effective decoder weights (float32 or float64 in, stored float32),
-    ``camera`` optional (25,) float64 label of the input view, ``occupancy`` optional 3-D float32 grid
-    (baked density, layout defined by the renderer), ``source`` optional short text. ``box_warp``: the
+    ``camera`` optional (25,) float64 label of the input view, ``occupancy`` optional (G, G, G) float32
+    grid (per cell an upper bound on the raw density, ``docs/occupancy.md``; bake it with
+    ``lp3d_render.Triplane.bake_occupancy``), ``source`` optional short text. ``box_warp``: the
     triplane spans ``[-box_warp/2, box_warp/2]^3``; ``ray_start``/``ray_end``: the sampled depth range.
     The dataclass is frozen; arrays are not copied, so do not mutate them (call :meth:`validate` if you do).
     """
@@ -151,12 +156,27 @@ class TriplaneData:
                 raise TriplaneError(
                     "occupancy", f"dtype must be a float type (stored float32), got {occ.dtype}"
                 )
-            if occ.ndim != 3 or min(occ.shape) < 1:
-                raise TriplaneError("occupancy", f"must be a non-empty 3-D grid, got shape {occ.shape}")
+            if occ.ndim != 3 or len(set(occ.shape)) != 1 or not 1 <= occ.shape[0] <= MAX_OCCUPANCY_RESOLUTION:
+                raise TriplaneError(
+                    "occupancy",
+                    f"must be a (G, G, G) grid with 1 <= G <= {MAX_OCCUPANCY_RESOLUTION}, "
+                    f"got shape {occ.shape}",
+                )
             if not np.all(np.isfinite(occ)):
                 raise TriplaneError("occupancy", "contains NaN/Inf")
         if self.source is not None and not isinstance(self.source, str):
             raise TriplaneError("source", f"must be a str, got {type(self.source).__name__}")
+
+
+def occupancy_checksum(tri: TriplaneData) -> int:
+    """CRC-32 of the planes (as float32, (3, 32, H, W) order) and the decoder (w0, b0, w1, b1 as
+    float32), all little-endian: what an occupancy grid was baked for. Stored beside the grid in the
+    ``.npz`` (``occupancy_checksum``) so a grid baked for other planes is detected; the Rust
+    ``Occupancy::checksum`` computes the same value."""
+    crc = 0
+    for arr in (tri.planes, tri.w0, tri.b0, tri.w1, tri.b1):
+        crc = zlib.crc32(np.ascontiguousarray(arr, dtype="<f4").tobytes(), crc)
+    return crc
 
 
 def effective_decoder_weights(

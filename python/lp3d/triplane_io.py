@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lp3d.triplane import TriplaneData, TriplaneError
+from lp3d.triplane import TriplaneData, TriplaneError, occupancy_checksum
 
 #: Version written by :func:`save_triplane`; the only one :func:`load_triplane` accepts.
 FORMAT_VERSION = 1
@@ -34,6 +34,10 @@ REQUIRED_KEYS: dict[str, str] = {
 }
 #: Optional keys and their TriplaneData fields.
 OPTIONAL_KEYS: dict[str, str] = {"camera": "camera", "occupancy": "occupancy", "source": "source"}
+
+#: Stored with ``occupancy`` (and only with it): the CRC-32 of the planes and decoder the grid was
+#: baked for (:func:`lp3d.triplane.occupancy_checksum`). Checked on load, not kept in TriplaneData.
+CHECKSUM_KEY = "occupancy_checksum"
 
 _FIELD_OF_KEY = {**REQUIRED_KEYS, **OPTIONAL_KEYS}
 _KEY_OF_FIELD = {f: k for k, f in _FIELD_OF_KEY.items()}
@@ -63,6 +67,7 @@ def _arrays_of(tri: TriplaneData) -> dict[str, np.ndarray]:
         arrays["camera"] = np.array(tri.camera, dtype="<f8")
     if tri.occupancy is not None:
         arrays["occupancy"] = _little_endian(tri.occupancy.astype(np.float32))
+        arrays[CHECKSUM_KEY] = np.array(occupancy_checksum(tri), dtype="<i8")
     if tri.source is not None:
         arrays["source"] = np.array(tri.source, dtype="<U")  # 0-d unicode (UTF-32LE in the file)
     return arrays
@@ -176,10 +181,17 @@ def load_triplane(path: str | os.PathLike[str]) -> TriplaneData:
             missing = sorted(set(REQUIRED_KEYS) - keys)
             if missing:
                 raise _fail(path, missing[0], f"missing required key(s) {missing}")
-            extra = sorted(keys - set(REQUIRED_KEYS) - set(OPTIONAL_KEYS))
+            extra = sorted(keys - set(REQUIRED_KEYS) - set(OPTIONAL_KEYS) - {CHECKSUM_KEY})
             if extra:
                 raise _fail(path, extra[0], f"unknown key(s) {extra} (format_version {FORMAT_VERSION})")
-            for key in sorted(keys - {"format_version"}):
+            if ("occupancy" in keys) != (CHECKSUM_KEY in keys):
+                missing_key = CHECKSUM_KEY if "occupancy" in keys else "occupancy"
+                raise _fail(path, missing_key, f"missing ('occupancy' and '{CHECKSUM_KEY}' go together)")
+            checksum = None
+            if CHECKSUM_KEY in keys:
+                current = CHECKSUM_KEY
+                checksum = int(_scalar(path, current, npz[current], "iu"))
+            for key in sorted(keys - {"format_version", CHECKSUM_KEY}):
                 current = key
                 values[_FIELD_OF_KEY[key]] = _read_value(path, key, npz[key])
     except (TriplaneFileError, FileNotFoundError, PermissionError, IsADirectoryError):
@@ -189,6 +201,14 @@ def load_triplane(path: str | os.PathLike[str]) -> TriplaneData:
     except (zipfile.BadZipFile, EOFError, OSError, KeyError) as e:
         raise _fail(path, current, f"truncated or corrupt file ({type(e).__name__}: {e})") from e
     try:
-        return TriplaneData(**values)  # type: ignore[arg-type]
+        tri = TriplaneData(**values)  # type: ignore[arg-type]
     except TriplaneError as e:
         raise _fail(path, _KEY_OF_FIELD.get(e.field, e.field), e.detail) from None
+    if checksum is not None and checksum != (actual := occupancy_checksum(tri)):
+        raise _fail(
+            path,
+            CHECKSUM_KEY,
+            f"{checksum} does not match these planes and decoder ({actual}): the occupancy grid was "
+            "baked for another triplane; bake it again",
+        )
+    return tri

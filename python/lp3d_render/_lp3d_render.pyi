@@ -28,6 +28,7 @@ class Triplane:
         *,
         camera: npt.NDArray[np.floating] | None = None,
         source: str | None = None,
+        occupancy: npt.NDArray[np.float32] | None = None,
     ) -> None: ...
     @staticmethod
     def load(path: str | PathLike[str]) -> Triplane: ...
@@ -54,6 +55,9 @@ class Triplane:
     def source(self) -> str | None: ...
     @property
     def occupancy(self) -> npt.NDArray[np.float32] | None: ...
+    def bake_occupancy(self, resolution: int = 64) -> npt.NDArray[np.float32]: ...
+    @property
+    def device_bytes(self) -> int: ...
 
 def render(
     triplane: Triplane,
@@ -68,8 +72,11 @@ def render(
     *,
     transmittance_threshold: float = 0.0,
     empty_threshold: float = 0.0,
+    occupancy_epsilon: float = 0.0,
+    occupancy_coarse: bool = False,
 ) -> dict[str, npt.NDArray[np.float32]]: ...
 def adapter_info() -> dict[str, str]: ...
+def last_frame_device_bytes() -> int: ...
 def look_at_camera(
     *,
     yaw_deg: float = 0.0,

@@ -12,7 +12,8 @@ use std::sync::{Arc, Mutex, OnceLock};
 use lp3d_renderer::settings::{MAX_RESOLUTION, MAX_SAMPLES};
 use lp3d_renderer::triplane::{HIDDEN, N_CHANNELS, N_OUT};
 use lp3d_renderer::{
-    Camera, Decoder, GpuContext, GpuTriplane, Outputs, PlaneDtype, RenderSettings, Renderer, Skips,
+    occupancy, Camera, Decoder, GpuContext, GpuTriplane, Occupancy, Outputs, PlaneDtype, RenderSettings,
+    Renderer, Skips,
 };
 use numpy::{PyArray1, PyArrayMethods};
 use pyo3::exceptions::PyRuntimeError;
@@ -69,13 +70,22 @@ impl Triplane {
         Triplane { inner, uploaded: Mutex::new(None) }
     }
 
-    fn on_gpu(&self, gpu: &Gpu) -> PyResult<Arc<GpuTriplane>> {
+    /// The GPU copy, uploaded on first use. With `need_occupancy` and no grid in the triplane,
+    /// a grid of the default resolution is baked once and kept with the GPU copy.
+    fn on_gpu(&self, gpu: &Gpu, need_occupancy: bool) -> PyResult<Arc<GpuTriplane>> {
         let mut slot = self.uploaded.lock().map_err(|_| PyRuntimeError::new_err("triplane lock poisoned"))?;
-        if let Some(g) = slot.as_ref() {
-            return Ok(g.clone());
+        let g = match slot.as_ref() {
+            Some(g) => g.clone(),
+            None => {
+                let g = Arc::new(gpu.renderer.upload(&self.inner).map_err(to_py)?);
+                *slot = Some(g.clone());
+                g
+            }
+        };
+        if need_occupancy && !g.has_occupancy() {
+            let grid = Occupancy::bake(&self.inner, occupancy::DEFAULT_RESOLUTION).map_err(to_py)?;
+            gpu.renderer.set_occupancy(&g, grid).map_err(to_py)?;
         }
-        let g = Arc::new(gpu.renderer.upload(&self.inner).map_err(to_py)?);
-        *slot = Some(g.clone());
         Ok(g)
     }
 }
@@ -87,7 +97,7 @@ fn f32_array<'py>(py: Python<'py>, data: &[f32], shape: &[usize]) -> PyResult<Bo
 #[pymethods]
 impl Triplane {
     #[new]
-    #[pyo3(signature = (planes, w0, b0, w1, b1, box_warp=1.0, ray_start=2.25, ray_end=3.3, *, camera=None, source=None))]
+    #[pyo3(signature = (planes, w0, b0, w1, b1, box_warp=1.0, ray_start=2.25, ray_end=3.3, *, camera=None, source=None, occupancy=None))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         planes: &Bound<'_, PyAny>,
@@ -100,6 +110,7 @@ impl Triplane {
         ray_end: f64,
         camera: Option<&Bound<'_, PyAny>>,
         source: Option<String>,
+        occupancy: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Self> {
         guarded(|| {
             let p = float_array(planes, "planes", &["float16", "float32"])?;
@@ -125,6 +136,20 @@ impl Triplane {
                     Some(Camera::from_label(&v, "camera").map_err(to_py)?)
                 }
             };
+            let occupancy = match occupancy {
+                None => None,
+                Some(o) => {
+                    let a = float_array(o, "occupancy", &["float32"])?;
+                    let g = a.shape.first().copied().unwrap_or(0);
+                    if a.shape.len() != 3 || a.shape.iter().any(|&d| d != g) {
+                        return Err(invalid(
+                            "occupancy",
+                            format!("shape must be (G, G, G) (Triplane.bake_occupancy), got {:?}", a.shape),
+                        ));
+                    }
+                    Some(Occupancy { resolution: g, bound: a.data })
+                }
+            };
             let inner = lp3d_renderer::Triplane {
                 height: p.shape[2],
                 width: p.shape[3],
@@ -135,7 +160,7 @@ impl Triplane {
                 ray_start: finite_f32(ray_start, "ray_start")?,
                 ray_end: finite_f32(ray_end, "ray_end")?,
                 camera,
-                occupancy: None,
+                occupancy,
                 source,
             };
             inner.validate().map_err(to_py)?;
@@ -205,10 +230,28 @@ impl Triplane {
     fn source(&self) -> Option<String> {
         self.inner.source.clone()
     }
-    /// The baked occupancy grid, or None.
+    /// The occupancy grid this triplane carries (G, G, G): per cell, an upper bound on the raw
+    /// density (docs/occupancy.md), or None.
     #[getter]
     fn occupancy<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
-        self.inner.occupancy.as_ref().map(|o| f32_array(py, &o.data, &o.dims)).transpose()
+        let grid = |o: &Occupancy| f32_array(py, &o.bound, &[o.resolution; 3]);
+        self.inner.occupancy.as_ref().map(grid).transpose()
+    }
+
+    /// Bakes an occupancy grid (G, G, G) for this triplane on the CPU and returns it (the
+    /// triplane is immutable: pass it as ``occupancy=`` to a new Triplane to keep or save it).
+    #[pyo3(signature = (resolution=64))]
+    fn bake_occupancy<'py>(&self, py: Python<'py>, resolution: i64) -> PyResult<Bound<'py, PyAny>> {
+        let g = in_range(resolution, "resolution", 1, occupancy::MAX_RESOLUTION as u32)? as usize;
+        let grid = py.detach(|| guarded(|| Occupancy::bake(&self.inner, g).map_err(to_py)))?;
+        f32_array(py, &grid.bound, &[g; 3])
+    }
+
+    /// Bytes of device memory the triplane's GPU copy holds (0 before its first render).
+    #[getter]
+    fn device_bytes(&self) -> PyResult<u64> {
+        let slot = self.uploaded.lock().map_err(|_| PyRuntimeError::new_err("triplane lock poisoned"))?;
+        Ok(slot.as_ref().map_or(0, |g| g.device_bytes()))
     }
 
     fn __repr__(&self) -> String {
@@ -232,11 +275,16 @@ impl Triplane {
 /// ``outputs`` restricts what is computed and returned. The defaults are exact EG3D semantics;
 /// ``transmittance_threshold`` > 0 stops rays once their transmittance falls below it and
 /// ``empty_threshold`` > 0 skips the importance pass of rays whose coarse opacity is below it;
-/// their accuracy cost is measured in bench/RESULTS.md.
+/// their accuracy cost is measured in bench/RESULTS.md. ``occupancy_epsilon`` > 0 skips samples
+/// in the empty cells of the triplane's occupancy grid (baked at G = 64 on first use if it has
+/// none), at most ``occupancy_epsilon`` opacity per skipped interval (docs/occupancy.md), in the
+/// final composite; ``occupancy_coarse`` skips in the coarse pass too (faster; moves the
+/// importance samples, so that part of the error is measured, not bounded).
 #[pyfunction]
 #[pyo3(signature = (triplane, camera, resolution=128, depth_resolution=48, depth_resolution_importance=48,
                     deterministic=true, seed=None, outputs=None, white_back=false, *,
-                    transmittance_threshold=0.0, empty_threshold=0.0))]
+                    transmittance_threshold=0.0, empty_threshold=0.0, occupancy_epsilon=0.0,
+                    occupancy_coarse=false))]
 #[allow(clippy::too_many_arguments)]
 fn render<'py>(
     py: Python<'py>,
@@ -251,6 +299,8 @@ fn render<'py>(
     white_back: bool,
     transmittance_threshold: f64,
     empty_threshold: f64,
+    occupancy_epsilon: f64,
+    occupancy_coarse: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
     guarded(|| {
         let tri = triplane.cast::<Triplane>().map_err(|_| {
@@ -285,6 +335,8 @@ fn render<'py>(
             skips: Skips {
                 transmittance_threshold: finite_f32(transmittance_threshold, "transmittance_threshold")?,
                 empty_threshold: finite_f32(empty_threshold, "empty_threshold")?,
+                occupancy_epsilon: finite_f32(occupancy_epsilon, "occupancy_epsilon")?,
+                occupancy_coarse,
             },
         };
         settings.validate().map_err(to_py)?;
@@ -294,7 +346,8 @@ fn render<'py>(
         };
         let gpu = gpu(py)?;
         let tri = tri.get();
-        let uploaded = tri.on_gpu(gpu)?;
+        let need_grid = settings.skips.occupancy_epsilon > 0.0;
+        let uploaded = py.detach(|| guarded(|| tri.on_gpu(gpu, need_grid)))?;
         let out =
             py.detach(|| gpu.renderer.render(&uploaded, &cameras, &settings, outputs)).map_err(to_py)?;
 
@@ -388,6 +441,13 @@ fn view(
     py.detach(|| guarded(|| lp3d_viewer::run(options).map_err(PyRuntimeError::new_err)))
 }
 
+/// Bytes of device memory the last render's own buffers used (outputs, readbacks, uniforms,
+/// cameras); the triplane's are ``Triplane.device_bytes``. 0 before the first render.
+#[pyfunction]
+fn last_frame_device_bytes(py: Python<'_>) -> PyResult<u64> {
+    Ok(gpu(py)?.renderer.last_frame_device_bytes())
+}
+
 /// The GPU adapter the renderer runs on: backend, name, device type, driver.
 /// Raises RuntimeError (with the adapters seen) when none is usable.
 #[pyfunction]
@@ -407,6 +467,7 @@ fn _lp3d_render(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Triplane>()?;
     m.add_function(wrap_pyfunction!(render, m)?)?;
     m.add_function(wrap_pyfunction!(adapter_info, m)?)?;
+    m.add_function(wrap_pyfunction!(last_frame_device_bytes, m)?)?;
     m.add_function(wrap_pyfunction!(look_at_camera, m)?)?;
     #[cfg(feature = "viewer")]
     m.add_function(wrap_pyfunction!(view, m)?)?;

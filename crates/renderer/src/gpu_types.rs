@@ -8,6 +8,10 @@ use crate::triplane::{Decoder, SceneInfo, HIDDEN, N_CHANNELS, N_OUT};
 
 pub const FLAG_JITTER: u32 = 1;
 pub const FLAG_WHITE_BACK: u32 = 2;
+/// Planes are packed float16 pairs (`shaders/triplane.wgsl`).
+pub const FLAG_HALF_PLANES: u32 = 4;
+/// The occupancy skip applies to the coarse pass too.
+pub const FLAG_OCCUPANCY_COARSE: u32 = 8;
 
 /// Mirrors `struct Params` in `shaders/params.wgsl`.
 #[repr(C)]
@@ -31,7 +35,8 @@ pub struct Params {
     pub n_cameras: u32,
     pub transmittance_threshold: f32,
     pub empty_threshold: f32,
-    pub _pad0: u32,
+    /// Occupancy grid cells per axis; 0 = no occupancy skip.
+    pub occupancy_resolution: u32,
     pub _pad1: u32,
 }
 
@@ -45,6 +50,9 @@ impl Params {
         }
         if settings.white_back {
             flags |= FLAG_WHITE_BACK;
+        }
+        if settings.skips.occupancy_coarse {
+            flags |= FLAG_OCCUPANCY_COARSE;
         }
         Params {
             resolution: settings.resolution,
@@ -67,7 +75,7 @@ impl Params {
             n_cameras,
             transmittance_threshold: settings.skips.transmittance_threshold,
             empty_threshold: settings.skips.empty_threshold,
-            _pad0: 0,
+            occupancy_resolution: 0,
             _pad1: 0,
         }
     }

@@ -1,6 +1,7 @@
 //! GPU pipelines and dispatch. The CPU validates and prepares buffers; all rendering work
 //! happens in the WGSL kernels of `shaders/` (one ray per invocation).
 
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 use wgpu::util::DeviceExt;
@@ -8,10 +9,11 @@ use wgpu::util::DeviceExt;
 use crate::camera::Camera;
 use crate::device::GpuContext;
 use crate::error::{Error, Result};
-use crate::gpu_types::{DecoderUniform, DisplayUniform, Params};
+use crate::gpu_types::{DecoderUniform, DisplayUniform, Params, FLAG_HALF_PLANES};
+use crate::occupancy::Occupancy;
 use crate::settings::{Outputs, RenderSettings};
 use crate::shaders;
-use crate::triplane::{SceneInfo, Triplane};
+use crate::triplane::{PlaneDtype, SceneInfo, Triplane, N_CHANNELS};
 
 const WORKGROUP: u32 = 64;
 /// Texel format of `render_to_texture` targets (an sRGB-unaware 8-bit RGBA storage texture).
@@ -19,16 +21,47 @@ pub const DISPLAY_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 /// Most cameras per call (one dispatch row each).
 pub const MAX_CAMERAS: usize = 65535;
 
-/// A triplane resident on the GPU: planes channel-last plus the decoder uniform.
+/// A triplane resident on the GPU: planes channel-last plus the decoder uniform, and the
+/// occupancy grid when it has one.
 pub struct GpuTriplane {
     planes: wgpu::Buffer,
     decoder: wgpu::Buffer,
     scene: SceneInfo,
+    /// Planes stored as packed float16 pairs: the triplane's planes were float16, so this is
+    /// lossless and halves the plane memory and its traffic.
+    half: bool,
+    occupancy: Mutex<Option<GpuOccupancy>>,
+}
+
+/// The grid (bounds on the CPU) and its bits on the GPU for the last threshold used.
+struct GpuOccupancy {
+    grid: Arc<Occupancy>,
+    bits: Option<(f64, wgpu::Buffer)>,
 }
 
 impl GpuTriplane {
     pub fn scene(&self) -> SceneInfo {
         self.scene
+    }
+
+    /// Whether the planes are stored as float16 on the device.
+    pub fn half_planes(&self) -> bool {
+        self.half
+    }
+
+    pub fn has_occupancy(&self) -> bool {
+        self.occupancy.lock().map(|o| o.is_some()).unwrap_or(false)
+    }
+
+    /// Bytes of device memory this triplane holds: planes, decoder and occupancy bits.
+    pub fn device_bytes(&self) -> u64 {
+        let bits = self
+            .occupancy
+            .lock()
+            .ok()
+            .and_then(|o| o.as_ref().and_then(|o| o.bits.as_ref().map(|(_, b)| b.size())))
+            .unwrap_or(0);
+        self.planes.size() + self.decoder.size() + bits
     }
 }
 
@@ -72,6 +105,8 @@ struct Frame {
     fc: usize,
     /// Cameras per dispatch.
     chunk: usize,
+    /// Device bytes allocated for this frame (outputs, uniforms, cameras).
+    bytes: u64,
 }
 
 pub struct Renderer {
@@ -83,6 +118,10 @@ pub struct Renderer {
     bounds_pipeline: wgpu::ComputePipeline,
     present_layout: wgpu::BindGroupLayout,
     present_pipeline: wgpu::ComputePipeline,
+    /// Bound in place of occupancy bits when the skip is off.
+    no_occupancy: wgpu::Buffer,
+    /// Device bytes of the last frame's own buffers, readbacks included.
+    last_frame_bytes: AtomicU64,
     /// Errors wgpu reports outside an error scope, kept instead of panicking.
     uncaptured: Arc<Mutex<Option<String>>>,
 }
@@ -142,6 +181,7 @@ impl Renderer {
                 storage_entry(5, false),
                 storage_entry(6, false),
                 storage_entry(7, false),
+                storage_entry(8, true),
             ],
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -183,10 +223,18 @@ impl Renderer {
         let render_pipeline = make(shaders::RENDER_ENTRY, "lp3d render_rays", &pipeline_layout);
         let bounds_pipeline = make(shaders::DEPTH_BOUNDS_ENTRY, "lp3d depth_bounds_pass", &pipeline_layout);
         let present_pipeline = make(shaders::PRESENT_ENTRY, "lp3d present", &present_pipeline_layout);
+        let no_occupancy = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("lp3d no occupancy"),
+            size: 4,
+            usage: wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: false,
+        });
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(Error::Gpu(format!("building the render pipelines failed: {e}")));
         }
         Ok(Renderer {
+            no_occupancy,
+            last_frame_bytes: AtomicU64::new(0),
             device,
             queue: ctx.queue.clone(),
             limits: ctx.limits.clone(),
@@ -199,10 +247,25 @@ impl Renderer {
         })
     }
 
-    /// Uploads a validated triplane.
+    /// Uploads a validated triplane, with its occupancy grid if it has one. Float16 planes
+    /// stay float16 on the device (packed pairs, unpacked to float32 in the kernel).
     pub fn upload(&self, tri: &Triplane) -> Result<GpuTriplane> {
         tri.validate()?;
-        let planes = tri.planes_channel_last();
+        let half = tri.plane_dtype == PlaneDtype::F16;
+        let planes: Vec<u32> = if half {
+            // Channel 2i in the low half, 2i + 1 in the high half (WGSL unpack2x16float).
+            tri.planes_channel_last()
+                .chunks_exact(2)
+                .map(|p| {
+                    let lo = half::f16::from_f32(p[0]).to_bits() as u32;
+                    let hi = half::f16::from_f32(p[1]).to_bits() as u32;
+                    lo | (hi << 16)
+                })
+                .collect()
+        } else {
+            tri.planes_channel_last().into_iter().map(f32::to_bits).collect()
+        };
+        debug_assert_eq!(planes.len() % (N_CHANNELS / 2), 0);
         let bytes = (planes.len() * 4) as u64;
         let max = self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size);
         if bytes > max {
@@ -229,7 +292,54 @@ impl Renderer {
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(Error::Gpu(format!("uploading the triplane failed: {e}")));
         }
-        Ok(GpuTriplane { planes, decoder, scene: tri.scene() })
+        let occupancy = tri.occupancy.clone().map(|grid| GpuOccupancy { grid: Arc::new(grid), bits: None });
+        Ok(GpuTriplane { planes, decoder, scene: tri.scene(), half, occupancy: Mutex::new(occupancy) })
+    }
+
+    /// Attaches (or replaces) an uploaded triplane's occupancy grid, e.g. one baked after
+    /// upload with `Occupancy::bake`. The caller vouches that it was baked for these planes.
+    pub fn set_occupancy(&self, tri: &GpuTriplane, grid: Occupancy) -> Result<()> {
+        grid.validate()?;
+        let mut slot = tri.occupancy.lock().map_err(|_| Error::Gpu("occupancy lock poisoned".into()))?;
+        *slot = Some(GpuOccupancy { grid: Arc::new(grid), bits: None });
+        Ok(())
+    }
+
+    /// Device bytes of the last rendered frame's own buffers (outputs, readbacks, uniforms,
+    /// cameras), excluding the triplane's (`GpuTriplane::device_bytes`).
+    pub fn last_frame_device_bytes(&self) -> u64 {
+        self.last_frame_bytes.load(Ordering::Relaxed)
+    }
+
+    /// The occupancy bits for `settings` (grid resolution and buffer), or `None` when the skip
+    /// is off. Cached per triplane for the last threshold.
+    fn occupancy_bits(
+        &self,
+        tri: &GpuTriplane,
+        settings: &RenderSettings,
+    ) -> Result<Option<(u32, wgpu::Buffer)>> {
+        let eps = settings.skips.occupancy_epsilon;
+        if eps <= 0.0 {
+            return Ok(None);
+        }
+        let mut slot = tri.occupancy.lock().map_err(|_| Error::Gpu("occupancy lock poisoned".into()))?;
+        let Some(occ) = slot.as_mut() else {
+            return Err(Error::invalid(
+                "occupancy_epsilon",
+                "this triplane has no occupancy grid: bake one first (Occupancy::bake)",
+            ));
+        };
+        let max_delta = settings.max_interval(tri.scene.ray_start, tri.scene.ray_end);
+        let threshold = Occupancy::raw_threshold(eps as f64, max_delta);
+        if occ.bits.as_ref().map(|(t, _)| *t) != Some(threshold) {
+            let buf = self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("lp3d occupancy bits"),
+                contents: bytemuck::cast_slice(&occ.grid.bits(threshold)),
+                usage: wgpu::BufferUsages::STORAGE,
+            });
+            occ.bits = Some((threshold, buf));
+        }
+        Ok(occ.bits.as_ref().map(|(_, b)| (occ.grid.resolution as u32, b.clone())))
     }
 
     /// Validates a render request and allocates its buffers and bind group.
@@ -251,7 +361,14 @@ impl Renderer {
         let r = settings.resolution as usize;
         let n_pix = r * r;
         let fc = outputs.feature_channels() as usize;
-        let params = Params::new(&tri.scene, settings, fc as u32, n_cam as u32);
+        let mut params = Params::new(&tri.scene, settings, fc as u32, n_cam as u32);
+        if tri.half {
+            params.flags |= FLAG_HALF_PLANES;
+        }
+        let occupancy = self.occupancy_bits(tri, settings)?;
+        if let Some((g, _)) = &occupancy {
+            params.occupancy_resolution = *g;
+        }
 
         // Split the batch so each dispatch's output fits one storage binding.
         let max_binding =
@@ -307,12 +424,32 @@ impl Renderer {
                 wgpu::BindGroupEntry { binding: 5, resource: depth.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 6, resource: weights_sum.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 7, resource: bounds_buf.as_entire_binding() },
+                wgpu::BindGroupEntry {
+                    binding: 8,
+                    resource: occupancy.as_ref().map_or(&self.no_occupancy, |(_, b)| b).as_entire_binding(),
+                },
             ],
         });
+        let bytes = [&camera_buf, &params_buf, &bounds_buf, &features, &depth, &weights_sum]
+            .iter()
+            .map(|b| b.size())
+            .sum();
         if let Some(e) = pollster::block_on(oom_scope.pop()) {
             return Err(Error::Gpu(format!("out of device memory allocating render buffers: {e}")));
         }
-        Ok(Frame { params, params_buf, bind_group, features, depth, weights_sum, n_cam, n_pix, fc, chunk })
+        Ok(Frame {
+            params,
+            params_buf,
+            bind_group,
+            features,
+            depth,
+            weights_sum,
+            n_cam,
+            n_pix,
+            fc,
+            chunk,
+            bytes,
+        })
     }
 
     /// Records the dispatches for cameras `first..first + count` of a prepared frame (the
@@ -363,6 +500,8 @@ impl Renderer {
         let feat_read = readback("lp3d features readback", chunk * fc * n_pix);
         let depth_read = readback("lp3d depth readback", chunk * n_pix);
         let wsum_read = readback("lp3d weights_sum readback", chunk * n_pix);
+        let frame_bytes = frame.bytes + feat_read.size() + depth_read.size() + wsum_read.size();
+        self.last_frame_bytes.store(frame_bytes, Ordering::Relaxed);
 
         let mut features = vec![0f32; n_cam * fc * n_pix];
         let mut depth = vec![0f32; n_cam * n_pix];
@@ -456,6 +595,7 @@ impl Renderer {
                 wgpu::BindGroupEntry { binding: 1, resource: display_buf.as_entire_binding() },
             ],
         });
+        self.last_frame_bytes.store(frame.bytes + display_buf.size(), Ordering::Relaxed);
         let mut encoder = self.encode_chunk(&mut frame, 0, 1);
         {
             let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {

@@ -40,19 +40,36 @@ pub struct Skips {
     /// No importance pass for rays whose coarse opacity is below this: they are composited
     /// from the coarse samples alone.
     pub empty_threshold: f32,
+    /// Skip samples in the triplane's occupancy grid's empty cells (`crate::occupancy`): an
+    /// interval between two such samples has opacity at most this and is taken as 0, without
+    /// fetching or decoding them. Applies to the final composite, where the error has a proved
+    /// bound (`docs/occupancy.md`); 0 = off.
+    pub occupancy_epsilon: f32,
+    /// Apply the occupancy skip to the coarse pass as well: faster, but the changed coarse
+    /// weights move the importance samples, so that part of the error is measured, not bounded.
+    pub occupancy_coarse: bool,
 }
 
 impl Skips {
-    pub const EXACT: Skips = Skips { transmittance_threshold: 0.0, empty_threshold: 0.0 };
+    pub const EXACT: Skips = Skips {
+        transmittance_threshold: 0.0,
+        empty_threshold: 0.0,
+        occupancy_epsilon: 0.0,
+        occupancy_coarse: false,
+    };
 
     pub fn validate(&self) -> Result<()> {
         for (name, v) in [
             ("transmittance_threshold", self.transmittance_threshold),
             ("empty_threshold", self.empty_threshold),
+            ("occupancy_epsilon", self.occupancy_epsilon),
         ] {
             if !(v.is_finite() && (0.0..1.0).contains(&v)) {
                 return Err(Error::invalid(name, format!("must be in [0, 1), got {v}")));
             }
+        }
+        if self.occupancy_coarse && self.occupancy_epsilon == 0.0 {
+            return Err(Error::invalid("occupancy_coarse", "needs occupancy_epsilon > 0"));
         }
         Ok(())
     }
@@ -73,6 +90,16 @@ impl Default for RenderSettings {
 }
 
 impl RenderSettings {
+    /// The longest interval between consecutive samples, coarse or merged (every merged
+    /// interval lies inside a coarse one): one linspace step, two with jitter, plus float32
+    /// rounding of the depths.
+    pub fn max_interval(&self, ray_start: f32, ray_end: f32) -> f64 {
+        let step = (ray_end as f64 - ray_start as f64) / (self.depth_resolution.max(2) - 1) as f64;
+        let steps = if self.deterministic { 1.0 } else { 2.0 };
+        let ulps = 8.0 * f32::EPSILON as f64 * (ray_start.abs().max(ray_end.abs()) as f64);
+        steps * step * (1.0 + 1e-6) + ulps
+    }
+
     pub fn validate(&self) -> Result<()> {
         if !(1..=MAX_RESOLUTION).contains(&self.resolution) {
             return Err(Error::invalid(

@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::npz::{self, NpyArray, NpyData};
+pub use crate::occupancy::Occupancy;
 
 /// Which world axes each plane samples as (u, v): (x,y), (x,z), (z,x).
 ///
@@ -68,13 +69,6 @@ pub enum PlaneDtype {
     F32,
 }
 
-/// A baked density grid stored alongside the triplane (float32, shape `dims`).
-#[derive(Debug, Clone, PartialEq)]
-pub struct Occupancy {
-    pub dims: Vec<usize>,
-    pub data: Vec<f32>,
-}
-
 /// What the kernels need to know about a triplane besides its data: plane size and bounds.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SceneInfo {
@@ -98,6 +92,7 @@ pub struct Triplane {
     pub ray_end: f32,
     /// The input view's camera, when known.
     pub camera: Option<Camera>,
+    /// A baked occupancy grid for these planes and decoder (`crate::occupancy`).
     pub occupancy: Option<Occupancy>,
     /// A short free-text provenance note.
     pub source: Option<String>,
@@ -128,6 +123,9 @@ impl Triplane {
             return Err(Error::invalid("planes", format!("contains NaN/Inf at flat index {i}")));
         }
         self.decoder.validate()?;
+        if let Some(o) = &self.occupancy {
+            o.validate()?;
+        }
         if !(self.box_warp.is_finite() && self.box_warp > 0.0) {
             return Err(Error::invalid("box_warp", format!("must be finite and > 0, got {}", self.box_warp)));
         }
@@ -181,7 +179,7 @@ impl Triplane {
             "ray_end",
             "format_version",
         ];
-        const OPTIONAL: [&str; 3] = ["camera", "occupancy", "source"];
+        const OPTIONAL: [&str; 4] = ["camera", "occupancy", "occupancy_checksum", "source"];
         for (k, _) in &arrays {
             if !REQUIRED.contains(&k.as_str()) && !OPTIONAL.contains(&k.as_str()) {
                 return Err(fmt(
@@ -242,14 +240,26 @@ impl Triplane {
                 Some(Camera::from_label(&v64, "camera").map_err(|e| fmt("camera", e.to_string()))?)
             }
         };
-        let occupancy = match get("occupancy") {
-            None => None,
-            Some(a) => {
-                if a.shape.len() != 3 {
-                    return Err(fmt("occupancy", format!("expected a 3-D grid, got shape {:?}", a.shape)));
+        let occupancy = match (get("occupancy"), get("occupancy_checksum")) {
+            (None, None) => None,
+            (Some(_), None) => {
+                return Err(fmt("occupancy_checksum", "missing (required with occupancy)".into()))
+            }
+            (None, Some(_)) => {
+                return Err(fmt("occupancy", "missing (occupancy_checksum without a grid)".into()))
+            }
+            (Some(a), Some(_)) => {
+                let g = a.shape.first().copied().unwrap_or(0);
+                if a.shape.len() != 3 || a.shape.iter().any(|&d| d != g) {
+                    return Err(fmt(
+                        "occupancy",
+                        format!("expected a (G, G, G) grid, got shape {:?}", a.shape),
+                    ));
                 }
-                let data = a.to_f32().ok_or_else(|| fmt("occupancy", "expected floats".into()))?;
-                Some(Occupancy { dims: a.shape.clone(), data })
+                let NpyData::F32(bound) = &a.data else {
+                    return Err(fmt("occupancy", format!("expected float32, got {}", a.dtype_name())));
+                };
+                Some(Occupancy { resolution: g, bound: bound.clone() })
             }
         };
         let source = match get("source") {
@@ -279,6 +289,23 @@ impl Triplane {
             Error::InvalidInput { field, message } => fmt(&field, message),
             other => other,
         })?;
+        if tri.occupancy.is_some() {
+            let a = get("occupancy_checksum").unwrap();
+            let stored = match (&a.data, a.shape.is_empty()) {
+                (NpyData::I64(v), true) => v[0],
+                _ => return Err(fmt("occupancy_checksum", "expected an int64 scalar".into())),
+            };
+            let actual = Occupancy::checksum(&tri) as i64;
+            if stored != actual {
+                return Err(fmt(
+                    "occupancy_checksum",
+                    format!(
+                        "{stored} does not match these planes and decoder ({actual}): the grid was baked \
+                         for another triplane; bake it again"
+                    ),
+                ));
+            }
+        }
         Ok(tri)
     }
 
@@ -309,7 +336,10 @@ impl Triplane {
             arrays.push(("camera", NpyArray::f32(vec![25], c.0.to_vec())));
         }
         if let Some(o) = &self.occupancy {
-            arrays.push(("occupancy", NpyArray::f32(o.dims.clone(), o.data.clone())));
+            let g = o.resolution;
+            arrays.push(("occupancy", NpyArray::f32(vec![g, g, g], o.bound.clone())));
+            let crc = Occupancy::checksum(self) as i64;
+            arrays.push(("occupancy_checksum", NpyArray { shape: vec![], data: NpyData::I64(vec![crc]) }));
         }
         if let Some(s) = &self.source {
             arrays.push(("source", NpyArray { shape: vec![], data: NpyData::Str(s.clone()) }));
