@@ -57,4 +57,5 @@ def __getattr__(name: str) -> object:
         return getattr(eg3d, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
+
 __all__ = ["EG3DLoadError", "EG3DTeacher", "HeadParams", "ProceduralTeacher", "Teacher"]
