@@ -1,7 +1,7 @@
 """Run time against error: lp3d_render's settings and skips on several scenes, against a
 high-quality exact render, with the torch twin timed in the same run.
 
-    python bench/pareto.py [--resolution 64] [--out bench] [--quick]
+    python bench/pareto.py [--resolution 64] [--out bench] [--quick] [--triplane head.npz --no-builtin]
 
 Scenes: procedural teacher identities (portraits: opaque heads on a backdrop) and random fog
 (white-noise planes under a large density gain: the worst case, nothing to skip). The reference
@@ -26,6 +26,7 @@ import lp3d_render
 from lp3d.camera import look_at_camera
 from lp3d.teachers import ProceduralTeacher
 from lp3d.triplane import TriplaneData
+from lp3d.triplane_io import load_triplane
 
 
 @dataclass(frozen=True)
@@ -157,12 +158,26 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--out", type=Path, default=Path("bench"))
     parser.add_argument("--quick", action="store_true", help="one teacher identity, fewer settings")
+    parser.add_argument(
+        "--triplane",
+        type=Path,
+        action="append",
+        default=[],
+        help="also a triplane .npz, e.g. an encoder's output from lp3d encode (repeatable)",
+    )
+    parser.add_argument("--no-builtin", action="store_true", help="only the --triplane scenes")
     args = parser.parse_args(argv)
 
     teacher = ProceduralTeacher()
     scenes = {"teacher seed 0": teacher.sample(0), "teacher seed 3": teacher.sample(3), "random fog": fog()}
     if args.quick:
         scenes = {"teacher seed 0": scenes["teacher seed 0"], "random fog": scenes["random fog"]}
+    if args.no_builtin:
+        scenes = {}
+    for path in args.triplane:
+        scenes[path.stem] = load_triplane(path)
+    if not scenes:
+        parser.error("no scenes: give --triplane or drop --no-builtin")
     settings = [SETTINGS[i] for i in QUICK] if args.quick else SETTINGS
     cam = look_at_camera(yaw_deg=20.0, pitch_deg=5.0)
     r = args.resolution

@@ -608,10 +608,48 @@ def test_video_without_faces(capsys, model, tmp_path) -> None:
 # =============================================================================================== demo
 
 
-def test_demo(capsys, tmp_path) -> None:
-    code, out, err = run(capsys, "demo", "--out", tmp_path / "demo", "--resolution", 16)
+DEMO_SMALL = ("--resolution", 16, "--samples", "4+4", "--frames", 2)
+
+
+def test_demo_lifts_a_teacher_portrait_and_the_astronaut(capsys, model, tmp_path) -> None:
+    out_dir = tmp_path / "demo"
+    code, out, err = run(capsys, "demo", "--out", out_dir, "--model", model["onnx"], *DEMO_SMALL)
     assert code == 0, err
-    assert {"sphere.npz", "sphere_views.png"} <= listing(tmp_path / "demo")
+    names = ("teacher_portrait", "astronaut")
+    expected = {f"{n}{ext}" for n in names for ext in (".npz", ".crop.png")} | {
+        "side_by_side.png",
+        "orbit.gif",
+    }
+    assert listing(out_dir) == expected
+    assert (
+        "scikit-image astronaut: 512x512, face" in out
+    )  # the astronaut's face was detected, not centre-cropped
+    for n in names:
+        tri = load_triplane(out_dir / f"{n}.npz")
+        assert tri.planes.shape == (3, 32, 64, 64) and "lp3d demo" in (tri.source or "")
+        assert np.asarray(Image.open(out_dir / f"{n}.crop.png")).shape == (128, 128, 3)
+    gif = Image.open(out_dir / "orbit.gif")
+    assert gif.n_frames == 2 and gif.size == (2 * 16, 16)  # both heads side by side
+    sheet = np.asarray(Image.open(out_dir / "side_by_side.png"))
+    assert sheet.shape[0] > 3 * 16  # student rows and the teacher's own views
+
+
+def test_demo_with_the_shipped_model(capsys, tmp_path) -> None:
+    """``lp3d demo`` as the README runs it (default model), at a small size."""
+    code, out, err = run(capsys, "demo", "--out", tmp_path / "demo", *DEMO_SMALL)
+    assert code == 0, err
+    assert "small.onnx" in out and "config 'small'" in out
+    written = listing(tmp_path / "demo")
+    assert {"teacher_portrait.npz", "astronaut.npz", "side_by_side.png", "orbit.gif"} <= written
+
+
+def test_demo_without_a_model_says_what_to_do(capsys, tmp_path, monkeypatch) -> None:
+    import lp3d.inference
+
+    monkeypatch.setattr(lp3d.inference, "DEFAULT_MODEL", tmp_path / "models" / "small.onnx")
+    code, _, err = run(capsys, "demo", "--out", tmp_path / "demo", *DEMO_SMALL)
+    assert code == 1 and "--model" in err and "python -m lp3d.train" in err
+    assert not (tmp_path / "demo").exists()
 
 
 # ============================================================================== model package, photo

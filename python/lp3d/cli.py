@@ -952,9 +952,9 @@ def cmd_video(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    from lp3d.demo import main as demo_main
+    from lp3d.demo import run
 
-    return int(demo_main(["--out", str(args.out), "--resolution", str(args.resolution)]) or 0)
+    return run(args)
 
 
 # ============================================================================================ parser
@@ -1124,11 +1124,13 @@ def build_parser() -> argparse.ArgumentParser:
     # demo
     p = sub.add_parser(
         "demo",
-        help="the end-to-end demo (currently: the sample-scene demo)",
-        description="Write a sample triplane and its renders to a folder.",
+        help="photo in, 3D out: lift a teacher portrait and a real photo with the shipped model",
+        description="Encode a built-in teacher portrait and scikit-image's astronaut with the shipped "
+        "model; write their triplanes, a side-by-side PNG and an orbit GIF.",
     )
-    p.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder (default: demo_out)")
-    p.add_argument("--resolution", type=_resolution, default=128, help="pixels per side (default: 128)")
+    from lp3d.demo import add_arguments as demo_arguments
+
+    demo_arguments(p)
     p.set_defaults(func=cmd_demo)
     return parser
 

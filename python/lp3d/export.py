@@ -58,6 +58,14 @@ def _as_module(model: LP3DEncoder | Student) -> nn.Module:
     return StudentEncoder(model) if isinstance(model, Student) else model
 
 
+def _publish(tmp: str, path: Path) -> None:
+    """Give the finished temporary file the usual permissions (mkstemp makes 0600), then rename it."""
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)
+    os.replace(tmp, path)
+
+
 def export_encoder(
     model: LP3DEncoder | Student, path: str | os.PathLike[str], *, opset: int = MIN_OPSET
 ) -> Path:
@@ -85,7 +93,7 @@ def export_encoder(
                 output_names=["triplane"],
                 dynamic_axes={"image": {0: "batch"}, "triplane": {0: "batch"}},
             )
-        os.replace(tmp, path)
+        _publish(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
@@ -118,7 +126,7 @@ def save_weights(student: Student, path: str | os.PathLike[str], *, half: bool =
     os.close(fd)
     try:
         torch.save(data, tmp)
-        os.replace(tmp, path)
+        _publish(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
