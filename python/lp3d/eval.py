@@ -33,7 +33,6 @@ import math
 import os
 import statistics
 import sys
-import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -44,6 +43,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from lp3d.atomic import atomic_path
 from lp3d.camera import FFHQ_FOCAL, look_at_camera
 from lp3d.camera_sampling import sample_cameras
 from lp3d.images import rgb_to_uint8, save_png, tile
@@ -411,16 +411,8 @@ def comparison_figure(rows: list[list[list[np.ndarray]]], labels: Sequence[str])
 
 
 def _atomic_json(path: Path, data: dict[str, Any]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(data, f, indent=2)
-            f.write("\n")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(data, indent=2) + "\n")
 
 
 def run(

@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import tempfile
 import warnings
 from pathlib import Path
 
@@ -27,6 +26,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from lp3d.atomic import atomic_path
 from lp3d.encoder import LP3DEncoder
 from lp3d.model_package import save_model_package
 from lp3d.train import CheckpointError, Student, load_checkpoint, student_from_checkpoint
@@ -58,14 +58,6 @@ def _as_module(model: LP3DEncoder | Student) -> nn.Module:
     return StudentEncoder(model) if isinstance(model, Student) else model
 
 
-def _publish(tmp: str, path: Path) -> None:
-    """Give the finished temporary file the usual permissions (mkstemp makes 0600), then rename it."""
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)
-    os.replace(tmp, path)
-
-
 def export_encoder(
     model: LP3DEncoder | Student, path: str | os.PathLike[str], *, opset: int = MIN_OPSET
 ) -> Path:
@@ -78,25 +70,18 @@ def export_encoder(
     encoder = _as_module(model).eval()
     s = encoder.config.image_size
     example = torch.zeros(1, 3, s, s, device=next(encoder.parameters()).device)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        with warnings.catch_warnings(), torch.no_grad():
-            warnings.simplefilter("ignore")  # TracerWarnings about shape checks that are constant here
-            torch.onnx.export(
-                encoder,
-                (example,),
-                tmp,
-                dynamo=False,
-                opset_version=opset,
-                input_names=["image"],
-                output_names=["triplane"],
-                dynamic_axes={"image": {0: "batch"}, "triplane": {0: "batch"}},
-            )
-        _publish(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_path(path) as tmp, warnings.catch_warnings(), torch.no_grad():
+        warnings.simplefilter("ignore")  # TracerWarnings about shape checks that are constant here
+        torch.onnx.export(
+            encoder,
+            (example,),
+            str(tmp),
+            dynamo=False,
+            opset_version=opset,
+            input_names=["image"],
+            output_names=["triplane"],
+            dynamic_axes={"image": {0: "batch"}, "triplane": {0: "batch"}},
+        )
     return path
 
 
@@ -122,14 +107,8 @@ def save_weights(student: Student, path: str | os.PathLike[str], *, half: bool =
         "decoder": {"w0": w0, "b0": b0, "w1": w1, "b1": b1},
         "bounds": {"box_warp": scene.box_warp, "ray_start": scene.ray_start, "ray_end": scene.ray_end},
     }
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         torch.save(data, tmp)
-        _publish(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     return path
 
 
