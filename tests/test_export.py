@@ -2,12 +2,21 @@
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import onnx
 import pytest
 import torch
 
-from lp3d.export import MIN_OPSET, check_onnx, export_encoder
+from lp3d.export import (
+    MIN_OPSET,
+    check_onnx,
+    export_encoder,
+    reduce_plane_basis,
+    round_to_float16,
+    store_float16,
+)
 from lp3d.export import main as export_main
 from lp3d.inference import load_encoder
 from lp3d.losses import build_perceptual
@@ -19,7 +28,7 @@ from lp3d.train import TRAIN_CONFIGS, Trainer, build_teacher, load_checkpoint, s
 def checkpoint(tmp_path_factory):
     """A tiny-configuration checkpoint (untrained except for the mean-triplane start, whose zeroed last
     layer would hide encoder errors, so it is given random values here; parity needs no training)."""
-    cfg = TRAIN_CONFIGS["tiny"]
+    cfg = TRAIN_CONFIGS["tiny-paper"]
     out = tmp_path_factory.mktemp("run")
     teacher = build_teacher("procedural", triplane_resolution=cfg.triplane_resolution)
     trainer = Trainer(cfg, out, teacher=teacher, perceptual=build_perceptual("none"), progress=False)
@@ -54,7 +63,7 @@ def test_export_cli_writes_a_checked_model_and_its_package(checkpoint, tmp_path,
     package = load_model_package(out)
     ckpt = torch.load(checkpoint, weights_only=True)
     np.testing.assert_array_equal(package.w0, ckpt["student"]["decoder.w0"].numpy())
-    assert package.triplane_resolution == 64 and package.image_size == TRAIN_CONFIGS["tiny"].image_size
+    assert package.triplane_resolution == 64 and package.image_size == TRAIN_CONFIGS["tiny-paper"].image_size
     # lp3d encode's two backends agree on the exported model and the checkpoint it came from.
     images = np.random.default_rng(0).uniform(-1, 1, (2, 3, package.image_size, package.image_size))
     images = images.astype(np.float32)
@@ -86,3 +95,31 @@ def test_export_errors_are_clear(checkpoint, tmp_path, capsys):
         export_encoder(student, tmp_path / "x.onnx", opset=13)
     assert export_main([str(tmp_path / "missing.pt"), "-o", str(tmp_path / "y.onnx")]) == 2
     assert "no such file" in capsys.readouterr().err
+
+
+def test_plane_basis_reduction_is_exact_within_the_rank_of_its_images(checkpoint):
+    student = student_from_checkpoint(load_checkpoint(checkpoint))
+    basis = student.encoder.basis
+    assert basis is not None and basis.components.shape[0] == 32
+    g = torch.Generator().manual_seed(3)
+    with torch.no_grad():  # an untrained basis adds nothing: give it coefficients to reduce
+        basis.coefficients[-1].weight.normal_(0.0, 0.05, generator=g)
+    images = torch.rand(6, 3, 128, 128, generator=g) * 2 - 1
+    assert reduce_plane_basis(copy.deepcopy(student), images, 32) == 0.0
+    # Six images' centred basis outputs span at most 5 directions: 5 planes reproduce all six.
+    reduced = copy.deepcopy(student)
+    assert reduce_plane_basis(reduced, images, 5) < 1e-4
+    assert reduced.encoder.basis.components.shape[0] == 5 and reduced.config.encoder.basis_components == 5
+    # ...and 2 planes cannot: the change is reported, not hidden.
+    assert reduce_plane_basis(copy.deepcopy(student), images, 2) > 1e-3
+    with pytest.raises(ValueError, match="components must be in"):
+        reduce_plane_basis(copy.deepcopy(student), images, 33)
+
+
+def test_float16_storage_halves_the_file_and_matches_the_rounded_model(checkpoint, tmp_path):
+    student = student_from_checkpoint(load_checkpoint(checkpoint))
+    full = export_encoder(student, tmp_path / "f32.onnx")
+    assert round_to_float16(student) > 0
+    half = store_float16(export_encoder(student, tmp_path / "f16.onnx"))
+    assert half.stat().st_size < 0.6 * full.stat().st_size
+    assert check_onnx(student, half, batch=2) <= 1e-4  # the same float16 numbers, computed in float32

@@ -1,4 +1,5 @@
-"""Training on the CPU: the tiny configuration learns, resumes exactly, and fails clearly.
+"""Training on the CPU with the paper's two-stage recipe (``tiny-paper``): it learns, resumes exactly,
+and fails clearly. The CPU recipe (``tiny``/``small``) is tested in ``tests/test_cpu_recipe.py``.
 
 Budget: the whole file runs in under 5 minutes on 2 cores. The learning test trains the ``tiny``
 configuration for ``LEARN_STEPS`` steps of batch 2 (stage 1, the procedural teacher, the weight-free
@@ -44,7 +45,7 @@ EVAL = EvalSettings(n_identities=2, baseline_steps=0, timing_repeats=1)
 
 
 def _tiny(**changes) -> TrainConfig:
-    return dataclasses.replace(TRAIN_CONFIGS["tiny"], **changes)
+    return dataclasses.replace(TRAIN_CONFIGS["tiny-paper"], **changes)
 
 
 def _trainer(cfg: TrainConfig, out: Path, **kw) -> Trainer:
@@ -83,7 +84,7 @@ def test_tiny_training_raises_held_out_novel_view_psnr(learned):
 def test_run_directory_holds_config_log_checkpoint_and_samples(learned):
     out = learned["out"]
     cfg = TrainConfig.from_json((out / "config.json").read_text())
-    assert cfg == learned["trainer"].config and cfg.name == "tiny"
+    assert cfg == learned["trainer"].config and cfg.name == "tiny-paper"
     with open(out / "log.csv") as f:
         rows = list(csv.DictReader(f))
     assert [int(r["step"]) for r in rows] == list(range(LEARN_STEPS))
@@ -124,7 +125,7 @@ def test_eval_cli_writes_report_and_comparison_png(learned, tmp_path):
     from PIL import Image
 
     png = Image.open(out / "comparison.png")
-    s = TRAIN_CONFIGS["tiny"].image_size
+    s = TRAIN_CONFIGS["tiny-paper"].image_size
     assert png.height >= 3 * s and png.width >= 5 * s  # teacher/student/baseline x (input + 4 views)
 
 
@@ -169,12 +170,12 @@ def test_exact_resume_matches_an_uninterrupted_run_bit_for_bit(tmp_path):
 
 def test_checkpoint_from_another_config_is_a_clear_error(learned, tmp_path, capsys):
     ckpt = latest_checkpoint(learned["out"])
-    with pytest.raises(CheckpointError, match=r"configuration 'tiny'.*requested 'small'"):
-        _trainer(TRAIN_CONFIGS["small"], tmp_path / "small", resume=ckpt)
+    with pytest.raises(CheckpointError, match=r"configuration 'tiny-paper'.*requested 'small-paper'"):
+        _trainer(TRAIN_CONFIGS["small-paper"], tmp_path / "small", resume=ckpt)
     with pytest.raises(CheckpointError, match="batch_size: 2 != 3"):
         _trainer(_tiny(batch_size=3), tmp_path / "b3", resume=ckpt)
-    assert train_main(["--config", "small", "--resume", str(ckpt), "--out", str(tmp_path / "x")]) == 2
-    assert "trained with configuration 'tiny', not 'small'" in capsys.readouterr().err
+    assert train_main(["--config", "small-paper", "--resume", str(ckpt), "--out", str(tmp_path / "x")]) == 2
+    assert "trained with configuration 'tiny-paper', not 'small-paper'" in capsys.readouterr().err
     # An existing run is never overwritten by a fresh start.
     with pytest.raises(CheckpointError, match="already holds checkpoints"):
         _trainer(learned["trainer"].config, learned["out"])
@@ -227,20 +228,20 @@ def test_nan_batches_and_wrong_sizes_are_clear_errors(tmp_path):
 
 def test_train_cli_runs_and_reports_bad_inputs(tmp_path, capsys):
     out = tmp_path / "cli"
-    assert train_main(["--config", "tiny", "--max-steps", "1", "--batch", "1", "--out", str(out)]) == 0
+    assert train_main(["--config", "tiny-paper", "--max-steps", "1", "--batch", "1", "--out", str(out)]) == 0
     assert (out / "checkpoints" / "step-000001.pt").is_file() and (out / "config.json").is_file()
     err = capsys.readouterr().err
-    assert "train tiny" in err and "step" in err  # the progress bar
+    assert "train tiny-paper" in err and "step" in err  # the progress bar
     # Resuming past the end does nothing; resuming an existing run directory picks its latest checkpoint.
     assert train_main(["--resume", str(out), "--max-steps", "1"]) == 0
     assert "nothing to do" in capsys.readouterr().err
-    assert train_main(["--config", "tiny", "--teacher", "eg3d", "--out", str(tmp_path / "e")]) == 2
+    assert train_main(["--config", "tiny-paper", "--teacher", "eg3d", "--out", str(tmp_path / "e")]) == 2
     assert "EG3D" in capsys.readouterr().err
     assert (
         train_main(
             [
                 "--config",
-                "tiny",
+                "tiny-paper",
                 "--perceptual",
                 "lpips",
                 "--lpips-weights",

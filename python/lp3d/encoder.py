@@ -117,6 +117,15 @@ class EncoderConfig:
     head_sr_ratio: int = 2
     head_out_channels: tuple[int, ...] = (256, 128, 128)
 
+    # The plane basis (CPU configurations; not in the paper, 0 turns it off): K coefficients regressed
+    # from DeepLab's features select a learned basis of K planes at ``basis_resolution``², added
+    # (upsampled) to the head's output. Initialised from the principal components of the teacher's
+    # triplanes: they span its identities in ~100 dimensions (bench/RESULTS.md, "Training profile").
+    basis_components: int = 0
+    basis_resolution: int = 32
+    basis_pool: int = 4
+    basis_hidden: int = 512
+
     def __post_init__(self) -> None:
         self.validate()
 
@@ -163,6 +172,10 @@ class EncoderConfig:
             value = getattr(self, f.name)
             if f.name in ("name", "high_source", "low_mlp_ratio", "head_mlp_ratio", "aspp_dropout"):
                 continue
+            if f.name == "basis_components":  # 0: no plane basis
+                if not isinstance(value, int) or isinstance(value, bool) or value < 0:
+                    raise ValueError(f"EncoderConfig.basis_components must be an int >= 0, got {value!r}")
+                continue
             if isinstance(value, tuple):
                 if not value:
                     raise ValueError(f"EncoderConfig.{f.name} must not be empty")
@@ -170,6 +183,16 @@ class EncoderConfig:
                     pos_int(f.name, v)
             else:
                 pos_int(f.name, value)
+        if self.basis_components and not pow2_ratio(self.triplane_resolution, self.basis_resolution):
+            raise ValueError(
+                f"EncoderConfig.basis_resolution ({self.basis_resolution}) must be the triplane_resolution "
+                f"({self.triplane_resolution}) divided by a power of 2"
+            )
+        if self.basis_components and (self.image_size // 8) % self.basis_pool:
+            raise ValueError(
+                f"EncoderConfig.basis_pool ({self.basis_pool}) must divide the ASPP's resolution "
+                f"({self.image_size // 8})"
+            )
         if len(self.backbone_widths) != 4 or len(self.backbone_depths) != 4:
             raise ValueError(
                 "EncoderConfig.backbone_widths/backbone_depths must have 4 entries (ResNet34 stages)"
@@ -258,8 +281,10 @@ CONFIGS: dict[str, EncoderConfig] = {
         high_source="backbone",
         high_channels=128,
     ),
-    "small": EncoderConfig(
-        name="small",
+    # The first CPU configuration (F and F_high at 64²): the encoder of the paper-recipe
+    # ``small-paper`` training configuration, kept as the reference of the training profile.
+    "small-paper": EncoderConfig(
+        name="small-paper",
         image_size=128,
         triplane_resolution=64,
         feature_resolution=64,
@@ -281,6 +306,35 @@ CONFIGS: dict[str, EncoderConfig] = {
         head_depth=1,
         head_heads=2,
         head_out_channels=(128, 64, 64),
+    ),
+    # CPU-shaped: F and F_high at 32² (LT's layout: F_high from the backbone) and one output
+    # convolution pair at the 64² plane size, 2.4x less CPU per step than 64² features
+    # (bench/RESULTS.md, "Training profile").
+    "small": EncoderConfig(
+        name="small",
+        image_size=128,
+        triplane_resolution=64,
+        feature_resolution=32,
+        backbone_widths=(32, 64, 128, 256),
+        backbone_depths=(2, 2, 2, 1),
+        aspp_channels=128,
+        aspp_rates=(6, 12, 18),
+        aspp_dropout=0.0,
+        low_embed_dim=224,
+        low_depth=2,
+        low_heads=4,
+        low_conv_channels=64,
+        feature_channels=96,
+        high_source="backbone",
+        high_stem_channels=32,
+        high_channels=96,
+        high_convs=3,
+        head_in_channels=(192, 128),
+        head_embed_dim=256,
+        head_depth=1,
+        head_heads=2,
+        head_out_channels=(192, 64),
+        basis_components=64,
     ),
     "tiny": EncoderConfig(
         name="tiny",
@@ -305,6 +359,9 @@ CONFIGS: dict[str, EncoderConfig] = {
         head_depth=1,
         head_heads=2,
         head_out_channels=(64, 48),
+        basis_components=32,
+        basis_resolution=16,
+        basis_hidden=256,
     ),
 }
 
@@ -622,6 +679,36 @@ def _tracing() -> bool:
     )
 
 
+class PlaneBasis(nn.Module):
+    """``forward(aspp features (B, C_a, R, R)) -> planes (B, 3·32, T, T)``: Σ_k c_k · component_k.
+
+    The coefficients c (B, K) come from an MLP on the features average-pooled to ``basis_pool``²
+    (keeping a coarse layout); ``components`` (K, 3·32, R_b, R_b) is learnt, and bilinearly
+    upsampled to T. The last layer starts at zero, so an untrained branch adds nothing.
+    """
+
+    def __init__(self, cfg: EncoderConfig) -> None:
+        super().__init__()
+        k, r = cfg.basis_components, cfg.basis_resolution
+        self.pool = cfg.basis_pool
+        self.triplane_resolution = cfg.triplane_resolution
+        self.coefficients = nn.Sequential(
+            nn.Flatten(),
+            nn.Linear(cfg.aspp_channels * cfg.basis_pool**2, cfg.basis_hidden),
+            nn.LeakyReLU(0.01),
+            nn.Linear(cfg.basis_hidden, k),
+        )
+        self.components = nn.Parameter(torch.zeros(k, 3 * cfg.plane_channels, r, r))
+
+    def forward(self, features: Tensor) -> Tensor:
+        c = self.coefficients(F.adaptive_avg_pool2d(features, self.pool))
+        planes = torch.einsum("bk,kchw->bchw", c, self.components)
+        t = self.triplane_resolution
+        if planes.shape[-1] != t:
+            planes = F.interpolate(planes, size=(t, t), mode="bilinear", align_corners=False)
+        return planes
+
+
 class LP3DEncoder(nn.Module):
     """E(I) -> T (paper Eq. 4). ``forward(image (B,3,S,S) in [-1,1]) -> triplane (B,3,32,T,T)``.
 
@@ -640,6 +727,7 @@ class LP3DEncoder(nn.Module):
         self.e_low = LowEncoder(config)
         self.e_high = HighEncoder(config)
         self.head = TriplaneHead(config)
+        self.basis = PlaneBasis(config) if config.basis_components > 0 else None
         self.reset_parameters()
 
     # -- initialisation ----------------------------------------------------------------------------
@@ -666,6 +754,13 @@ class LP3DEncoder(nn.Module):
         for m in self.backbone.modules():
             if isinstance(m, BasicBlock):
                 nn.init.zeros_(m.conv2.weight)
+        if self.basis is not None:
+            # The branch starts at zero output but not dead: small random components give the last
+            # layer a gradient (training from scratch); the CPU recipe replaces them with principal planes.
+            last = self.basis.coefficients[-1]
+            assert isinstance(last, nn.Linear)
+            nn.init.zeros_(last.weight)
+            nn.init.normal_(self.basis.components, 0.0, 0.01)
 
     # -- forward -----------------------------------------------------------------------------------
     def check_image(self, image: Tensor) -> None:
@@ -705,9 +800,12 @@ class LP3DEncoder(nn.Module):
         coords = pixel_coordinates(b, self.config.image_size, device=image.device, dtype=image.dtype)
         x = torch.cat([image, coords], dim=1)  # 5-channel input (supplement)
         layer1, deep = self.backbone(x)
-        f = self.e_low(self.aspp(deep))
+        a = self.aspp(deep)
+        f = self.e_low(a)
         f_high = self.e_high(x if self.config.high_source == "image" else layer1)
         planes = self.head(f, f_high)
+        if self.basis is not None:
+            planes = planes + self.basis(a)
         t = self.config.triplane_resolution
         return planes.reshape(b, 3, self.config.plane_channels, t, t)
 

@@ -50,6 +50,7 @@ __all__ = [
     "build_perceptual",
     "find_lpips_backbone",
     "l1",
+    "normalised_triplane_loss",
     "ssim",
     "triplane_loss",
 ]
@@ -124,6 +125,16 @@ def l1(a: Tensor, b: Tensor, *, name: str = "l1") -> Tensor:
 def triplane_loss(pred: Tensor, target: Tensor) -> Tensor:
     """L_tri: L1 between triplanes (B, 3, 32, T, T) -> scalar (paper Eq. 5)."""
     return l1(pred, target, name="triplane")
+
+
+def normalised_triplane_loss(pred: Tensor, target: Tensor, scale: Tensor) -> Tensor:
+    """Channel-normalised L_tri (the CPU recipe's regression loss): L1 between triplanes
+    (B, 3, C, T, T) with each channel divided by ``scale`` (C,), the spread of that channel over the
+    teacher's identities, so channels of small range (shape fields) weigh as much as colour logits."""
+    _same_shape("triplane", pred, target)
+    if scale.ndim != 1 or scale.shape[0] != pred.shape[2] or not bool((scale > 0).all()):
+        raise ValueError(f"scale must be ({pred.shape[2]},) and positive, got {tuple(scale.shape)}")
+    return ((pred - target).abs() / scale.reshape(1, 1, -1, 1, 1)).mean()
 
 
 def _gaussian_window(size: int, sigma: float, *, device: torch.device, dtype: torch.dtype) -> Tensor:

@@ -54,6 +54,31 @@ Decisions where the paper is silent or the setting differs (all visible in :clas
 * **AMP** (CUDA only): the encoder's forward runs under fp16 autocast (the supplement's inference
   setting) with a gradient scaler; rendering, SR and the discriminator stay in float32.
 
+The CPU recipe (``recipe="cpu"``: ``small``, ``tiny``; ``full``/``lt`` keep the published recipe).
+The paper's step costs about 20 s on a 2-core CPU at batch 4 (``bench/train_profile.py``), most of it
+synthesising and rendering the teacher and rendering whole student images, and its loss reaches the
+encoder mainly through renders of a step-like procedural decoder. The CPU recipe spends the CPU on
+the encoder instead:
+
+* **Data made once.** ``dataset_identities`` teacher identities (planes at the student's resolution
+  and one input render each) are synthesised once into a content-hashed cache
+  (:mod:`lp3d.synthetic_data`) and reused across steps, runs and resumes; horizontal flips with
+  mirrored planes (:func:`lp3d.triplane.mirror_planes`) double them.
+* **Triplane regression leads.** For ``regression_steps`` the only loss is L_tri with every channel
+  divided by its spread over identities (:func:`lp3d.losses.normalised_triplane_loss`); then an RGB L1
+  on ``rays_per_identity`` random rays of a random multiview camera is added (teacher and student
+  rendered on the same rays; :func:`lp3d.render_torch.render_rays`), for what the planes' L1 does not
+  weigh: surfaces and colours as seen.
+* **A plane basis.** The teacher's triplanes span its identities in about a hundred dimensions (the
+  principal components of 1,024 heads leave 3 % of the L1 at 128 components), so the CPU encoders
+  carry :class:`lp3d.encoder.PlaneBasis`, started from those components (:func:`principal_planes`),
+  beside the convolutional head; the student starts at the dataset's mean triplane.
+* **No SR and no discriminator.** The procedural teacher renders its high-resolution image directly,
+  and so does the student (``Student.render``); the decoder is the teacher's, frozen.
+* **A cosine learning-rate decay** to 5 % at ``total_steps``, and a learning curve on held-out
+  identities (``heldout.csv``: PSNR against their own and against other identities' teachers, and
+  the identity specificity) at every checkpoint.
+
 Checkpoints are plain dicts of tensors and JSON strings (``torch.load(weights_only=True)``), written
 atomically; they carry the optimiser, scheduler, scaler and every RNG state, so resuming is exact.
 """
@@ -68,10 +93,11 @@ import math
 import os
 import random
 import signal
+import statistics
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -92,11 +118,20 @@ from lp3d.discriminator import (
 )
 from lp3d.encoder import CONFIGS as ENCODER_CONFIGS
 from lp3d.encoder import EncoderConfig, LP3DEncoder
-from lp3d.losses import PERCEPTUAL_KINDS, DistillationLoss, LossWeights, ViewRenders, build_perceptual
-from lp3d.render_torch import render_torch
+from lp3d.losses import (
+    PERCEPTUAL_KINDS,
+    DistillationLoss,
+    LossWeights,
+    ViewRenders,
+    build_perceptual,
+    l1,
+    normalised_triplane_loss,
+)
+from lp3d.render_torch import rays_from_cameras, render_rays, render_torch
 from lp3d.superres import SUPERRES_CONFIGS, SuperresConfig, SuperResolution
+from lp3d.synthetic_data import DatasetKey, SyntheticDataset, teacher_fingerprint
 from lp3d.teachers import Teacher
-from lp3d.triplane import TriplaneData
+from lp3d.triplane import TriplaneData, mirror_planes
 
 __all__ = [
     "CHECKPOINT_FORMAT",
@@ -119,6 +154,7 @@ __all__ = [
 #: Identifies lp3d training checkpoints; bumped when the layout changes.
 CHECKPOINT_FORMAT = "lp3d-train-checkpoint-v1"
 TEACHERS = ("procedural", "eg3d")
+RECIPES = ("paper", "cpu")
 
 
 class CheckpointError(ValueError):
@@ -170,12 +206,18 @@ class TrainConfig:
     reference_every_main: int = 2
     lr_encoder: float = 1e-4
     lr_transformer: float = 5e-5
+    #: The plane basis's coefficient MLP and components (CPU configurations' encoders only).
+    lr_basis: float = 1e-4
     #: Decoder and super-resolution (fine-tuned in stage 2; not given in the paper).
     lr_decoder: float = 1e-4
     lr_superres: float = 1e-4
     adam_betas: tuple[float, float] = (0.9, 0.999)
     #: Linear learning-rate ramp over the first steps (0: constant, as in the paper).
     lr_rampup_steps: int = 0
+    #: Cosine decay of the student's learning rates to ``lr_final_factor`` at ``total_steps`` (the
+    #: CPU recipe; the paper keeps them constant).
+    lr_cosine_decay: bool = False
+    lr_final_factor: float = 0.05
     #: Global gradient-norm clip for the student (0: off).
     grad_clip: float = 0.0
     lr_discriminator: float = 0.002
@@ -198,6 +240,22 @@ class TrainConfig:
     #: steps are otherwise spent learning the shared head layout from scratch.
     mean_triplane_offset: bool = False
     mean_triplane_identities: int = 32
+    #: ``paper``: the two-stage recipe above (full, lt). ``cpu``: the CPU distillation recipe
+    #: (small, tiny; see "The CPU recipe" in the module docstring): a cached synthetic dataset of
+    #: ``dataset_identities`` identities, channel-normalised triplane regression for
+    #: ``regression_steps`` steps, then that plus an RGB L1 on ``rays_per_identity`` random rays of
+    #: the cached teacher views; no super-resolution (the student's final image is a direct volume
+    #: render at ``image_size``, as the procedural teacher's is) and no discriminator.
+    recipe: str = "paper"
+    dataset_identities: int = 4096
+    regression_steps: int = 0
+    rays_per_identity: int = 0
+    triplane_weight: float = 1.0
+    ray_weight: float = 1.0
+    #: CPU recipe: flip half the inputs horizontally and mirror their target planes to match.
+    mirror_augment: bool = False
+    #: CPU recipe: held-out identities of the learning curve (``heldout.csv``, at every checkpoint).
+    heldout_identities: int = 16
     #: Seeds the initial weights and the data stream.
     seed: int = 0
     #: Preview PNG every this many steps and at the end (0: never).
@@ -287,6 +345,7 @@ class TrainConfig:
         for name in (
             "lr_encoder",
             "lr_transformer",
+            "lr_basis",
             "lr_decoder",
             "lr_superres",
             "lr_discriminator",
@@ -297,6 +356,22 @@ class TrainConfig:
                 raise ValueError(f"TrainConfig.{name} must be a finite number >= 0, got {v!r}")
         if self.keep_checkpoints < 1:
             raise ValueError("TrainConfig.keep_checkpoints must be >= 1")
+        if self.recipe not in RECIPES:
+            raise ValueError(f"TrainConfig.recipe must be one of {list(RECIPES)}, got {self.recipe!r}")
+        for name in ("dataset_identities", "heldout_identities"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or v < 1:
+                raise ValueError(f"TrainConfig.{name} must be a positive int, got {v!r}")
+        for name in ("regression_steps", "rays_per_identity"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or v < 0:
+                raise ValueError(f"TrainConfig.{name} must be an int >= 0, got {v!r}")
+        for name in ("triplane_weight", "ray_weight", "lr_final_factor"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
+                raise ValueError(f"TrainConfig.{name} must be a finite number >= 0, got {v!r}")
+        if self.recipe == "cpu" and self.dataset_identities > self.train_seeds[1] - self.train_seeds[0]:
+            raise ValueError("TrainConfig.dataset_identities exceeds the training seed range")
 
     # -- JSON --------------------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
@@ -353,14 +428,16 @@ def _scaled_schedule(total: int) -> dict[str, int]:
 
 
 def _cpu_config(
-    name: str, *, samples: int, batch_size: int, total_steps: int, lr_rampup_steps: int
+    name: str, *, samples: int, batch_size: int, total_steps: int, lr_rampup_steps: int, sizes: str = ""
 ) -> TrainConfig:
-    """The CPU recipe shared by ``small`` and ``tiny`` (see :data:`TRAIN_CONFIGS`)."""
+    """The paper's two-stage recipe scaled to a CPU, with the network sizes ``sizes`` (default
+    ``name``: ``small`` or ``tiny``); see :data:`TRAIN_CONFIGS`."""
+    sizes = sizes or name
     return TrainConfig(
         name=name,
-        encoder=ENCODER_CONFIGS[name],
-        superres=SUPERRES_CONFIGS[name],
-        discriminator=DISCRIMINATOR_CONFIGS[name],
+        encoder=ENCODER_CONFIGS[name if name in ENCODER_CONFIGS else sizes],
+        superres=SUPERRES_CONFIGS[sizes],
+        discriminator=DISCRIMINATOR_CONFIGS[sizes],
         raw_resolution=64,
         depth_resolution=samples,
         depth_resolution_importance=samples,
@@ -374,6 +451,36 @@ def _cpu_config(
         mean_triplane_offset=True,
         sample_every=50,
         checkpoint_every=50,
+    )
+
+
+def _cpu_recipe_config(
+    name: str,
+    *,
+    samples: int,
+    batch_size: int,
+    total_steps: int,
+    regression_steps: int,
+    dataset_identities: int,
+) -> TrainConfig:
+    """The CPU recipe (``recipe="cpu"``, see :class:`TrainConfig`) at the ``name`` network sizes."""
+    return dataclasses.replace(
+        _cpu_config(
+            name, samples=samples, batch_size=batch_size, total_steps=total_steps, lr_rampup_steps=50
+        ),
+        recipe="cpu",
+        lr_encoder=3e-4,
+        lr_transformer=1.5e-4,
+        lr_basis=1e-3,
+        lr_decoder=0.0,
+        dataset_identities=dataset_identities,
+        regression_steps=regression_steps,
+        rays_per_identity=512,
+        mirror_augment=True,
+        lr_cosine_decay=True,
+        sample_every=250,
+        checkpoint_every=100,
+        keep_checkpoints=30,
     )
 
 
@@ -399,8 +506,22 @@ TRAIN_CONFIGS: dict[str, TrainConfig] = {
         discriminator=DISCRIMINATOR_CONFIGS["eg3d"],
         raw_resolution=128,
     ),
-    "small": _cpu_config("small", samples=16, batch_size=4, total_steps=2_000, lr_rampup_steps=20),
-    "tiny": _cpu_config("tiny", samples=12, batch_size=2, total_steps=1_000, lr_rampup_steps=10),
+    "small": _cpu_recipe_config(
+        "small", samples=16, batch_size=8, total_steps=1_600, regression_steps=500, dataset_identities=1024
+    ),
+    "tiny": _cpu_recipe_config(
+        "tiny", samples=12, batch_size=4, total_steps=1_000, regression_steps=250, dataset_identities=512
+    ),
+    # The paper's two-stage recipe with the first CPU encoder: what shipped before the CPU recipe,
+    # kept as the reference row of bench/train_profile.py.
+    "small-paper": _cpu_config(
+        "small-paper", sizes="small", samples=16, batch_size=4, total_steps=2_000, lr_rampup_steps=20
+    ),
+    # The paper's two-stage recipe at the tiny size: what the tests run of the full/lt machinery
+    # (reference schedule, SR from teacher pairs, discriminator, R1) on a CPU.
+    "tiny-paper": _cpu_config(
+        "tiny-paper", sizes="tiny", samples=12, batch_size=2, total_steps=1_000, lr_rampup_steps=10
+    ),
 }
 
 
@@ -463,6 +584,56 @@ class SceneBounds:
     @classmethod
     def of(cls, tri: TriplaneData) -> SceneBounds:
         return cls(float(tri.box_warp), float(tri.ray_start), float(tri.ray_end))
+
+
+def dataset_key(cfg: TrainConfig, teacher: Teacher, teacher_name: str) -> DatasetKey:
+    """The cache key of the CPU recipe's synthetic dataset for a configuration and teacher."""
+    return DatasetKey(
+        teacher=teacher_name,
+        teacher_fingerprint=teacher_fingerprint(teacher, cfg.train_seeds[0]),
+        first_seed=cfg.train_seeds[0],
+        n_identities=cfg.dataset_identities,
+        image_size=cfg.image_size,
+        triplane_resolution=cfg.triplane_resolution,
+        depth_resolution=cfg.depth_resolution,
+        depth_resolution_importance=cfg.depth_resolution_importance,
+        reference_cameras=cfg.reference_cameras.to_dict(),
+        camera_seed=cfg.seed,
+    )
+
+
+@torch.no_grad()
+def principal_planes(
+    planes: np.ndarray, k: int, resolution: int, scale: Tensor, *, mirror: bool = False, limit: int = 2048
+) -> tuple[Tensor, Tensor]:
+    """The mean (3, C, T, T) of teacher triplanes (N, 3, C, T, T) and their first ``k`` principal
+    components at ``resolution``², as (k, 3·C, r, r) scaled so unit coefficients are one standard
+    deviation (the plane basis's start, :class:`lp3d.encoder.PlaneBasis`).
+
+    Channels are divided by ``scale`` (C,) before the analysis, as in the normalised L_tri, so the
+    components favour what that loss weighs. ``mirror`` adds the mirrored planes (the training
+    augmentation). At most ``limit`` planes are used (the Gram matrix is limit²)."""
+    x = torch.from_numpy(np.asarray(planes[: limit // 2 if mirror else limit], dtype=np.float32))
+    if mirror:
+        x = torch.cat([x, mirror_planes(x)])
+    n, p, c, t, _ = x.shape
+    mean = x.mean(0)
+    if k == 0:
+        return mean, torch.zeros(0, p * c, resolution, resolution)
+    if k > n - 1:
+        raise ValueError(f"{k} principal planes need at least {k + 1} planes, got {n}")
+    small = x.reshape(n, p * c, t, t)
+    if resolution != t:
+        small = F.interpolate(small, size=(resolution, resolution), mode="bilinear", antialias=True)
+    per_channel = scale.repeat(p).reshape(1, p * c, 1, 1)
+    z = ((small - small.mean(0, keepdim=True)) / per_channel).reshape(n, -1).double()
+    eigval, eigvec = torch.linalg.eigh(z @ z.T)  # ascending; Gram trick: n << dimensions
+    eigval, eigvec = eigval.flip(0)[:k].clamp_min(1e-12), eigvec.flip(1)[:, :k]
+    # Unit-norm directions u = zᵀv/√λ; one standard deviation along them is √(λ/n).
+    directions = (eigvec.T @ z) / eigval.sqrt()[:, None]
+    components = directions * (eigval / n).sqrt()[:, None]
+    components = components.float().reshape(k, p * c, resolution, resolution) * per_channel
+    return mean, components
 
 
 # --------------------------------------------------------------------------------------------------
@@ -568,6 +739,18 @@ class Student(nn.Module):
             planes, self.decoder.weights(), cameras, self.config, self.scene, resolution=resolution
         )
         features = out["features"]
+        if self.config.recipe == "cpu":
+            # No SR in the CPU recipe: the final image is a volume render at the image size, as the
+            # procedural teacher's is (and as ``lp3d render`` draws an encoded triplane).
+            high = render_views(
+                planes,
+                self.decoder.weights(),
+                cameras,
+                self.config,
+                self.scene,
+                resolution=self.config.image_size,
+            )["rgb"]
+            return ViewRenders(features=features, high=high, depth=out["depth"])
         if freeze_superres:
             frozen = {k: v.detach() for k, v in self.superres.named_parameters()}
             high = torch.func.functional_call(self.superres, frozen, (features,))
@@ -772,6 +955,7 @@ LOG_COLUMNS = [
     *[f"ref_{t}" for t in ("col_raw", "col_high", "perc_raw", "perc_high", "feat", "depth", "adv", "cate")],
     "sr_col_high",
     "sr_perc_high",
+    "ray",
     "d_loss",
     "r1",
     "lr",
@@ -804,6 +988,9 @@ class Trainer:
         device: where to train.
         resume: a checkpoint file or run directory to continue from.
         category: optional category-loss hook (``LossWeights.category`` must be > 0 to use it).
+        progress: progress bars (training, dataset synthesis).
+        data_cache: where the CPU recipe's synthetic dataset is cached
+            (default :func:`lp3d.synthetic_data.default_cache_root`).
     """
 
     def __init__(
@@ -818,6 +1005,7 @@ class Trainer:
         resume: str | os.PathLike[str] | None = None,
         category: Any = None,
         progress: bool = True,
+        data_cache: str | os.PathLike[str] | None = None,
     ) -> None:
         self.config = cfg = config
         self.out_dir = Path(out_dir)
@@ -865,15 +1053,47 @@ class Trainer:
                     file=sys.stderr,
                 )
 
-        if cfg.mean_triplane_offset and ckpt is None:
+        self.dataset: SyntheticDataset | None = None
+        self.heldout: SyntheticDataset | None = None
+        self.data_cache = data_cache
+        if cfg.recipe == "cpu":
+            self.dataset = self.open_dataset()
+            # Channel scales of the normalised L_tri: each channel's spread over identities and texels.
+            sample = torch.from_numpy(self.dataset.planes[: min(256, len(self.dataset))].astype(np.float32))
+            self.plane_scale = sample.transpose(0, 2).reshape(sample.shape[2], -1).std(dim=1).clamp_min(1e-3)
+            self.plane_scale = self.plane_scale.to(self.device)
+
+        if cfg.recipe == "cpu" and ckpt is None:
+            assert self.dataset is not None
+            mean, components = principal_planes(
+                self.dataset.planes,
+                cfg.encoder.basis_components,
+                cfg.encoder.basis_resolution,
+                self.plane_scale.cpu(),
+                mirror=cfg.mirror_augment,
+            )
+            self.student.start_from_mean(mean.to(self.device))
+            if self.student.encoder.basis is not None:
+                self.student.encoder.basis.components.data.copy_(components)
+        elif cfg.mean_triplane_offset and ckpt is None:
             self.student.start_from_mean(self.mean_teacher_planes(cfg.mean_triplane_identities))
 
         enc = self.student.encoder
+        basis_ids = {id(q) for q in enc.basis.parameters()} if enc.basis is not None else set()
         offset = [] if self.student.plane_offset is None else [self.student.plane_offset]
         betas = tuple(cfg.adam_betas)
         self.opt_g = torch.optim.Adam(
             [
-                {"params": [*enc.other_parameters(), *offset], "lr": cfg.lr_encoder, "name": "encoder"},
+                {
+                    "params": [*(q for q in enc.other_parameters() if id(q) not in basis_ids), *offset],
+                    "lr": cfg.lr_encoder,
+                    "name": "encoder",
+                },
+                {
+                    "params": [q for q in enc.other_parameters() if id(q) in basis_ids],
+                    "lr": cfg.lr_basis,
+                    "name": "basis",
+                },
                 {
                     "params": list(enc.transformer_parameters()),
                     "lr": cfg.lr_transformer,
@@ -896,10 +1116,7 @@ class Trainer:
             betas=(cfg.discriminator_betas[0] ** ratio, cfg.discriminator_betas[1] ** ratio),
             eps=1e-8,
         )
-        ramp = cfg.lr_rampup_steps
-        self.sched_g = torch.optim.lr_scheduler.LambdaLR(
-            self.opt_g, lambda s: min(1.0, (s + 1) / ramp) if ramp > 0 else 1.0
-        )
+        self.sched_g = torch.optim.lr_scheduler.LambdaLR(self.opt_g, self.lr_factor)
         self.sched_d = torch.optim.lr_scheduler.LambdaLR(self.opt_d, lambda s: 1.0)
         self.scaler = torch.amp.GradScaler("cuda", enabled=self.amp)
         self.losses = DistillationLoss(perceptual, category)
@@ -918,6 +1135,18 @@ class Trainer:
         self.out_dir.mkdir(parents=True, exist_ok=True)
         _atomic_write_text(self.out_dir / "config.json", cfg.to_json() + "\n")
         self._init_log()
+        if cfg.recipe == "cpu" and ckpt is None:
+            self.log_heldout()  # the learning curve starts at the untrained student
+
+    def lr_factor(self, step: int) -> float:
+        """The student's learning-rate multiplier: a linear ramp over ``lr_rampup_steps``, then 1 (the
+        paper), or with ``lr_cosine_decay`` a cosine to ``lr_final_factor`` at ``total_steps``."""
+        cfg = self.config
+        ramp = min(1.0, (step + 1) / cfg.lr_rampup_steps) if cfg.lr_rampup_steps > 0 else 1.0
+        if not cfg.lr_cosine_decay:
+            return ramp
+        t = min(1.0, step / cfg.total_steps)
+        return ramp * (cfg.lr_final_factor + (1 - cfg.lr_final_factor) * 0.5 * (1 + math.cos(math.pi * t)))
 
     # -- state -------------------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
@@ -959,6 +1188,8 @@ class Trainer:
 
     def save_checkpoint(self) -> Path:
         """Write ``checkpoints/step-NNNNNN.pt`` atomically and prune old ones (keeps the last K)."""
+        if self.config.recipe == "cpu":
+            self.log_heldout()
         path = checkpoint_path(self.out_dir, self.step)
         _atomic_torch_save(self.state_dict(), path)
         old = sorted((self.out_dir / "checkpoints").glob("step-*.pt"))[: -self.config.keep_checkpoints]
@@ -968,6 +1199,10 @@ class Trainer:
 
     def _set_trainable(self, step: int) -> None:
         """Stage 1 freezes the decoder, and the SR when it came pretrained (supplement, "Training")."""
+        if self.config.recipe == "cpu":  # the teacher's decoder is kept; there is no SR to train
+            self.student.decoder.requires_grad_(False)
+            self.student.superres.requires_grad_(False)
+            return
         stage2 = self.config.stage(step) == 2
         self.student.decoder.requires_grad_(stage2)
         self.student.superres.requires_grad_(stage2 or not self.pretrained_sr)
@@ -994,6 +1229,33 @@ class Trainer:
             )
 
     # -- data --------------------------------------------------------------------------------------
+    def dataset_key(self) -> DatasetKey:
+        """The cache key of this run's synthetic dataset (CPU recipe)."""
+        return dataset_key(self.config, self.teacher, self.teacher_name)
+
+    def _input_renderer(self) -> Callable[[Tensor, Tensor], Tensor]:
+        """The teacher's render of the encoder's input, exactly as the evaluation makes it."""
+        cfg = self.config
+
+        def render(planes: Tensor, cameras: Tensor) -> Tensor:
+            planes, cameras = planes.to(self.device), cameras.to(self.device, torch.float32)
+            dec = self.teacher_decoder
+            _, _, image = render_teacher(self.teacher, planes, dec, cameras, cfg, self.scene, raw=False)
+            assert image is not None
+            return image.float().cpu()
+
+        return render
+
+    def open_dataset(self) -> SyntheticDataset:
+        """Load this run's cached dataset, synthesising it first when absent or invalid."""
+        return SyntheticDataset.open(
+            self.dataset_key(),
+            self.teacher,
+            self._input_renderer(),
+            root=self.data_cache,
+            progress=self.progress,
+        )
+
     def _teacher_planes(self, tris: list[TriplaneData]) -> Tensor:
         planes = torch.from_numpy(np.stack([t.planes.astype(np.float32) for t in tris])).to(self.device)
         return planes
@@ -1089,6 +1351,11 @@ class Trainer:
         cfg = self.config
         step = self.step
         t0 = time.perf_counter()
+        if cfg.recipe == "cpu":
+            row = self._cpu_step(step)
+            self.step += 1
+            row["seconds"] = time.perf_counter() - t0
+            return row
         stage = cfg.stage(step)
         self._set_trainable(step)
         batch = batch if batch is not None else self.synthesize(step)
@@ -1159,6 +1426,149 @@ class Trainer:
         self.step += 1
         row["seconds"] = time.perf_counter() - t0
         return row
+
+    def _cpu_step(self, step: int) -> dict[str, Any]:
+        """One step of the CPU recipe: a batch of cached identities, normalised L_tri, and after
+        ``regression_steps`` the RGB L1 of random rays of their cached teacher views."""
+        cfg, ds = self.config, self.dataset
+        assert ds is not None
+        self._set_trainable(step)
+        self.student.train()
+        idx = np.sort(self.data_rng.integers(0, len(ds), size=cfg.batch_size))
+        image = torch.from_numpy(ds.ref_image[idx].astype(np.float32)).to(self.device)
+        target = torch.from_numpy(ds.planes[idx].astype(np.float32)).to(self.device)
+        if cfg.mirror_augment:  # a flipped input is the mirrored head: twice the identities for free
+            flip = torch.from_numpy(self.data_rng.random(len(idx)) < 0.5).to(self.device)
+            image = torch.where(flip[:, None, None, None], image.flip(-1), image)
+            target = torch.where(flip[:, None, None, None, None], mirror_planes(target), target)
+        planes = self.student.encode(image, amp=self.amp)
+        tri = normalised_triplane_loss(planes, target, self.plane_scale)
+        total = cfg.triplane_weight * tri
+        row: dict[str, Any] = {
+            "step": step,
+            "stage": 1 if step < cfg.regression_steps else 2,
+            "tri": float(tri.detach()),
+        }
+        if step >= cfg.regression_steps and cfg.rays_per_identity > 0 and cfg.ray_weight > 0:
+            pred, want = self._random_ray_rgb(planes, target)
+            ray = l1(pred, want, name="ray rgb")
+            total = total + cfg.ray_weight * ray
+            row["ray"] = float(ray.detach())
+        if not bool(torch.isfinite(total)):
+            raise NonFiniteError(
+                f"step {step}: the training loss is {float(total)} (terms {row}, dataset rows "
+                f"{idx.tolist()}); resume from the last checkpoint with a lower learning rate"
+            )
+        self.opt_g.zero_grad(set_to_none=True)
+        self.scaler.scale(total).backward()
+        if cfg.grad_clip > 0:
+            self.scaler.unscale_(self.opt_g)
+            torch.nn.utils.clip_grad_norm_(self.student.parameters(), cfg.grad_clip)
+        self.scaler.step(self.opt_g)
+        self.scaler.update()
+        self.sched_g.step()
+        row["loss"] = float(total.detach())
+        row["lr"] = float(self.opt_g.param_groups[0]["lr"])
+        return row
+
+    @torch.no_grad()
+    def heldout_metrics(self) -> dict[str, float]:
+        """The learning curve's point: novel-view RGB PSNR of ``heldout_identities`` held-out
+        identities (seeds from ``eval_seed_start``) against their own teacher and against the other
+        held-out identities' teachers, and the difference (identity specificity, 0 dB for a student
+        that ignores its input). Raw renders at ``raw_resolution`` from yaw -30° and +30° (pitch 10°);
+        the teacher is the training teacher (``python -m lp3d.eval`` scores against the native one)."""
+        from lp3d.camera import look_at_camera
+
+        cfg = self.config
+        if self.heldout is None:
+            key = dataclasses.replace(
+                self.dataset_key(),
+                first_seed=cfg.eval_seed_start,
+                n_identities=cfg.heldout_identities,
+                teacher_fingerprint=teacher_fingerprint(self.teacher, cfg.eval_seed_start),
+            )
+            self.heldout = SyntheticDataset.open(
+                key, self.teacher, self._input_renderer(), root=self.data_cache, progress=False
+            )
+        ds = self.heldout
+        n = len(ds)
+        cams = torch.tensor(
+            np.stack([look_at_camera(yaw_deg=y, pitch_deg=10.0) for y in (-30.0, 30.0)]), dtype=torch.float32
+        ).to(self.device)
+        v = cams.shape[0]
+        was_training = self.student.training
+        self.student.eval()
+        student, teacher = [], []
+        for i in range(n):
+            image = torch.from_numpy(ds.ref_image[i : i + 1].astype(np.float32)).to(self.device)
+            target = torch.from_numpy(ds.planes[i : i + 1].astype(np.float32)).to(self.device)
+            pred = self.student.encode(image)
+            dec = self.student.decoder.weights()
+            student.append(render_views(pred.expand(v, -1, -1, -1, -1), dec, cams, cfg, self.scene)["rgb"])
+            teacher.append(
+                render_views(target.expand(v, -1, -1, -1, -1), self.teacher_decoder, cams, cfg, self.scene)[
+                    "rgb"
+                ]
+            )
+        self.student.train(was_training)
+
+        def psnr(a: Tensor, b: Tensor) -> float:  # images in [-1, 1]: peak-to-peak 2
+            return float(10 * torch.log10(4.0 / (a - b).square().mean().clamp_min(1e-12)))
+
+        own = [psnr(student[i], teacher[i]) for i in range(n)]
+        other = [statistics.fmean(psnr(student[i], teacher[j]) for j in range(n) if j != i) for i in range(n)]
+        return {
+            "psnr_own": statistics.fmean(own),
+            "psnr_other": statistics.fmean(other),
+            "specificity_db": statistics.fmean(own) - statistics.fmean(other),
+        }
+
+    def log_heldout(self) -> dict[str, float]:
+        """Append :meth:`heldout_metrics` at the current step to ``heldout.csv`` (the learning curve)."""
+        m = self.heldout_metrics()
+        path = self.out_dir / "heldout.csv"
+        rows: list[dict[str, str]] = []
+        if path.exists():
+            with open(path, newline="") as f:
+                rows = [
+                    r for r in csv.DictReader(f) if r.get("step", "").isdigit() and int(r["step"]) < self.step
+                ]
+        rows.append({"step": str(self.step), **{k: f"{v:.4f}" for k, v in m.items()}})
+        with atomic_path(path) as tmp, open(tmp, "w", newline="") as f:
+            w = csv.DictWriter(f, ["step", "psnr_own", "psnr_other", "specificity_db"])
+            w.writeheader()
+            w.writerows(rows)
+        return m
+
+    def _random_ray_rgb(self, planes: Tensor, target: Tensor) -> tuple[Tensor, Tensor]:
+        """RGB (B, M, 3) of the student's planes and of the teacher's ``target`` planes on M random
+        pixel rays of one random multiview camera per identity (drawn from ``data_rng``)."""
+        cfg = self.config
+        b, m, r = planes.shape[0], cfg.rays_per_identity, cfg.raw_resolution
+        cams = torch.from_numpy(sample_cameras(cfg.multiview_cameras, b, self.data_rng).labels)
+        pixels = torch.from_numpy(self.data_rng.integers(0, r * r, size=(b, m))).to(self.device)
+        origins, directions = rays_from_cameras(cams.to(self.device, torch.float32), r)
+        gather = pixels.unsqueeze(-1).expand(-1, -1, 3)
+        origins, directions = origins.gather(1, gather), directions.gather(1, gather)
+
+        def rgb(p: Tensor, decoder: Sequence[Tensor]) -> Tensor:
+            out = render_rays(
+                p,
+                *decoder,
+                origins,
+                directions,
+                ray_start=self.scene.ray_start,
+                ray_end=self.scene.ray_end,
+                box_warp=self.scene.box_warp,
+                depth_resolution=cfg.depth_resolution,
+                depth_resolution_importance=cfg.depth_resolution_importance,
+            )
+            return out["features"][..., :3]
+
+        with torch.no_grad():
+            want = rgb(target, self.teacher_decoder)
+        return rgb(planes, self.student.decoder.weights()), want
 
     def _discriminator_step(
         self, step: int, batch: Batch, fake: ViewRenders, is_ref: bool
@@ -1270,7 +1680,7 @@ class Trainer:
                 if bar is not None:
                     bar.update(1)
                     post = {"stage": row["stage"], "loss": f"{row['loss']:.4f}"}
-                    for key in ("tri", "mv_col_high", "ref_col_high", "d_loss"):
+                    for key in ("tri", "ray", "mv_col_high", "ref_col_high", "d_loss"):
                         if key in row:
                             post[key] = f"{row[key]:.4f}"
                     bar.set_postfix(post, refresh=False)
@@ -1327,6 +1737,18 @@ def _parser() -> argparse.ArgumentParser:
         help="perceptual loss (default: the config's; lpips needs backbone weights on disk)",
     )
     p.add_argument("--lpips-weights", default=None, help="torchvision VGG16/AlexNet state dict for LPIPS")
+    p.add_argument(
+        "--data-cache",
+        default=None,
+        help="folder of the CPU recipe's cached synthetic datasets (default $LP3D_DATA_CACHE, "
+        "$LP3D_CACHE/datasets or ~/.cache/lp3d/datasets)",
+    )
+    p.add_argument(
+        "--dataset-identities",
+        type=int,
+        default=None,
+        help="identities in the CPU recipe's synthetic dataset (overrides the config)",
+    )
     p.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
@@ -1372,6 +1794,13 @@ def main(argv: list[str] | None = None) -> int:
             cfg = dataclasses.replace(cfg, **_scaled_schedule(args.total_steps))
         if args.perceptual is not None:
             cfg = dataclasses.replace(cfg, perceptual=args.perceptual)
+        if args.dataset_identities is not None:
+            if ckpt is not None and args.dataset_identities != cfg.dataset_identities:
+                raise CheckpointError(
+                    f"--dataset-identities {args.dataset_identities}: the checkpoint was trained on "
+                    f"{cfg.dataset_identities}; a resumed run keeps its dataset"
+                )
+            cfg = dataclasses.replace(cfg, dataset_identities=args.dataset_identities)
         perceptual = build_perceptual(
             cfg.perceptual, lpips_net=cfg.lpips_net, lpips_weights=args.lpips_weights
         )
@@ -1393,6 +1822,7 @@ def main(argv: list[str] | None = None) -> int:
             device=device,
             resume=ckpt["path"] if ckpt is not None else None,
             progress=not args.no_progress,
+            data_cache=args.data_cache,
         )
     except (ValueError, RuntimeError, FileNotFoundError) as e:
         print(f"error: {e}", file=sys.stderr)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import zlib
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -26,6 +27,25 @@ from lp3d.settings import DEFAULT_BOX_WARP, DEFAULT_RAY_END, DEFAULT_RAY_START, 
 #: Portrait) was trained this way (NVlabs/eg3d issue #67), so EG3D triplanes only render correctly
 #: with exactly these axes.
 PLANE_AXES: tuple[tuple[int, int], ...] = ((0, 1), (0, 2), (2, 0))
+
+#: For each plane, the array axis that holds world x (the plane's first coordinate indexes the last
+#: axis, its second the one before): mirroring the scene in x flips exactly these axes.
+PLANE_X_AXES: tuple[int, ...] = tuple(-1 if u == 0 else -2 for u, v in PLANE_AXES)
+
+
+def mirror_planes(planes: Any) -> Any:
+    """The triplane of the scene mirrored in x (the head's left and right swapped), for planes
+    (..., 3, C, H, W) as a numpy array or torch tensor.
+
+    Rendering the mirrored planes from the mirrored camera gives the horizontally flipped image, so a
+    flipped input photo and mirrored target planes are a free training pair (the CPU recipe's
+    augmentation; checked against renders in ``tests/test_synthetic_data.py``)."""
+    if isinstance(planes, np.ndarray):
+        return np.stack([np.flip(planes[..., i, :, :, :], a) for i, a in enumerate(PLANE_X_AXES)], axis=-4)
+    import torch
+
+    return torch.stack([planes[..., i, :, :, :].flip(a) for i, a in enumerate(PLANE_X_AXES)], dim=-4)
+
 
 #: Largest occupancy grid side G (the Rust bake and loader accept the same).
 MAX_OCCUPANCY_RESOLUTION = 512
