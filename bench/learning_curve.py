@@ -1,6 +1,7 @@
 """Plot a CPU-recipe run's learning curve: held-out PSNR and identity specificity against steps.
 
-    python bench/learning_curve.py runs/small -o docs/learning-curve-small.png
+    python bench/learning_curve.py runs/small -o docs/learning-curve-small.png \
+        --also runs/small-rays --also-label "with the ray loss from step 500"
 
 Reads ``heldout.csv`` (written at every checkpoint by ``python -m lp3d.train``: novel-view PSNR of
 held-out identities against their own teacher and against the others', and the difference) and
@@ -29,7 +30,7 @@ def _column(rows: list[dict[str, str]], key: str) -> tuple[list[int], list[float
     return steps, values
 
 
-def plot(run: Path, out: Path) -> Path:
+def plot(run: Path, out: Path, also: Path | None = None, also_label: str = "") -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -44,6 +45,12 @@ def plot(run: Path, out: Path) -> Path:
         ax.plot(*_column(held, key), marker="o", ms=3, label=label)
     ax2 = ax.twinx()
     ax2.plot(*_column(held, "specificity_db"), color="tab:green", marker="s", ms=3, label="specificity")
+    if also is not None:  # a branch of the run (e.g. another phase), drawn dashed
+        branch = _read(also / "heldout.csv")
+        ax.plot(*_column(branch, "psnr_own"), "x--", color="tab:red", label=f"vs own teacher, {also_label}")
+        ax2.plot(
+            *_column(branch, "specificity_db"), "x--", color="tab:olive", label=f"specificity, {also_label}"
+        )
     ax2.set_ylabel("identity specificity (dB)", color="tab:green")
     ax.set_xlabel("step")
     ax.set_ylabel("held-out novel-view PSNR (dB)")
@@ -78,6 +85,8 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("run", type=Path, help="a run directory of python -m lp3d.train (CPU recipe)")
     p.add_argument("-o", "--out", type=Path, required=True, help="PNG to write")
+    p.add_argument("--also", type=Path, default=None, help="a branch run directory to overlay (dashed)")
+    p.add_argument("--also-label", default="branch", help="legend label of --also")
     args = p.parse_args(argv)
     for name in ("heldout.csv", "log.csv"):
         if not (args.run / name).is_file():
@@ -85,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
                 f"error: {args.run / name} not found (is this a CPU-recipe run directory?)", file=sys.stderr
             )
             return 1
-    print(plot(args.run, args.out))
+    print(plot(args.run, args.out, args.also, args.also_label))
     return 0
 
 

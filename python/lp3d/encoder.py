@@ -120,7 +120,7 @@ class EncoderConfig:
     # The plane basis (CPU configurations; not in the paper, 0 turns it off): K coefficients regressed
     # from DeepLab's features select a learned basis of K planes at ``basis_resolution``², added
     # (upsampled) to the head's output. Initialised from the principal components of the teacher's
-    # triplanes: they span its identities in ~100 dimensions (bench/RESULTS.md, "Training profile").
+    # triplanes: they span its identities in ~100 dimensions (python/lp3d/train.py, "The CPU recipe").
     basis_components: int = 0
     basis_resolution: int = 32
     basis_pool: int = 4
@@ -308,8 +308,8 @@ CONFIGS: dict[str, EncoderConfig] = {
         head_out_channels=(128, 64, 64),
     ),
     # CPU-shaped: F and F_high at 32² (LT's layout: F_high from the backbone) and one output
-    # convolution pair at the 64² plane size, 2.4x less CPU per step than 64² features
-    # (bench/RESULTS.md, "Training profile").
+    # convolution pair at the 64² plane size: 1.6-2.3x less CPU per identity for the encoder's
+    # forward and backward than 64² features (bench/RESULTS.md, "Training profile").
     "small": EncoderConfig(
         name="small",
         image_size=128,
