@@ -252,8 +252,11 @@ def test_principal_planes_span_a_low_rank_family_and_start_the_basis_at_zero():
     assert (centred - centred @ q @ q.T).abs().max() < 1e-4
     # Unit coefficients are one standard deviation: the first component's norm is u's spread.
     assert comps[0].norm() == pytest.approx(float((a - a.mean()).std(correction=0) * u.norm()), rel=0.02)
-    with pytest.raises(ValueError, match="need at least"):
-        principal_planes(planes[:2].numpy(), 2, 8, scale)
+    # Fewer planes than components: the directions they have, then zero components.
+    m3, few = principal_planes(planes[:2].numpy(), 3, 8, scale)
+    assert few.shape[0] == 3 and few[0].abs().max() > 0 and not few[1:].any()
+    with pytest.raises(ValueError, match="at least 2 planes"):
+        principal_planes(planes[:1].numpy(), 2, 8, scale)
     # An untrained basis branch adds nothing, whatever its components.
     enc = build_encoder(CONFIGS["tiny"]).eval()
     assert enc.basis is not None

@@ -624,20 +624,23 @@ def principal_planes(
     mean = x.mean(0)
     if k == 0:
         return mean, torch.zeros(0, p * c, resolution, resolution)
-    if k > n - 1:
-        raise ValueError(f"{k} principal planes need at least {k + 1} planes, got {n}")
+    if n < 2:
+        raise ValueError(f"principal planes need at least 2 planes, got {n}")
+    found = min(k, n - 1)  # a small dataset (tests, trials) has n - 1 directions; the rest start at zero
+    if found < k:
+        print(f"note: {n} planes give {found} principal planes; {k - found} start at zero", file=sys.stderr)
     small = x.reshape(n, p * c, t, t)
     if resolution != t:
         small = F.interpolate(small, size=(resolution, resolution), mode="bilinear", antialias=True)
     per_channel = scale.repeat(p).reshape(1, p * c, 1, 1)
     z = ((small - small.mean(0, keepdim=True)) / per_channel).reshape(n, -1).double()
     eigval, eigvec = torch.linalg.eigh(z @ z.T)  # ascending; Gram trick: n << dimensions
-    eigval, eigvec = eigval.flip(0)[:k].clamp_min(1e-12), eigvec.flip(1)[:, :k]
+    eigval, eigvec = eigval.flip(0)[:found].clamp_min(1e-12), eigvec.flip(1)[:, :found]
     # Unit-norm directions u = zᵀv/√λ; one standard deviation along them is √(λ/n).
     directions = (eigvec.T @ z) / eigval.sqrt()[:, None]
     components = directions * (eigval / n).sqrt()[:, None]
-    components = components.float().reshape(k, p * c, resolution, resolution) * per_channel
-    return mean, components
+    components = components.float().reshape(found, p * c, resolution, resolution) * per_channel
+    return mean, torch.cat([components, components.new_zeros(k - found, *components.shape[1:])])
 
 
 # --------------------------------------------------------------------------------------------------
