@@ -266,3 +266,17 @@ def test_principal_planes_span_a_low_rank_family_and_start_the_basis_at_zero():
         with_basis = enc(x)
         enc.basis = None
         assert torch.equal(with_basis, enc(x))
+
+
+# ------------------------------------------------------------------------------------ schedule
+def test_total_steps_keeps_the_regression_share_of_the_schedule():
+    """``--total-steps`` stretches the CPU recipe's regression phase with the schedule: ``small``
+    regresses for all of it, so a longer run must not switch the ray loss on partway."""
+    from lp3d.train import _scaled_schedule
+
+    small = TRAIN_CONFIGS["small"]
+    assert small.regression_steps == small.total_steps
+    assert _scaled_schedule(2400, small)["regression_steps"] == 2400
+    partial = dataclasses.replace(small, regression_steps=400)  # a quarter of 1,600
+    assert _scaled_schedule(2400, partial)["regression_steps"] == 600
+    assert "regression_steps" not in _scaled_schedule(2400)  # the paper's configs have no such phase

@@ -131,6 +131,15 @@ from lp3d.losses import (
     normalised_triplane_loss,
 )
 from lp3d.render_torch import rays_from_cameras, render_rays, render_torch
+from lp3d.run_dir import (
+    RunLock,
+    checkpoint_path,
+    checkpoints,
+    latest_checkpoint,
+    newest_readable,
+    remove_stale_temporaries,
+    set_aside_checkpoints_after,
+)
 from lp3d.superres import SUPERRES_CONFIGS, SuperresConfig, SuperResolution
 from lp3d.synthetic_data import DatasetKey, SyntheticDataset, teacher_fingerprint
 from lp3d.teachers import Teacher
@@ -417,13 +426,18 @@ class TrainConfig:
         return cls.from_dict(json.loads(text))
 
 
-def _scaled_schedule(total: int) -> dict[str, int]:
-    """The paper's stage boundaries (30k and 37.5k of 220k) scaled to ``total`` steps."""
-    return {
+def _scaled_schedule(total: int, base: TrainConfig | None = None) -> dict[str, int]:
+    """The paper's stage boundaries (30k and 37.5k of 220k) scaled to ``total`` steps; with ``base``,
+    the CPU recipe's regression phase keeps its share of ``base``'s schedule too (a config that
+    regresses for its whole schedule still does)."""
+    out = {
         "total_steps": total,
         "warmup_steps": round(total * 30_000 / 220_000),
         "dense_reference_from": round(total * 37_500 / 220_000),
     }
+    if base is not None:
+        out["regression_steps"] = round(total * base.regression_steps / base.total_steps)
+    return out
 
 
 def _cpu_config(
@@ -831,32 +845,21 @@ def _atomic_write_text(path: Path, text: str) -> None:
         tmp.write_text(text)
 
 
-def checkpoint_path(run_dir: Path, step: int) -> Path:
-    return run_dir / "checkpoints" / f"step-{step:06d}.pt"
-
-
-def latest_checkpoint(run_dir: Path) -> Path | None:
-    """The checkpoint with the highest step in ``run_dir/checkpoints``, or None."""
-    found = sorted((run_dir / "checkpoints").glob("step-*.pt"))
-    return found[-1] if found else None
-
-
 def load_checkpoint(
     path: str | os.PathLike[str], *, map_location: str | torch.device = "cpu"
 ) -> dict[str, Any]:
     """Read a training checkpoint (a run directory means its latest); never unpickles code.
 
     Returns the raw dict with ``config`` parsed into a :class:`TrainConfig` under ``"train_config"``.
+    For a run directory, an unreadable newest checkpoint (a kill or a full disk mid-copy) is skipped
+    with a warning in favour of the newest readable one.
 
     Raises:
         CheckpointError: not a file, not an lp3d checkpoint, another format version.
     """
     p = Path(path)
     if p.is_dir():
-        latest = latest_checkpoint(p)
-        if latest is None:
-            raise CheckpointError(f"{str(p)!r} holds no checkpoints (expected {p}/checkpoints/step-*.pt)")
-        p = latest
+        return newest_readable(p, lambda f: load_checkpoint(f, map_location=map_location), CheckpointError)
     if not p.is_file():
         raise CheckpointError(f"checkpoint {str(p)!r}: no such file")
     try:
@@ -887,12 +890,16 @@ def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
+#: Settings of how a run is kept, not of what it computes: a resumed run may change them.
+RUN_KEEPING_FIELDS = frozenset({"checkpoint_every", "keep_checkpoints", "sample_every"})
+
+
 def config_differences(a: TrainConfig, b: TrainConfig) -> list[str]:
-    """``["field: a != b", ...]`` over the flattened JSON of two configs."""
+    """``["field: a != b", ...]`` over the flattened JSON of two configs, leaving out
+    :data:`RUN_KEEPING_FIELDS`."""
     fa, fb = _flatten(a.to_dict()), _flatten(b.to_dict())
-    return [
-        f"{k}: {fa.get(k)!r} != {fb.get(k)!r}" for k in sorted(set(fa) | set(fb)) if fa.get(k) != fb.get(k)
-    ]
+    keys = sorted((set(fa) | set(fb)) - RUN_KEEPING_FIELDS)
+    return [f"{k}: {fa.get(k)!r} != {fb.get(k)!r}" for k in keys if fa.get(k) != fb.get(k)]
 
 
 def student_from_checkpoint(ckpt: dict[str, Any], device: torch.device | str = "cpu") -> Student:
@@ -1034,6 +1041,21 @@ class Trainer:
                     f"not {teacher_name!r}"
                 )
 
+        self.data_cache = data_cache
+        self._perceptual, self._category = perceptual, category
+        # One trainer per run directory, from before anything in it is written until train() ends.
+        self._lock = RunLock(self.out_dir)
+        self._lock.acquire()
+        try:
+            remove_stale_temporaries(self.out_dir)
+            self._build(ckpt)
+        except BaseException:
+            self._lock.release()
+            raise
+
+    def _build(self, ckpt: dict[str, Any] | None) -> None:
+        """Models, data, optimisers and run directory (``ckpt``: the checkpoint to continue from)."""
+        cfg, teacher = self.config, self.teacher
         # Initial weights come from the config's seed (resume overwrites them).
         torch.manual_seed(cfg.seed)
         probe = teacher.sample(cfg.eval_seed_start)
@@ -1058,7 +1080,6 @@ class Trainer:
         self.dataset: SyntheticDataset | None = None
         self.heldout: SyntheticDataset | None = None
         self._heldout_truth: list[Tensor] | None = None
-        self.data_cache = data_cache
         if cfg.recipe == "cpu":
             self.dataset = self.open_dataset()
             # Channel scales of the normalised L_tri: each channel's spread over identities and texels.
@@ -1122,13 +1143,14 @@ class Trainer:
         self.sched_g = torch.optim.lr_scheduler.LambdaLR(self.opt_g, self.lr_factor)
         self.sched_d = torch.optim.lr_scheduler.LambdaLR(self.opt_d, lambda s: 1.0)
         self.scaler = torch.amp.GradScaler("cuda", enabled=self.amp)
-        self.losses = DistillationLoss(perceptual, category)
+        self.losses = DistillationLoss(self._perceptual, self._category)
         self.data_rng = np.random.Generator(np.random.PCG64(cfg.seed))
         self.step = 0
         self.interrupted = False
 
         if ckpt is not None:
             self._restore(ckpt)
+            set_aside_checkpoints_after(self.out_dir, self.step)
         elif latest_checkpoint(self.out_dir) is not None:
             raise CheckpointError(
                 f"{str(self.out_dir)!r} already holds checkpoints; pass --resume {self.out_dir} to continue "
@@ -1195,8 +1217,7 @@ class Trainer:
             self.log_heldout()
         path = checkpoint_path(self.out_dir, self.step)
         _atomic_torch_save(self.state_dict(), path)
-        old = sorted((self.out_dir / "checkpoints").glob("step-*.pt"))[: -self.config.keep_checkpoints]
-        for p in old:
+        for _, p in checkpoints(self.out_dir)[: -self.config.keep_checkpoints]:
             p.unlink(missing_ok=True)
         return path
 
@@ -1655,6 +1676,17 @@ class Trainer:
         Ctrl-C (in the main thread) finishes the current step, saves a checkpoint and returns with
         ``self.interrupted`` set; a second Ctrl-C aborts at once (the last checkpoint stays valid).
         """
+        self._lock.acquire()  # released below: the run directory is free once train() returns
+        try:
+            return self._train(max_steps)
+        finally:
+            self._lock.release()
+
+    def close(self) -> None:
+        """Give up the run directory without training (train() does this when it returns)."""
+        self._lock.release()
+
+    def _train(self, max_steps: int | None) -> dict[str, Any] | None:
         cfg = self.config
         end = cfg.total_steps if max_steps is None else max_steps
         self.interrupted = False
@@ -1755,6 +1787,12 @@ def _parser() -> argparse.ArgumentParser:
         default=None,
         help="identities in the CPU recipe's synthetic dataset (overrides the config)",
     )
+    p.add_argument(
+        "--checkpoint-every",
+        type=int,
+        default=None,
+        help="write a checkpoint every N steps (default: the config's; may change on --resume)",
+    )
     p.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
@@ -1797,9 +1835,13 @@ def main(argv: list[str] | None = None) -> int:
                 )
             if args.total_steps < 1:
                 raise ValueError(f"--total-steps must be >= 1, got {args.total_steps}")
-            cfg = dataclasses.replace(cfg, **_scaled_schedule(args.total_steps))
+            cfg = dataclasses.replace(cfg, **_scaled_schedule(args.total_steps, cfg))
         if args.perceptual is not None:
             cfg = dataclasses.replace(cfg, perceptual=args.perceptual)
+        if args.checkpoint_every is not None:
+            if args.checkpoint_every < 1:
+                raise ValueError(f"--checkpoint-every must be >= 1, got {args.checkpoint_every}")
+            cfg = dataclasses.replace(cfg, checkpoint_every=args.checkpoint_every)
         if args.dataset_identities is not None:
             if ckpt is not None and args.dataset_identities != cfg.dataset_identities:
                 raise CheckpointError(

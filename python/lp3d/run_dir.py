@@ -1,0 +1,192 @@
+"""A training run's directory: who may write it, which checkpoint a run continues from, and what a
+killed run leaves behind.
+
+::
+
+    runs/small/
+      .lock                       held (``flock``) by the one trainer writing this run
+      config.json  log.csv  heldout.csv
+      checkpoints/step-NNNNNN.pt  the last ``keep_checkpoints``, each written atomically
+      checkpoints/superseded-at-step-NNNNNN/
+                                  checkpoints newer than the one a run was resumed from, set aside
+      samples/step-NNNNNN.png
+
+Promises (``docs/reliability.md``): one trainer per run directory at a time; a ``kill -9`` at any
+moment leaves the newest complete checkpoint loadable and its temporary file is removed by the next
+trainer; an unreadable newest checkpoint falls back, with a warning, to the newest readable one; a
+run continued from an older checkpoint never mixes its steps with the newer ones.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import re
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, TypeVar
+
+__all__ = [
+    "RunBusyError",
+    "RunLock",
+    "checkpoint_path",
+    "checkpoints",
+    "latest_checkpoint",
+    "newest_readable",
+    "remove_stale_temporaries",
+    "set_aside_checkpoints_after",
+]
+
+_STEP_NAME = re.compile(r"step-(\d{6,})\.pt")
+T = TypeVar("T")
+
+
+class RunBusyError(RuntimeError):
+    """Another trainer holds the run directory's lock."""
+
+
+def checkpoint_path(run_dir: Path, step: int) -> Path:
+    return Path(run_dir) / "checkpoints" / f"step-{step:06d}.pt"
+
+
+def checkpoints(run_dir: Path) -> list[tuple[int, Path]]:
+    """``(step, path)`` of the run's checkpoints, oldest first (only ``step-NNNNNN.pt`` files)."""
+    found = []
+    for p in (Path(run_dir) / "checkpoints").glob("step-*.pt"):
+        m = _STEP_NAME.fullmatch(p.name)
+        if m and p.is_file():
+            found.append((int(m.group(1)), p))
+    return sorted(found)
+
+
+def latest_checkpoint(run_dir: Path) -> Path | None:
+    """The checkpoint with the highest step in ``run_dir/checkpoints``, or None."""
+    found = checkpoints(run_dir)
+    return found[-1][1] if found else None
+
+
+def newest_readable(run_dir: Path, load: Callable[[Path], T], error: type[Exception]) -> T:
+    """``load`` of the newest checkpoint that ``load`` accepts. A newer one that raises ``error``
+    (truncated by a full disk, damaged by a copy) is skipped with a warning naming it and why;
+    when none is readable, ``error`` lists them all."""
+    found = checkpoints(run_dir)
+    if not found:
+        raise error(f"{str(run_dir)!r} holds no checkpoints (expected {run_dir}/checkpoints/step-*.pt)")
+    problems = []
+    for _, path in reversed(found):
+        try:
+            out = load(path)
+        except error as e:
+            problems.append(f"{path.name}: {e}")
+            continue
+        if problems:
+            print(
+                f"warning: skipped unreadable newer checkpoint(s), continuing from {path.name}:\n  "
+                + "\n  ".join(problems),
+                file=sys.stderr,
+            )
+        return out
+    raise error(f"no checkpoint in {str(run_dir)!r} is readable:\n  " + "\n  ".join(problems))
+
+
+def set_aside_checkpoints_after(run_dir: Path, step: int) -> list[Path]:
+    """Move checkpoints newer than ``step`` into ``checkpoints/superseded-at-step-NNNNNN/``.
+
+    A run continued from an older checkpoint writes its own later steps; leaving the old ones beside
+    them would let the next ``--resume`` jump to a step of the abandoned branch. They are moved, not
+    deleted, so nothing a user trained is lost. Returns the new paths."""
+    later = [p for s, p in checkpoints(run_dir) if s > step]
+    if not later:
+        return []
+    aside = Path(run_dir) / "checkpoints" / f"superseded-at-step-{step:06d}"
+    aside.mkdir(exist_ok=True)
+    moved = []
+    for p in later:
+        target = aside / p.name
+        os.replace(p, target)
+        moved.append(target)
+    print(
+        f"warning: continuing from step {step}; {len(moved)} newer checkpoint(s) "
+        f"({', '.join(p.name for p in moved)}) moved to {aside}",
+        file=sys.stderr,
+    )
+    return moved
+
+
+def remove_stale_temporaries(run_dir: Path) -> list[Path]:
+    """Delete the hidden temporary files (``.<name>.*.tmp*``) that an atomic write leaves when its
+    process is killed mid-write. Call only while holding the run's :class:`RunLock`: a live trainer's
+    temporary file is not stale."""
+    removed = []
+    for folder in (Path(run_dir), Path(run_dir) / "checkpoints", Path(run_dir) / "samples"):
+        for p in folder.glob(".*.tmp*"):
+            if p.is_file() and not p.is_symlink():
+                p.unlink(missing_ok=True)
+                removed.append(p)
+    if removed:
+        print(
+            f"note: removed {len(removed)} temporary file(s) left by an interrupted write in {run_dir}",
+            file=sys.stderr,
+        )
+    return removed
+
+
+class RunLock:
+    """An exclusive ``flock`` on ``run_dir/.lock``, so two trainers never write one run.
+
+    The kernel drops the lock when its holder exits, ``kill -9`` included, so a crashed run never
+    leaves the directory locked. Re-entrant for its holder (``acquire`` twice is a no-op)."""
+
+    def __init__(self, run_dir: Path) -> None:
+        self.path = Path(run_dir) / ".lock"
+        self._fd: int | None = None
+
+    @property
+    def held(self) -> bool:
+        return self._fd is not None
+
+    def acquire(self) -> None:
+        if self._fd is not None:
+            return
+        import fcntl  # POSIX only; lp3d trains on Linux and macOS
+
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as e:
+            holder = _read_holder(fd)
+            os.close(fd)
+            if e.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                raise RunBusyError(
+                    f"run directory {str(self.path.parent)!r} is in use by another trainer{holder}; "
+                    "wait for it to finish or choose another --out"
+                ) from None
+            raise
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        self._fd = fd
+
+    def release(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)  # closing the descriptor drops the flock
+            self._fd = None
+
+    def __enter__(self) -> RunLock:
+        self.acquire()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.release()
+
+    def __del__(self) -> None:
+        self.release()
+
+
+def _read_holder(fd: int) -> str:
+    try:
+        pid = os.pread(fd, 32, 0).decode().strip()
+    except OSError:
+        return ""
+    return f" (pid {pid})" if pid.isdigit() else ""
