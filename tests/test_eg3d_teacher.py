@@ -211,6 +211,22 @@ def test_mapping_is_conditioned_on_the_frontal_camera_at_the_pivot() -> None:
     assert np.array_equal(gen.backbone.mapping.calls[-1]["c"].numpy(), pose[None].astype(np.float32))
 
 
+def test_conditioning_focal_follows_the_chosen_eg3d_script() -> None:
+    """gen_videos.py conditions with focal 4.2647; gen_samples.py derives 4.26339 from its 18.837° field
+    of view with EG3D's rounded constants."""
+    from lp3d.teachers.eg3d import CONDITIONING_FOCALS
+
+    assert CONDITIONING_FOCALS["gen_videos"] == 4.2647
+    assert CONDITIONING_FOCALS["gen_samples"] == pytest.approx(4.263391, abs=1e-6)
+    for script, focal in CONDITIONING_FOCALS.items():
+        gen = StandInGenerator()
+        make_teacher(gen, conditioning=script).sample(0)
+        c = gen.backbone.mapping.calls[-1]["c"].numpy()[0]
+        assert c[16] == c[20] == np.float32(focal)  # fx, fy of the normalised intrinsics
+    with pytest.raises(ValueError, match="conditioning must be one of"):
+        make_teacher(StandInGenerator(), conditioning="gen_images")
+
+
 def test_unconditional_generator_gets_an_empty_label() -> None:
     gen = StandInGenerator(c_dim=0)
     make_teacher(gen).sample(0)
@@ -307,7 +323,9 @@ def test_missing_pickle_says_what_to_pass(tmp_path: Path) -> None:
             EG3DTeacher.from_pickle(path, eg3d_source=fake_eg3d_source(tmp_path / f"src{path is None}"))
         msg = str(e.value)
         assert EG3D_HINT in msg
-        assert "--eg3d-pkl" in msg and "--eg3d-source" in msg and "ffhqrebalanced512-128.pkl" in msg
+        # The flags the hint names are the ones lp3d.train and lp3d.eval really have.
+        assert "--teacher-pkl" in msg and "--eg3d-source" in msg and "ffhqrebalanced512-128.pkl" in msg
+        assert "--eg3d-pkl" not in msg
         if path is not None:
             assert str(path) in msg
 
@@ -358,8 +376,10 @@ def test_from_pickle_loads_g_ema_with_the_source_on_sys_path_for_unpickling_only
     loaded = load_eg3d_generator(pkl, eg3d_source=tmp_path / "repo")  # the repository root works too
     assert type(loaded).__name__ == "TinyNet" and loaded.answer == 42
     assert str(src) not in sys.path
-    with pytest.raises(TypeError, match="TriPlaneGenerator interface"):
+    # A pickle of something else (a 2D StyleGAN2 generator, say) is a load error, not a traceback.
+    with pytest.raises(EG3DLoadError, match="TriPlaneGenerator interface.*not a 2D StyleGAN") as e:
         EG3DTeacher.from_pickle(pkl, eg3d_source=src)
+    assert str(pkl) in str(e.value)
     _forget_fake_packages()
 
     # Without the source tree: ModuleNotFoundError becomes a message naming --eg3d-source.
@@ -381,3 +401,42 @@ def test_from_pickle_builds_a_working_teacher(tmp_path: Path) -> None:
     assert not any(p.requires_grad for p in teacher.generator.parameters())
     assert np.array_equal(teacher.sample(2).planes, make_teacher(gen, truncation_psi=0.5).sample(2).planes)
     assert [a.tolist() for a in teacher.decoder()] == [a.tolist() for a in make_teacher(gen).decoder()]
+
+
+@pytest.mark.usefixtures("clean_eg3d_modules")
+def test_an_eg3d_run_resumes_and_evaluates_without_being_told_the_teacher_again(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The run records the pickle and source paths (absolute) in its checkpoints; ``--resume`` and
+    ``lp3d.eval`` rebuild the teacher from them, from another working directory too."""
+    import json
+
+    from lp3d.eval import EvalSettings
+    from lp3d.eval import run as eval_run
+    from lp3d.train import load_checkpoint
+    from lp3d.train import main as train_main
+
+    pkl = dump(tmp_path / "standin.pkl", {"G": None, "D": None, "G_ema": StandInGenerator(seed=3)})
+    src = fake_eg3d_source(tmp_path / "src")
+    monkeypatch.chdir(tmp_path)
+    out = Path("run")
+    first = ["--config", "tiny-paper", "--teacher", "eg3d", "--teacher-pkl", "standin.pkl"]
+    first += ["--eg3d-source", "src", "--eg3d-conditioning", "gen_samples", "--batch", "1"]
+    assert train_main([*first, "--max-steps", "1", "--out", str(out), "--no-progress"]) == 0
+    recorded = json.loads(load_checkpoint(out)["teacher_args"])
+    assert recorded == {
+        "teacher_pkl": str(pkl.resolve()),
+        "eg3d_source": str(src.resolve()),
+        "conditioning": "gen_samples",
+    }
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    run = tmp_path / "run"
+    assert train_main(["--resume", str(run), "--max-steps", "2", "--no-progress"]) == 0
+    ckpt = load_checkpoint(run)
+    assert ckpt["step"] == 2 and json.loads(ckpt["teacher_args"]) == recorded
+    # A resumed run keeps its teacher: another conditioning is refused.
+    assert train_main(["--resume", str(run), "--eg3d-conditioning", "gen_videos", "--no-progress"]) == 2
+    settings = EvalSettings(n_identities=2, baseline_steps=0, timing_repeats=1)
+    report_path, _, _ = eval_run(run, out=tmp_path / "eval", settings=settings)
+    assert report_path.is_file()

@@ -91,6 +91,7 @@ from lp3d.train import (
     load_checkpoint,
     render_teacher,
     render_views,
+    resolve_teacher_args,
     student_from_checkpoint,
 )
 
@@ -840,11 +841,14 @@ def run(
     ckpt = load_checkpoint(checkpoint, map_location=device)
     cfg: TrainConfig = ckpt["train_config"]
     student = student_from_checkpoint(ckpt, device)
+    # The run recorded how its teacher was built; given paths override (e.g. the pickle moved).
+    targs = resolve_teacher_args(ckpt, teacher_pkl=teacher_pkl, eg3d_source=eg3d_source)
     teacher = build_teacher(
         ckpt["teacher"],
         triplane_resolution=cfg.triplane_resolution,
-        teacher_pkl=teacher_pkl,
-        eg3d_source=eg3d_source,
+        teacher_pkl=targs["teacher_pkl"],
+        eg3d_source=targs["eg3d_source"],
+        conditioning=targs["conditioning"] or "gen_videos",
         device=device,
     )
     lpips: LPIPSLoss | None = None
@@ -900,9 +904,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--lpips-net", choices=("alex", "vgg"), default="alex", help="LPIPS backbone (default alex)"
     )
-    p.add_argument("--teacher-pkl", default=None, help="EG3D generator pickle (EG3D-teacher checkpoints)")
     p.add_argument(
-        "--eg3d-source", default=None, help="NVlabs/eg3d's eg3d/ folder, to unpickle the generator"
+        "--teacher-pkl",
+        default=None,
+        help="EG3D generator pickle (EG3D-teacher checkpoints; default: the one the run recorded)",
+    )
+    p.add_argument(
+        "--eg3d-source",
+        default=None,
+        help="NVlabs/eg3d's eg3d/ folder, to unpickle the generator (default: the one the run recorded)",
     )
     p.add_argument("--device", default="cpu", help="cpu or cuda")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")

@@ -549,11 +549,12 @@ def build_teacher(
     triplane_resolution: int,
     teacher_pkl: str | None = None,
     eg3d_source: str | None = None,
+    conditioning: str = "gen_videos",
     device: str | torch.device = "cpu",
 ) -> Teacher:
     """The teacher ``name``: ``procedural`` (built at the encoder's triplane resolution, so L_tri needs
     no resampling) or ``eg3d`` (``lp3d.teachers.eg3d.EG3DTeacher.from_pickle``, imported only when asked
-    for: loading a pickle executes its code)."""
+    for: loading a pickle executes its code; ``conditioning``: whose conditioning focal, see there)."""
     if name == "procedural":
         from lp3d.teachers import ProceduralTeacher
 
@@ -571,8 +572,38 @@ def build_teacher(
                 "--teacher eg3d needs --teacher-pkl PATH (an official EG3D generator pickle, e.g. "
                 "ffhqrebalanced512-128.pkl) and usually --eg3d-source DIR (NVlabs/eg3d's eg3d/ folder)"
             )
-        return eg3d.EG3DTeacher.from_pickle(teacher_pkl, eg3d_source=eg3d_source, device=device)
+        return eg3d.EG3DTeacher.from_pickle(
+            teacher_pkl,
+            eg3d_source=eg3d_source,
+            device=device,
+            conditioning=conditioning,  # type: ignore[arg-type]
+        )
     raise ValueError(f"unknown teacher {name!r}; choose one of {list(TEACHERS)}")
+
+
+#: The arguments of :func:`build_teacher` besides the name that a run records in its checkpoints, so
+#: that ``--resume`` and ``lp3d.eval`` rebuild the same teacher without being told again.
+TEACHER_ARGS = ("teacher_pkl", "eg3d_source", "conditioning")
+
+
+def resolve_teacher_args(ckpt: dict[str, Any] | None, **given: str | None) -> dict[str, str | None]:
+    """The teacher arguments to use: those ``given`` (command-line overrides) where not None, else those
+    recorded in ``ckpt`` (paths as absolute as they were recorded), else the defaults."""
+    recorded = json.loads(ckpt.get("teacher_args", "{}")) if ckpt is not None else {}
+    out: dict[str, str | None] = {"teacher_pkl": None, "eg3d_source": None, "conditioning": "gen_videos"}
+    for k in TEACHER_ARGS:
+        if given.get(k) is not None:
+            out[k] = given[k]
+        elif recorded.get(k) is not None:
+            out[k] = recorded[k]
+    return out
+
+
+def _recordable(args: dict[str, str | None]) -> dict[str, str | None]:
+    """``args`` with paths made absolute, so a resume from another directory finds them."""
+    return {
+        k: (str(Path(v).expanduser().resolve()) if k != "conditioning" and v else v) for k, v in args.items()
+    }
 
 
 def teacher_superres_state(teacher: Teacher) -> dict[str, Tensor] | None:
@@ -1000,6 +1031,8 @@ class Trainer:
         progress: progress bars (training, dataset synthesis).
         data_cache: where the CPU recipe's synthetic dataset is cached
             (default :func:`lp3d.synthetic_data.default_cache_root`).
+        teacher_args: how the teacher was built (:data:`TEACHER_ARGS`), recorded in the checkpoints so
+            ``--resume`` and ``lp3d.eval`` can rebuild it (default: the resumed checkpoint's).
     """
 
     def __init__(
@@ -1015,6 +1048,7 @@ class Trainer:
         category: Any = None,
         progress: bool = True,
         data_cache: str | os.PathLike[str] | None = None,
+        teacher_args: dict[str, str | None] | None = None,
     ) -> None:
         self.config = cfg = config
         self.out_dir = Path(out_dir)
@@ -1025,6 +1059,10 @@ class Trainer:
         self.amp = bool(cfg.amp and self.device.type == "cuda")
 
         ckpt = load_checkpoint(resume, map_location=self.device) if resume is not None else None
+        # Recorded in every checkpoint; a resume without them keeps the recorded ones.
+        self.teacher_args = _recordable(
+            teacher_args if teacher_args is not None else resolve_teacher_args(ckpt)
+        )
         if ckpt is not None:
             diff = config_differences(ckpt["train_config"], cfg)
             if diff:
@@ -1180,6 +1218,7 @@ class Trainer:
             "format": CHECKPOINT_FORMAT,
             "config": self.config.to_json(),
             "teacher": self.teacher_name,
+            "teacher_args": json.dumps(self.teacher_args),
             "scene": json.dumps(asdict(self.scene)),
             "step": self.step,
             "student": self.student.state_dict(),
@@ -1758,6 +1797,13 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--eg3d-source", default=None, help="NVlabs/eg3d's eg3d/ folder, to unpickle the generator"
     )
+    p.add_argument(
+        "--eg3d-conditioning",
+        choices=("gen_videos", "gen_samples"),
+        default=None,
+        help="whose conditioning camera focal the EG3D mapping gets: gen_videos.py's 4.2647 (default) "
+        "or gen_samples.py's 4.26339",
+    )
     p.add_argument("--out", default=None, help="run directory (default runs/<config>)")
     p.add_argument("--max-steps", type=int, default=None, help="stop at this global step (default: config)")
     p.add_argument("--batch", type=int, default=None, help="batch size (overrides the config)")
@@ -1854,11 +1900,26 @@ def main(argv: list[str] | None = None) -> int:
         )
         if perceptual is not None:
             perceptual = perceptual.to(device)
+        targs = resolve_teacher_args(
+            ckpt if ckpt is not None and teacher_name == ckpt["teacher"] else None,
+            teacher_pkl=args.teacher_pkl,
+            eg3d_source=args.eg3d_source,
+            conditioning=args.eg3d_conditioning,
+        )
+        if ckpt is not None and targs != resolve_teacher_args(ckpt):
+            recorded = resolve_teacher_args(ckpt)
+            if targs["conditioning"] != recorded["conditioning"]:
+                raise CheckpointError(
+                    f"--eg3d-conditioning {targs['conditioning']}: the run was trained with "
+                    f"{recorded['conditioning']!r}; a resumed run keeps its teacher"
+                )
+            print(f"note: teacher arguments differ from the run's recorded ones: {targs}", file=sys.stderr)
         teacher = build_teacher(
             teacher_name,
             triplane_resolution=cfg.triplane_resolution,
-            teacher_pkl=args.teacher_pkl,
-            eg3d_source=args.eg3d_source,
+            teacher_pkl=targs["teacher_pkl"],
+            eg3d_source=targs["eg3d_source"],
+            conditioning=targs["conditioning"] or "gen_videos",
             device=device,
         )
         trainer = Trainer(
@@ -1871,6 +1932,7 @@ def main(argv: list[str] | None = None) -> int:
             resume=ckpt["path"] if ckpt is not None else None,
             progress=not args.no_progress,
             data_cache=args.data_cache,
+            teacher_args=targs,
         )
     except (ValueError, RuntimeError, FileNotFoundError) as e:
         print(f"error: {e}", file=sys.stderr)

@@ -19,11 +19,14 @@ What the adapter uses of the generator (``training/triplane.py`` in NVlabs/eg3d)
 Choices (``shared/design/eg3d-rendering.md`` §4, §5, §10, §11):
 
 * **z**: ``np.random.RandomState(seed).randn(1, z_dim)``, exactly as EG3D's ``gen_samples.py`` and
-  ``gen_videos.py`` draw it, so ``sample(17)`` is the identity those scripts call seed 17 (same z; the
-  image also needs the same truncation, conditioning pose and noise).
+  ``gen_videos.py`` draw it. ``sample(17)`` is the identity those scripts call seed 17 when the
+  conditioning pose, truncation and noise match too; the two scripts condition on slightly different
+  focal lengths (below), which moves ws by about 4e-4.
 * **Pose conditioning** (mapping only): the frontal camera looking at ``avg_camera_pivot`` from
-  ``avg_camera_radius`` (FFHQ: (0, 0, 0.2) and 2.7; read from ``rendering_kwargs`` when present), focal
-  4.2647, as ``gen_videos.py``. ``G.mapping`` itself applies ``c_gen_conditioning_zero`` and ``c_scale``.
+  ``avg_camera_radius`` (FFHQ: (0, 0, 0.2) and 2.7; read from ``rendering_kwargs`` when present) with
+  the focal length of one of EG3D's scripts, ``conditioning="gen_videos"`` (4.2647, the default) or
+  ``"gen_samples"`` (its 18.837° field of view, 4.26339; :data:`CONDITIONING_FOCALS`).
+  ``G.mapping`` itself applies ``c_gen_conditioning_zero`` and ``c_scale``.
 * **Truncation**: ``truncation_psi = 0.7``, ``truncation_cutoff = 14`` (all 14 ws of the 256² backbone)
   by default, the value of EG3D's README examples. The paper does not state one.
 * **Backbone noise**: ``noise_mode = "const"`` (the stored ``noise_const`` buffers) so a seed gives the
@@ -62,6 +65,7 @@ from lp3d.settings import RenderSettings
 from lp3d.triplane import TriplaneData, effective_decoder_weights
 
 __all__ = [
+    "CONDITIONING_FOCALS",
     "EG3D_HINT",
     "EG3D_SOURCE_PACKAGES",
     "EG3DLoadError",
@@ -73,9 +77,24 @@ __all__ = [
 
 #: What to tell a user who has no (usable) EG3D generator.
 EG3D_HINT = (
-    "pass --eg3d-pkl PATH to an EG3D FFHQ generator pickle (e.g. ffhqrebalanced512-128.pkl) "
+    "pass --teacher-pkl PATH to an EG3D FFHQ generator pickle (e.g. ffhqrebalanced512-128.pkl) "
     "and --eg3d-source PATH to a checkout of NVlabs/eg3d/eg3d"
 )
+
+
+def _eg3d_fov_to_focal(fov_degrees: float) -> float:
+    """The normalised focal length EG3D's ``FOV_to_intrinsics`` gives for a field of view: it uses
+    3.14159 for pi and 1.414 for the diagonal factor, so the rounding is kept here on purpose."""
+    return 1.0 / (math.tan(fov_degrees * 3.14159 / 360.0) * 1.414)
+
+
+#: Focal length of the conditioning camera in EG3D's two generation scripts: ``gen_videos.py``
+#: writes 4.2647; ``gen_samples.py`` derives it from its default ``--fov-deg 18.837``.
+CONDITIONING_FOCALS: dict[str, float] = {
+    "gen_videos": FFHQ_FOCAL,
+    "gen_samples": _eg3d_fov_to_focal(18.837),
+}
+Conditioning = Literal["gen_videos", "gen_samples"]
 #: Top-level packages of EG3D's source tree that its pickles import while being unpickled.
 EG3D_SOURCE_PACKAGES = ("torch_utils", "dnnlib", "training")
 
@@ -210,16 +229,21 @@ def load_eg3d_generator(
 # The adapter
 
 
-def default_conditioning_pose(rendering_kwargs: dict[str, Any] | None = None) -> np.ndarray:
+def default_conditioning_pose(
+    rendering_kwargs: dict[str, Any] | None = None, conditioning: Conditioning = "gen_videos"
+) -> np.ndarray:
     """The frontal camera (25,) float64 that EG3D's scripts condition the mapping on.
 
     Looks at ``avg_camera_pivot`` from ``avg_camera_radius`` (from ``rendering_kwargs``; FFHQ defaults
-    (0, 0, 0.2) and 2.7) with focal 4.2647, like ``gen_videos.py``.
+    (0, 0, 0.2) and 2.7) with the focal length of the script ``conditioning`` names
+    (:data:`CONDITIONING_FOCALS`).
     """
+    if conditioning not in CONDITIONING_FOCALS:
+        raise ValueError(f"conditioning must be one of {sorted(CONDITIONING_FOCALS)}, got {conditioning!r}")
     rk = rendering_kwargs or {}
     pivot = tuple(float(v) for v in rk.get("avg_camera_pivot", FFHQ_PIVOT))
     radius = float(rk.get("avg_camera_radius", FFHQ_RADIUS))
-    return look_at_camera(radius=radius, lookat=pivot, focal=FFHQ_FOCAL)
+    return look_at_camera(radius=radius, lookat=pivot, focal=CONDITIONING_FOCALS[conditioning])
 
 
 def _get(obj: Any, dotted: str) -> Any:
@@ -307,7 +331,8 @@ class EG3DTeacher:
     ``generator``: any object with EG3D's ``TriPlaneGenerator`` interface (module docstring). If it is a
     ``torch.nn.Module`` it is moved to ``device``, put in eval mode and frozen, in place.
     ``truncation_psi``/``truncation_cutoff``: passed to ``G.mapping`` (``cutoff=None``: all ws).
-    ``conditioning_pose``: (25,) camera label for the mapping; None: :func:`default_conditioning_pose`.
+    ``conditioning_pose``: (25,) camera label for the mapping; None: :func:`default_conditioning_pose`
+    with ``conditioning`` ("gen_videos" or "gen_samples": whose focal length, see the module docstring).
     ``noise_mode``: the backbone's StyleGAN2 noise ("const" keeps seeds deterministic).
     ``sr_w``: the super-resolution w, "ones" (the paper's constant 1), "mean" (``w_avg``) or a (w_dim,)
     vector. ``sr_noise_mode``: noise of the super-resolution network ("none", EG3D's FFHQ setting).
@@ -322,6 +347,7 @@ class EG3DTeacher:
         truncation_psi: float = 0.7,
         truncation_cutoff: int | None = 14,
         conditioning_pose: np.ndarray | None = None,
+        conditioning: Conditioning = "gen_videos",
         noise_mode: NoiseMode = "const",
         sr_w: SrW = "ones",
         sr_noise_mode: NoiseMode = "none",
@@ -361,7 +387,7 @@ class EG3DTeacher:
         self._bounds = self._scene_bounds(rk)
 
         if conditioning_pose is None:
-            conditioning_pose = default_conditioning_pose(rk)
+            conditioning_pose = default_conditioning_pose(rk, conditioning)
         cams, batched = validate_camera(conditioning_pose)
         if batched:
             raise ValueError(
@@ -386,6 +412,7 @@ class EG3DTeacher:
         truncation_psi: float = 0.7,
         truncation_cutoff: int | None = 14,
         conditioning_pose: np.ndarray | None = None,
+        conditioning: Conditioning = "gen_videos",
         noise_mode: NoiseMode = "const",
         sr_w: SrW = "ones",
         sr_noise_mode: NoiseMode = "none",
@@ -396,20 +423,28 @@ class EG3DTeacher:
         **Unpickling executes code from the file**: call this only when the user asked for it, on a
         pickle they trust. ``eg3d_source``: a checkout of NVlabs/eg3d's ``eg3d/`` folder, on
         ``sys.path`` for unpickling only. Errors: :class:`EG3DLoadError` (see :func:`load_eg3d_generator`).
-        The other arguments are those of :class:`EG3DTeacher`.
+        The other arguments are those of :class:`EG3DTeacher`; a pickle whose ``G_ema`` lacks EG3D's
+        interface (a StyleGAN2 generator, say) is an :class:`EG3DLoadError` naming what is missing.
         """
         generator = load_eg3d_generator(path, eg3d_source=eg3d_source)
-        return cls(
-            generator,
-            device=device,
-            truncation_psi=truncation_psi,
-            truncation_cutoff=truncation_cutoff,
-            conditioning_pose=conditioning_pose,
-            noise_mode=noise_mode,
-            sr_w=sr_w,
-            sr_noise_mode=sr_noise_mode,
-            max_batch=max_batch,
-        )
+        try:
+            return cls(
+                generator,
+                device=device,
+                truncation_psi=truncation_psi,
+                truncation_cutoff=truncation_cutoff,
+                conditioning_pose=conditioning_pose,
+                conditioning=conditioning,
+                noise_mode=noise_mode,
+                sr_w=sr_w,
+                sr_noise_mode=sr_noise_mode,
+                max_batch=max_batch,
+            )
+        except (TypeError, AttributeError) as e:  # a missing part of the interface (ValueErrors name theirs)
+            raise EG3DLoadError(
+                f"{str(path)!r} holds a generator lp3d cannot use as an EG3D teacher: {e}. lp3d needs EG3D's "
+                "TriPlaneGenerator (e.g. ffhqrebalanced512-128.pkl), not a 2D StyleGAN generator"
+            ) from e
 
     # -- scene ---------------------------------------------------------------------------------------
 
