@@ -150,3 +150,23 @@ def test_a_second_trainer_on_the_same_run_is_refused(tmp_path, cache):
     trainer.train(1)
     with RunLock(run):  # ... until train() returns
         pass
+
+
+def test_tensorboard_events_follow_the_log_and_its_resumes(tmp_path, cache):
+    """``RUN/tensorboard`` holds every loss term, the learning rate, the step time, the learning curve
+    and the sample sheets; a resume from an older step drops the abandoned steps' events, as
+    ``log.csv`` drops their rows."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    run = tmp_path / "run"
+    _trainer(_cfg(checkpoint_every=2, sample_every=2), run, cache).train(4)
+    older = run / "checkpoints" / "step-000002.pt"
+    _trainer(_cfg(checkpoint_every=2, sample_every=2), run, cache, resume=older).train(3)
+    acc = EventAccumulator(str(run / "tensorboard"), size_guidance={"images": 0, "scalars": 0}).Reload()
+    tags = acc.Tags()
+    expected = {"loss/total", "loss/tri", "lr", "time/seconds_per_step", "heldout/specificity_db"}
+    assert expected <= set(tags["scalars"])
+    # A step's losses are drawn at the number of steps done, like the checkpoint after it.
+    assert [e.step for e in acc.Scalars("loss/tri")] == [int(s) + 1 for s in _logged(run)] == [1, 2, 3]
+    assert [e.step for e in acc.Scalars("heldout/psnr_own")] == [0, 2, 3]
+    assert tags["images"] == ["samples"] and [e.step for e in acc.Images("samples")] == [2, 3]

@@ -143,6 +143,7 @@ from lp3d.run_dir import (
 from lp3d.superres import SUPERRES_CONFIGS, SuperresConfig, SuperResolution
 from lp3d.synthetic_data import DatasetKey, SyntheticDataset, teacher_fingerprint
 from lp3d.teachers import Teacher
+from lp3d.tensorboard_log import TensorBoardLog
 from lp3d.triplane import TriplaneData, mirror_planes
 
 __all__ = [
@@ -1081,6 +1082,7 @@ class Trainer:
 
         self.data_cache = data_cache
         self._perceptual, self._category = perceptual, category
+        self._tb: TensorBoardLog | None = None
         # One trainer per run directory, from before anything in it is written until train() ends.
         self._lock = RunLock(self.out_dir)
         self._lock.acquire()
@@ -1601,6 +1603,7 @@ class Trainer:
                     r for r in csv.DictReader(f) if r.get("step", "").isdigit() and int(r["step"]) < self.step
                 ]
         rows.append({"step": str(self.step), **{k: f"{v:.4f}" for k, v in m.items()}})
+        self._tensorboard().heldout(self.step, m)
         with atomic_path(path) as tmp, open(tmp, "w", newline="") as f:
             w = csv.DictWriter(f, ["step", "psnr_own", "psnr_other", "specificity_db"])
             w.writeheader()
@@ -1705,7 +1708,9 @@ class Trainer:
             ]
             images += [rgb_to_uint8(s_in[0].cpu().numpy())] + [rgb_to_uint8(v.cpu().numpy()) for v in s_views]
         self.student.train()
-        return save_png(self.out_dir / "samples" / f"step-{self.step:06d}.png", tile(images, 1 + len(yaws)))
+        sheet = tile(images, 1 + len(yaws))
+        self._tensorboard().samples(self.step, sheet)
+        return save_png(self.out_dir / "samples" / f"step-{self.step:06d}.png", sheet)
 
     # -- the loop ----------------------------------------------------------------------------------
     def train(self, max_steps: int | None = None) -> dict[str, Any] | None:
@@ -1717,13 +1722,23 @@ class Trainer:
         """
         self._lock.acquire()  # released below: the run directory is free once train() returns
         try:
+            self._tensorboard()  # opened at the start step, so a resume purges what came after it
             return self._train(max_steps)
         finally:
-            self._lock.release()
+            self.close()
 
     def close(self) -> None:
-        """Give up the run directory without training (train() does this when it returns)."""
+        """Flush the event files and give up the run directory (train() does this when it returns)."""
+        if self._tb is not None:
+            self._tb.close()
+            self._tb = None
         self._lock.release()
+
+    def _tensorboard(self) -> TensorBoardLog:
+        """The run's TensorBoard writer (a no-op without the package), opened at first use."""
+        if self._tb is None:
+            self._tb = TensorBoardLog(self.out_dir, start_step=self.step)
+        return self._tb
 
     def _train(self, max_steps: int | None) -> dict[str, Any] | None:
         cfg = self.config
@@ -1754,6 +1769,7 @@ class Trainer:
             while self.step < end and not self.interrupted:
                 row = self.train_step()
                 self._log(row)
+                self._tensorboard().step_row(row)
                 if bar is not None:
                     bar.update(1)
                     post = {"stage": row["stage"], "loss": f"{row['loss']:.4f}"}
