@@ -9,6 +9,7 @@ configuration exported to ONNX here, so the whole file runs in about a minute on
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import struct
 import warnings
@@ -232,7 +233,7 @@ def test_render_bad_outputs(capsys, sphere, tmp_path) -> None:
     code, _, err = run(capsys, "mesh", sphere, "--grid", 8, "-o", "/proc/lp3d-test.glb")
     assert code == 1 and "/proc" in err and ".tmp" not in err, err
     code, _, err = run(capsys, "render", sphere, *SMALL, "--pitch", 95, "-o", tmp_path / "v.png")
-    assert code == 1 and "pitch" in err
+    assert code == 2 and "argument --pitch: must be in (-90, 90) degrees, got 95" in err  # a usage error
     assert listing(tmp_path) == {"file.txt"}
 
 
@@ -364,7 +365,7 @@ def test_density_grid_matches_reference(sphere) -> None:
 # =============================================================================================== info
 
 
-def test_info_text_and_json(capsys, sphere, bad_npz) -> None:
+def test_info_text_and_json(capsys, sphere, bad_npz, tmp_path) -> None:
     code, out, err = run(capsys, "info", sphere)
     assert code == 0, err
     for words in (
@@ -385,7 +386,13 @@ def test_info_text_and_json(capsys, sphere, bad_npz) -> None:
     assert info["planes"]["shape"] == [3, 32, 32, 32] and info["format_version"] == 1
     assert info["file_size"] == sphere.stat().st_size
     code, _, err = run(capsys, "info", bad_npz["garbage"])
-    assert code == 1 and "not an .npz" in err
+    assert code == 1 and "not a valid .npz" in err
+    # Not a regular file: an error naming what it is, at once (it used to say "empty file", or hang).
+    fifo = tmp_path / "pipe.npz"
+    os.mkfifo(fifo)
+    for special, what in ((fifo, "FIFO"), (Path("/dev/zero"), "character device")):
+        code, _, err = run(capsys, "info", special)
+        assert code == 1 and what in err and str(special) in err and "empty" not in err
 
 
 # ============================================================================================= encode

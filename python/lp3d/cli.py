@@ -11,8 +11,9 @@
 Every subcommand has ``--help``. Errors go to stderr as ``lp3d <command>: error: <what and where>``,
 with exit status 1 (2 for a usage error); set ``LP3D_DEBUG=1`` for the traceback. Outputs are written
 to temporary files beside their destination and renamed into place only when everything succeeded,
-so a failed command leaves no partial files. Rendering uses ``lp3d_render`` (wgpu); on a machine
-without a GPU set ``VK_DRIVER_FILES`` to Mesa's lavapipe ICD (see README).
+so a failed command leaves no partial files; an output that would replace an input or another output
+(by name, relative path or link) is refused before any work. Rendering uses ``lp3d_render`` (wgpu);
+on a machine without a GPU set ``VK_DRIVER_FILES`` to Mesa's lavapipe ICD (see README).
 """
 
 from __future__ import annotations
@@ -23,7 +24,6 @@ import json
 import math
 import os
 import sys
-import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import replace
@@ -31,6 +31,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from lp3d.atomic import create_temp, publish_all
+from lp3d.atomic import discard as discard_temp
 
 PROG = "lp3d"
 
@@ -67,12 +70,6 @@ def _human_bytes(n: int) -> str:
     return f"{size:.1f} GiB"
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
 class Staged:
     """Outputs written to temporary files beside their destinations, published together by :meth:`commit`.
 
@@ -101,33 +98,31 @@ class Staged:
             self._dirs.append(folder)
 
     def temp(self, final: Path) -> Path:
-        """A new temporary path for ``final`` in the same folder (so the rename is atomic); it keeps
+        """A new temporary file for ``final`` in the same folder (so the rename is atomic), unique to
+        this call and with the usual permissions (:func:`lp3d.atomic.create_temp`); it keeps
         ``final``'s suffix, which imageio/ffmpeg read the format from."""
         try:
-            fd, tmp = tempfile.mkstemp(
-                dir=final.parent, prefix=f".{final.name}.", suffix=f".tmp{final.suffix}"
-            )
+            tmp = create_temp(final)
         except OSError as e:
             raise CLIError(f"cannot write {final}: {e.strerror or e}") from None
-        os.close(fd)
-        self._files.append((Path(tmp), final))
-        return Path(tmp)
+        self._files.append((tmp, final))
+        return tmp
 
     def commit(self) -> list[Path]:
-        """Rename every temporary file onto its destination; returns the destinations."""
-        done = []
-        mode = 0o666 & ~_umask()  # mkstemp makes 0600 files; outputs get the usual permissions
-        for tmp, final in self._files:
-            os.chmod(tmp, mode)
-            os.replace(tmp, final)
-            done.append(final)
-        self._files, self._dirs = [], []
-        return done
+        """Sync every temporary file, then rename each onto its destination; returns the destinations.
+        If a rename fails, the destinations already renamed are removed again (all or none)."""
+        files, self._files = self._files, []
+        try:
+            publish_all(files)
+        except OSError as e:
+            failed = next((final for tmp, final in files if str(e.filename) in (str(tmp), str(final))), None)
+            raise CLIError(f"cannot write {failed or files[-1][1]}: {e.strerror or e}") from None
+        self._dirs = []
+        return [final for _, final in files]
 
     def discard(self) -> None:
         for tmp, _ in self._files:
-            with contextlib.suppress(OSError):
-                tmp.unlink()
+            discard_temp(tmp)
         for folder in reversed(self._dirs):
             with contextlib.suppress(OSError):
                 folder.rmdir()
@@ -147,6 +142,40 @@ def check_output(path: Path, suffixes: Sequence[str], what: str = "output") -> P
     return path
 
 
+def _file_key(path: Path) -> tuple[object, ...]:
+    """What identifies the file ``path`` names: its device and inode when it exists (so symlinks, hard
+    links and relative paths to one file agree), else its fully resolved path."""
+    try:
+        st = path.stat()
+    except OSError:
+        try:
+            return ("path", str(path.resolve()))
+        except (OSError, RuntimeError):  # a symlink loop
+            return ("path", os.path.abspath(path))
+    return ("inode", st.st_dev, st.st_ino)
+
+
+def check_distinct(inputs: Sequence[tuple[str, Path]], outputs: Sequence[tuple[str, Path]]) -> None:
+    """Fail early (before any slow work) if an output would replace an input or another output.
+
+    ``inputs`` and ``outputs`` are ``(what, path)`` pairs, ``what`` naming the argument for the
+    message. Every command that reads files and writes others calls this once with all of them."""
+    seen: dict[tuple[object, ...], tuple[str, Path, bool]] = {}
+    for what, path in inputs:
+        seen.setdefault(_file_key(path), (what, path, True))
+    for what, path in outputs:
+        key = _file_key(path)
+        if key in seen:
+            other_what, other, is_input = seen[key]
+            if is_input:
+                raise CLIError(
+                    f"{what} {path} is the same file as the {other_what} {other}: writing it would "
+                    "destroy the input; choose another output name"
+                )
+            raise CLIError(f"{what} {path} and {other_what} {other} name the same file")
+        seen[key] = (what, path, False)
+
+
 def _check_folder(folder: Path, what: str, path: Path) -> None:
     if not folder.exists():
         raise CLIError(f"{what} {path}: folder {folder} does not exist")
@@ -160,13 +189,12 @@ def load_triplane_file(path: Path) -> Any:
     """A validated :class:`~lp3d.triplane.TriplaneData` from ``path`` with one-line errors."""
     from lp3d.triplane_io import load_triplane
 
-    if not path.exists():
-        raise CLIError(f"{path}: no such file")
-    if path.is_dir():
-        raise CLIError(f"{path}: is a folder, not a triplane .npz")
-    if path.stat().st_size == 0:
-        raise CLIError(f"{path}: empty file (not a triplane .npz)")
-    return load_triplane(path)  # TriplaneFileError (ValueError) names the file and key
+    # The reader checks the file type first (a FIFO or device is an OSError at once, not a hang or
+    # "empty file"), then every size before allocating; both kinds of error name the file.
+    try:
+        return load_triplane(path)  # TriplaneFileError (ValueError) names the file and key
+    except FileNotFoundError:
+        raise CLIError(f"{path}: no such file") from None
 
 
 def renderer() -> Any:
@@ -245,6 +273,24 @@ def _float_in(lo: float, hi: float, *, hi_open: bool = False) -> Callable[[str],
     return parse
 
 
+def _angle(lo: float | None = None, hi: float | None = None) -> Callable[[str], float]:
+    """An angle in degrees: finite (``inf`` and ``nan`` parse as floats but are no direction), and
+    within the open interval ``(lo, hi)`` when given."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number of degrees, got {text!r}") from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"must be a finite number of degrees, got {text}")
+        if (lo is not None and value <= lo) or (hi is not None and value >= hi):
+            raise argparse.ArgumentTypeError(f"must be in ({lo:g}, {hi:g}) degrees, got {text}")
+        return value
+
+    return parse
+
+
 def _resolution(text: str) -> int:
     from lp3d.settings import MAX_RESOLUTION
 
@@ -255,14 +301,17 @@ def _camera_args(p: argparse.ArgumentParser, *, yaw: float | None = 0.0, pitch: 
     if yaw is not None:
         p.add_argument(
             "--yaw",
-            type=float,
+            type=_angle(),
             default=yaw,
             help="camera yaw in degrees, > 0 toward the subject's left (default: %(default)s)",
         )
     p.add_argument(
-        "--pitch", type=float, default=pitch, help="camera pitch in degrees, > 0 above (default: %(default)s)"
+        "--pitch",
+        type=_angle(-90.0, 90.0),
+        default=pitch,
+        help="camera pitch in degrees, in (-90, 90), > 0 above (default: %(default)s)",
     )
-    p.add_argument("--roll", type=float, default=0.0, help="camera roll in degrees (default: 0)")
+    p.add_argument("--roll", type=_angle(), default=0.0, help="camera roll in degrees (default: 0)")
     p.add_argument(
         "--radius",
         type=_float_in(0.1, 100.0),
@@ -323,6 +372,17 @@ def render_views(
         outputs=list(outputs),
     )
     return dict(out)
+
+
+def render_file_views(
+    path: Path, tri: Any, cameras: np.ndarray, args: argparse.Namespace, outputs: Sequence[str] = ("rgb",)
+) -> dict[str, np.ndarray]:
+    """:func:`render_views` of the triplane read from ``path``; the renderer's checks of its contents
+    (such as values that overflow float32 in the decoder) become errors naming the file."""
+    try:
+        return render_views(tri, cameras, args, outputs)
+    except ValueError as e:
+        raise CLIError(f"{path}: {e}") from None
 
 
 def write_image(path: Path, image: np.ndarray, fmt_suffix: str) -> None:
@@ -416,8 +476,8 @@ def progress(total: int | None, desc: str) -> Any:
 def cmd_render(args: argparse.Namespace) -> int:
     out_path = check_output(args.output, IMAGE_SUFFIXES)
     depth_path = check_output(args.depth, IMAGE_SUFFIXES, "--depth") if args.depth else None
-    if depth_path is not None and depth_path.resolve() == out_path.resolve():
-        raise CLIError("--depth and -o name the same file")
+    outputs = [("-o", out_path)] + ([("--depth", depth_path)] if depth_path is not None else [])
+    check_distinct([("triplane", args.triplane)], outputs)
     _, rtri = render_triplane_file(args.triplane)
     from lp3d.images import depth_to_uint8, rgb_to_uint8
 
@@ -425,7 +485,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     if depth_path is not None:
         outputs += ["depth", "weights_sum"]
     start = time.perf_counter()
-    out = render_views(rtri, make_camera(args)[None], args, outputs)
+    out = render_file_views(args.triplane, rtri, make_camera(args)[None], args, outputs)
     seconds = time.perf_counter() - start
     if args.features_channel is not None:
         channel = out["features"][0, args.features_channel]
@@ -464,6 +524,11 @@ def orbit_angles(frames: int, yaw_range: float, pitch_range: float) -> list[tupl
 
 def cmd_orbit(args: argparse.Namespace) -> int:
     out_path = check_output(args.output, VIDEO_SUFFIXES)
+    if not (-90.0 < args.pitch - args.pitch_range and args.pitch + args.pitch_range < 90.0):
+        raise CLIError(
+            f"--pitch {args.pitch:g} with --pitch-range {args.pitch_range:g} leaves (-90, 90) degrees"
+        )
+    check_distinct([("triplane", args.triplane)], [("-o", out_path)])
     _, rtri = render_triplane_file(args.triplane)
     angles = orbit_angles(args.frames, args.yaw_range, args.pitch_range)
     cams = np.stack([make_camera(args, yaw=y, pitch=args.pitch + p) for y, p in angles])
@@ -475,7 +540,7 @@ def cmd_orbit(args: argparse.Namespace) -> int:
         bar = progress(len(cams), "orbit")
         try:
             for i in range(0, len(cams), args.batch):
-                rgb = render_views(rtri, cams[i : i + args.batch], args)["rgb"]
+                rgb = render_file_views(args.triplane, rtri, cams[i : i + args.batch], args)["rgb"]
                 for frame in rgb:
                     writer.add(rgb_to_uint8(frame))
                 bar.update(len(rgb))
@@ -497,6 +562,7 @@ def cmd_orbit(args: argparse.Namespace) -> int:
 
 def cmd_mesh(args: argparse.Namespace) -> int:
     out_path = check_output(args.output, MESH_SUFFIXES)
+    check_distinct([("triplane", args.triplane)], [("-o", out_path)])
     tri = load_triplane_file(args.triplane)
     from lp3d.mesh import extract_mesh, write_mesh
 
@@ -705,6 +771,11 @@ def prepare_photo(rgb: np.ndarray, size: int, *, detect: bool, name: str) -> tup
     return crop_image(rgb, found.crop, size), desc
 
 
+def _crop_path(dest: Path) -> Path:
+    """Where ``lp3d encode --save-crop`` writes the aligned crop of the photo encoded to ``dest``."""
+    return dest.with_name(dest.stem + ".crop.png")
+
+
 def cmd_encode(args: argparse.Namespace) -> int:
     from lp3d.inference import load_encoder
     from lp3d.photo import PhotoError, load_image, to_encoder_input
@@ -712,6 +783,11 @@ def cmd_encode(args: argparse.Namespace) -> int:
 
     images = _collect_images(args.inputs)
     destinations, new_folder = _plan_outputs(images, args.output)
+    crop_paths = [_crop_path(dest) for dest in destinations] if args.save_crop else []
+    check_distinct(
+        [("photo", img) for img in images],
+        [("output", dest) for dest in destinations] + [("crop", crop) for crop in crop_paths],
+    )
     model_path = _model_path(args.model)
 
     t0 = time.perf_counter()
@@ -759,8 +835,7 @@ def cmd_encode(args: argparse.Namespace) -> int:
             tri = pkg.triplane(plane.astype(np.float16) if args.half else plane, source=source)
             save_triplane(staged.temp(dest), tri)
             if args.save_crop:
-                crop_path = dest.with_name(dest.stem + ".crop.png")
-                write_image(staged.temp(crop_path), crop, ".png")
+                write_image(staged.temp(_crop_path(dest)), crop, ".png")
         written = staged.commit()
     t_write = time.perf_counter() - t0
     n = len(images)
@@ -783,28 +858,75 @@ def _ffmpeg_reason(e: Exception) -> str:
     return (tail[-1] if tail else lines[0] if lines else type(e).__name__)[:300]
 
 
+#: Longest time ffmpeg may take to scan a video's packets (no decoding: seconds even for long films).
+VIDEO_SCAN_TIMEOUT_S = 600.0
+
+
+def count_video_frames(path: Path) -> int | None:
+    """Frames the container holds in its first video stream: its packets, counted by the bundled ffmpeg
+    without decoding (so a damaged frame still counts). ``None`` when ffmpeg cannot copy the stream (the
+    decoder may still read it). Raises :class:`CLIError` for a file with no video stream (audio only,
+    an empty container), whose ffmpeg error would only say "Invalid argument"."""
+    import re
+    import subprocess
+
+    import imageio_ffmpeg
+
+    cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-hide_banner", "-nostdin", "-i", str(path)]
+    cmd += ["-map", "0:v:0", "-c", "copy", "-f", "null", "-"]
+    try:
+        done = subprocess.run(cmd, capture_output=True, timeout=VIDEO_SCAN_TIMEOUT_S, check=False)
+    except subprocess.TimeoutExpired:
+        raise CLIError(
+            f"{path}: ffmpeg took more than {VIDEO_SCAN_TIMEOUT_S:g} s to scan the video"
+        ) from None
+    log = done.stderr.decode(errors="replace")
+    if "matches no streams" in log:
+        what = "an audio stream but no video" if re.search(r"Stream #\S+: Audio:", log) else "no video stream"
+        raise CLIError(f"{path}: has {what}")
+    counts = re.findall(r"frame=\s*(\d+)", log)
+    return int(counts[-1]) if done.returncode == 0 and counts else None
+
+
 def read_video(path: Path, max_frames: int | None) -> tuple[dict[str, Any], Iterator[np.ndarray]]:
     """(metadata, frames (H, W, 3) uint8) of a video file read by the bundled ffmpeg; ``max_frames=0``
-    only reads the metadata."""
+    only reads the metadata, and adds ``frames_declared`` (:func:`count_video_frames`).
+
+    The decoder skips frames it cannot decode (ffmpeg goes on after a damaged frame), so callers
+    compare the frames they got with ``frames_declared``: :func:`cmd_video` warns, naming both counts.
+    """
+    from lp3d.photo import MAX_PIXELS, MAX_SIDE
+
     if not path.exists():
         raise CLIError(f"{path}: no such file")
     if path.is_dir():
         raise CLIError(f"{path}: is a folder, not a video")
+    if not path.is_file():
+        raise CLIError(f"{path}: is not a regular file")
     if path.stat().st_size == 0:
         raise CLIError(f"{path}: empty file")
     try:
         import imageio_ffmpeg
     except ImportError as e:
         raise CLIError(f"reading videos needs imageio-ffmpeg: {e}") from None
+    declared = count_video_frames(path) if max_frames == 0 else None
+    if declared == 0:
+        raise CLIError(f"{path}: the video stream has no frames")
     try:
         gen = imageio_ffmpeg.read_frames(str(path))
         meta = next(gen)
-    except (OSError, RuntimeError, StopIteration) as e:
+        w, h = (int(v) for v in meta["size"])
+    # imageio-ffmpeg parses ffmpeg's log: besides OSError, an odd log gives Index/Attribute/ValueError.
+    except (OSError, RuntimeError, StopIteration, IndexError, AttributeError, ValueError, KeyError) as e:
         raise CLIError(f"{path}: cannot read as a video ({_ffmpeg_reason(e)})") from None
+    if not (0 < w * h <= MAX_PIXELS and max(w, h) <= MAX_SIDE):
+        gen.close()
+        raise CLIError(
+            f"{path}: frames are {w}x{h}; need 1 to {MAX_PIXELS / 1e6:.0f} MP and sides up to {MAX_SIDE} px"
+        )
     if max_frames == 0:  # a probe: metadata only, stop ffmpeg now
         gen.close()
-        return meta, iter(())
-    w, h = meta["size"]
+        return {**meta, "frames_declared": declared}, iter(())
 
     def frames() -> Iterator[np.ndarray]:
         try:
@@ -821,13 +943,23 @@ def read_video(path: Path, max_frames: int | None) -> tuple[dict[str, Any], Iter
 
 
 def _frame_estimate(meta: dict[str, Any], max_frames: int | None) -> int | None:
-    """Frames to expect (for the progress bar) from ffmpeg's duration and fps, capped by --max-frames."""
-    try:
-        n = round(float(meta["duration"]) * float(meta["fps"]))
-    except (KeyError, TypeError, ValueError, OverflowError):
-        return max_frames
+    """Frames to expect (for the progress bar): the container's count, else ffmpeg's duration times fps,
+    capped by --max-frames."""
+    n = meta.get("frames_declared")
+    if n is None:
+        try:
+            n = round(float(meta["duration"]) * float(meta["fps"]))
+        except (KeyError, TypeError, ValueError, OverflowError):
+            return max_frames
     n = n if n > 0 else None
     return n if max_frames is None else min(max_frames, n or max_frames)
+
+
+def _no_frames(path: Path, meta: dict[str, Any]) -> str:
+    """The error for a video of which no frame could be decoded."""
+    declared = meta.get("frames_declared")
+    held = f" of the {declared} the container holds" if declared else ""
+    return f"{path}: no frame{held} could be decoded"
 
 
 def _nearest(hits: np.ndarray, n: int) -> np.ndarray:
@@ -867,8 +999,7 @@ def cmd_video(args: argparse.Namespace) -> int:
     )
 
     out_path = check_output(args.output, VIDEO_SUFFIXES)
-    if args.input.resolve() == out_path.resolve():
-        raise CLIError("the output would overwrite the input video")
+    check_distinct([("input video", args.input)], [("-o", out_path)])
     encoder = load_encoder(_model_path(args.model), args.backend)
     pkg = encoder.package
     meta, _ = read_video(args.input, 0)  # fail fast on an unreadable file
@@ -893,7 +1024,7 @@ def cmd_video(args: argparse.Namespace) -> int:
         finally:
             bar.close()
         if not crops:
-            raise CLIError(f"{args.input}: the video has no frames")
+            raise CLIError(_no_frames(args.input, meta))
         hits = [i for i, c in enumerate(crops) if c is not None]
         if not hits:
             raise NoFaceError(
@@ -933,13 +1064,22 @@ def cmd_video(args: argparse.Namespace) -> int:
                 writer.add(image)
                 bar.update()
             if writer.count == 0:
-                raise CLIError(f"{args.input}: the video has no frames")
+                raise CLIError(_no_frames(args.input, meta))
             writer.close()
         finally:
             writer.abort()
             bar.close()
         staged.commit()
     n = writer.count
+    declared = meta["frames_declared"]
+    expected = declared if declared is None or args.max_frames is None else min(declared, args.max_frames)
+    if expected is not None and n < expected:
+        # A damaged file: ffmpeg skipped frames it could not decode. Warn rather than fail, so a long
+        # video with one bad frame still lifts, but never silently.
+        _warn(
+            f"{args.input}: decoded {n} of the {expected} frames the container holds (damaged frames are "
+            f"skipped); the output has {n} frames"
+        )
     total = time.perf_counter() - start
     _say(
         f"lifted {n} frames in {total:.1f} s (encode {t_enc / n:.3f} s/frame, render {t_render / n:.3f} "

@@ -22,11 +22,9 @@ the encoder was trained with and the scene bounds. The sidecar carries exactly t
 
 from __future__ import annotations
 
-import contextlib
 import json
 import math
 import os
-import tempfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from lp3d.atomic import atomic_path
 from lp3d.settings import HIDDEN, N_CHANNELS, N_OUT
 from lp3d.triplane import TriplaneData
 
@@ -247,19 +246,11 @@ def save_model_package(
     if output_name is not None:
         data["output_name"] = output_name
     path = sidecar_path(onnx_path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        mask = os.umask(0)
-        os.umask(mask)
-        os.fchmod(fd, 0o666 & ~mask)  # mkstemp makes 0600; a model file is meant to be shared
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            json.dump(data, f, indent=1)
-            f.write("\n")
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
+    # The shared atomic writer: a temporary file of this call's own, with the usual permissions (a
+    # model file is meant to be shared), synced and renamed; deleted on failure.
+    with atomic_path(path, parents=False) as tmp, open(tmp, "w", encoding="utf-8") as f:
+        json.dump(data, f, indent=1)
+        f.write("\n")
     return path
 
 

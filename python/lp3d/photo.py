@@ -5,7 +5,8 @@ photo is detected, levelled and cropped to that framing before encoding:
 
 1. :func:`load_image` reads any Pillow format into (H, W, 3) uint8, applying EXIF orientation and
    converting grayscale (replicated to 3 channels) and RGBA (alpha dropped) with a note for each;
-   empty, corrupt, truncated, tiny and huge (> :data:`MAX_PIXELS`) files are rejected clearly.
+   empty, corrupt, truncated, tiny and huge (> :data:`MAX_PIXELS` or a side > :data:`MAX_SIDE`) files
+   are rejected clearly; an animated image gives a note that only its first frame is used.
 2. :func:`detect_face` finds the largest frontal face with OpenCV's bundled Haar cascades on a copy
    downscaled to at most :data:`DETECT_MAX_SIDE`, then the two eyes inside it for the roll angle.
 3. :func:`crop_for_face` turns the face box into a square :class:`Crop` with the framing constants
@@ -30,6 +31,7 @@ __all__ = [
     "FACE_BOX_WIDTH_FRACTION",
     "IMAGE_SUFFIXES",
     "MAX_PIXELS",
+    "MAX_SIDE",
     "MIN_SIDE",
     "Crop",
     "FaceDetection",
@@ -60,6 +62,8 @@ MAX_ROLL_DEG = 30.0
 MAX_PIXELS = 100_000_000
 #: Smaller sides are rejected: nothing useful can be cropped from them.
 MIN_SIDE = 16
+#: Longer sides are rejected: OpenCV's warpAffine (the crop) asserts on sides of 32767 px and more.
+MAX_SIDE = 32766
 #: Detection runs on a copy whose longer side is at most this (Haar cascades need no more, and
 #: a 100 MP photo would take minutes at full size).
 DETECT_MAX_SIDE = 1024
@@ -93,13 +97,29 @@ def _to_uint8(arr: np.ndarray) -> np.ndarray:
     return np.clip(np.round(a * (255.0 / peak)), 0, 255).astype(np.uint8)
 
 
+def _frame_count(im: object) -> int | None:
+    """Frames in an opened Pillow image (animated GIF/PNG/WebP, multi-page TIFF): 1 for a still
+    image, ``None`` when the data after the first frame is too damaged to count them (the first
+    frame, the one used, has already been decoded)."""
+    # Counting seeks through the later frames, where Pillow's parsers raise whatever a damaged file
+    # provokes (IndexError, struct.error, ...). The frame in use is already decoded, so any failure
+    # here only changes the note.
+    try:
+        if not getattr(im, "is_animated", False):
+            return 1
+        return int(getattr(im, "n_frames", 2))
+    except Exception:
+        return None
+
+
 def load_image(path: str | os.PathLike[str]) -> tuple[np.ndarray, list[str]]:
     """Read an image file as ``(rgb (H, W, 3) uint8, notes)``.
 
     ``notes`` are human-readable warnings about conversions done (grayscale replicated to RGB, alpha
-    dropped, 16-bit reduced, CMYK converted). Raises :class:`PhotoError` for a missing path, a
-    folder, an empty, unrecognised, corrupt or truncated file, an image larger than
-    :data:`MAX_PIXELS` or with a side below :data:`MIN_SIDE`.
+    dropped, 16-bit reduced, CMYK converted, only the first frame of an animated image used). Raises
+    :class:`PhotoError` for a missing path, a folder or other non-regular file, an empty,
+    unrecognised, corrupt or truncated file, an image larger than :data:`MAX_PIXELS`, with a side
+    above :data:`MAX_SIDE` or below :data:`MIN_SIDE`.
     """
     from PIL import Image, ImageOps, UnidentifiedImageError
 
@@ -108,6 +128,8 @@ def load_image(path: str | os.PathLike[str]) -> tuple[np.ndarray, list[str]]:
         raise PhotoError(f"{p}: no such file")
     if p.is_dir():
         raise PhotoError(f"{p}: is a folder, not an image")
+    if not p.is_file():  # a FIFO or a device would block the reader or never end
+        raise PhotoError(f"{p}: is not a regular file")
     try:
         size = p.stat().st_size
     except OSError as e:
@@ -120,12 +142,15 @@ def load_image(path: str | os.PathLike[str]) -> tuple[np.ndarray, list[str]]:
             # Our own MAX_PIXELS check replaces Pillow's decompression-bomb warning.
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
             with Image.open(p) as im:
+                source = im
                 w, h = im.size
                 if w * h > MAX_PIXELS:
                     raise PhotoError(
                         f"{p}: image is {w}x{h} = {w * h / 1e6:.0f} MP, more than the "
                         f"{MAX_PIXELS / 1e6:.0f} MP limit; downscale it first"
                     )
+                if max(w, h) > MAX_SIDE:
+                    raise PhotoError(f"{p}: image is {w}x{h}, a side over {MAX_SIDE} px; downscale it first")
                 im.load()
                 im = ImageOps.exif_transpose(im)
                 mode = im.mode
@@ -144,6 +169,14 @@ def load_image(path: str | os.PathLike[str]) -> tuple[np.ndarray, list[str]]:
                     im = im.convert("RGB")
                     mode = im.mode
                 arr = np.asarray(im)
+                frames = _frame_count(source)
+                if frames is None:
+                    notes.append(f"{p.name}: unreadable data after the first frame; only the first is used")
+                elif frames > 1:
+                    notes.append(
+                        f"{p.name}: has {frames} frames (an animated or multi-page {source.format} image); "
+                        "only the first is used"
+                    )
     except Image.DecompressionBombError as e:
         raise PhotoError(f"{p}: image too large ({e})") from None
     except UnidentifiedImageError:

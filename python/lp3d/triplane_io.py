@@ -1,21 +1,27 @@
 """The ``.npz`` triplane file (spec: ``docs/triplane-format.md``), read and written safely.
 
-Reads never unpickle (``allow_pickle=False``) and reject anything unexpected with a message naming
-the file and the key; writes are atomic (temp file in the same directory, then ``os.replace``), so a
-reader never sees a half-written file and a failed write leaves nothing behind.
+Reads never unpickle (a strict reader of our own, :mod:`lp3d.npz_reader`, checks every size the file
+claims before allocating) and reject anything unexpected with a message naming the file and the key;
+writes are atomic (temp file in the same directory, then ``os.replace``), so a reader never sees a
+half-written file and a failed write leaves nothing behind.
 """
 
 from __future__ import annotations
 
-import contextlib
+import math
 import os
-import tempfile
+import stat
 import zipfile
 from pathlib import Path
+from typing import IO
 
 import numpy as np
 
-from lp3d.triplane import TriplaneData, TriplaneError, occupancy_checksum
+from lp3d import npz_reader
+from lp3d.atomic import atomic_path
+from lp3d.camera import validate_camera
+from lp3d.settings import HIDDEN, N_CHANNELS, N_OUT
+from lp3d.triplane import MAX_OCCUPANCY_RESOLUTION, TriplaneData, TriplaneError, occupancy_checksum
 
 #: Version written by :func:`save_triplane`; the only one :func:`load_triplane` accepts.
 FORMAT_VERSION = 1
@@ -76,31 +82,19 @@ def _arrays_of(tri: TriplaneData) -> dict[str, np.ndarray]:
 def save_triplane(path: str | os.PathLike[str], tri: TriplaneData) -> None:
     """Write ``tri`` to ``path`` (exactly that name; no ``.npz`` is appended), atomically.
 
-    The data goes to a temporary file in the same directory, is flushed to disk, then renamed over
-    ``path``. On any failure the temporary file is removed and an existing ``path`` is untouched.
+    The data goes to a new temporary file in the same directory, is flushed to disk, then renamed
+    over ``path``; the file gets the usual permissions (``0666 & ~umask``). On any failure the
+    temporary file is removed and an existing ``path`` is untouched. Safe to call from several threads
+    or processes on one path: each publishes a complete file and the last rename wins.
     """
     path = Path(path)
     tri.validate()
     arrays = _arrays_of(tri)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            # A file object, so numpy appends no ".npz"; our arrays are never object arrays (no pickle).
-            np.savez(f, **arrays)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
-    # Persist the rename itself (best effort; not every platform can fsync a directory).
-    with contextlib.suppress(OSError):
-        dir_fd = os.open(path.parent, os.O_RDONLY)
-        try:
-            os.fsync(dir_fd)
-        finally:
-            os.close(dir_fd)
+    # A temporary file of this call's own (threads and processes may save one path at once), with
+    # the permissions of any new file; synced, renamed, and deleted on failure (lp3d.atomic).
+    with atomic_path(path, parents=False) as tmp, open(tmp, "wb") as f:
+        # A file object, so numpy appends no ".npz"; our arrays are never object arrays (no pickle).
+        np.savez(f, **arrays)
 
 
 class TriplaneFileError(ValueError):
@@ -112,94 +106,180 @@ def _fail(path: Path, key: str | None, message: str) -> TriplaneFileError:
     return TriplaneFileError(f"{where}: {message}")
 
 
-def _scalar(path: Path, key: str, arr: np.ndarray, kinds: str) -> np.ndarray:
-    if arr.shape != () or arr.dtype.kind not in kinds:
-        raise _fail(
-            path, key, f"must be a 0-d scalar of kind {kinds!r}, got dtype {arr.dtype} shape {arr.shape}"
-        )
-    return arr
+#: Largest accepted triplane file (2048 x 2048 float32 planes and a 512^3 grid are just over 2 GiB).
+MAX_FILE_BYTES = 3 << 30
+#: Largest accepted plane side (H and W).
+MAX_PLANE_SIZE = 2048
+#: Longest accepted ``source`` text, in characters.
+MAX_SOURCE_CHARS = 4096
 
-
-#: Accepted dtypes per array key (TriplaneData checks shapes and values; planes: float16/float32).
-_ARRAY_DTYPES: dict[str, tuple[type, ...]] = {
-    "planes": (np.float16, np.float32),
-    "decoder_w0": (np.float32, np.float64),
-    "decoder_b0": (np.float32, np.float64),
-    "decoder_w1": (np.float32, np.float64),
-    "decoder_b1": (np.float32, np.float64),
-    "camera": (np.float32, np.float64),
-    "occupancy": (np.float32,),
+#: The file format's caps (``docs/triplane-format.md``, "Caps"), by name. The Rust reader's
+#: ``lp3d_render.FILE_LIMITS`` holds the same values (a test checks).
+FILE_LIMITS: dict[str, int] = {
+    "max_file_bytes": MAX_FILE_BYTES,
+    "max_entry_bytes": npz_reader.MAX_ENTRY_BYTES,
+    "max_entries": npz_reader.MAX_ENTRIES,
+    "max_npy_header_bytes": npz_reader.MAX_NPY_HEADER_BYTES,
+    "max_plane_size": MAX_PLANE_SIZE,
+    "max_occupancy_resolution": MAX_OCCUPANCY_RESOLUTION,
+    "max_source_chars": MAX_SOURCE_CHARS,
 }
 
+_REAL = ("<f2", "<f4", "<f8", "<i4", "<i8")
+_FLOAT = ("<f4", "<f8")
+#: Per key: accepted dtypes and the exact shape (None: checked below). The Rust reader's
+#: ``check_header`` holds the same table.
+_HEADER_SPEC: dict[str, tuple[tuple[str, ...], tuple[int, ...] | None]] = {
+    "planes": (("<f2", "<f4"), None),
+    "decoder_w0": (_FLOAT, (HIDDEN, N_CHANNELS)),
+    "decoder_b0": (_FLOAT, (HIDDEN,)),
+    "decoder_w1": (_FLOAT, (N_OUT, HIDDEN)),
+    "decoder_b1": (_FLOAT, (N_OUT,)),
+    "box_warp": (_REAL, ()),
+    "ray_start": (_REAL, ()),
+    "ray_end": (_REAL, ()),
+    "format_version": (("<i4", "<i8"), ()),
+    "occupancy_checksum": (("<i4", "<i8"), ()),
+    "camera": (_FLOAT, (25,)),
+    "occupancy": (("<f4",), None),
+}
+_DTYPE_NAMES = {"<f2": "float16", "<f4": "float32", "<f8": "float64", "<i4": "int32", "<i8": "int64"}
 
-def _read_value(path: Path, key: str, arr: np.ndarray) -> object:
-    """The TriplaneData value of one key, after the checks only the file level can do."""
-    if arr.dtype.hasobject:  # unreachable with allow_pickle=False; kept as a guard
-        raise _fail(path, key, "object arrays are not allowed")
-    if key in ("box_warp", "ray_start", "ray_end"):
-        return float(_scalar(path, key, arr, "fiu"))
+
+def _dtype_name(descr: str) -> str:
+    return _DTYPE_NAMES.get(descr, f"{descr} (a string)")
+
+
+def _check_header(key: str, h: npz_reader.NpyHeader) -> None:
+    """One entry's ``.npy`` header (dtype, shape, caps) against the format, before its data is read."""
     if key == "source":
-        return str(_scalar(path, key, arr, "U")[()])
-    allowed = _ARRAY_DTYPES[key]
-    if arr.dtype not in allowed:
-        names = " or ".join(np.dtype(t).name for t in allowed)
-        raise _fail(path, key, f"dtype must be {names}, got {arr.dtype}")
-    return arr
+        n = h.unicode_chars
+        if n is None:
+            raise npz_reader.NpzError(
+                key, f"dtype must be a unicode string (<U…), got {_dtype_name(h.descr)}"
+            )
+        if n > MAX_SOURCE_CHARS:
+            raise npz_reader.NpzError(
+                key, f"a string of {n} characters, more than the cap of {MAX_SOURCE_CHARS}"
+            )
+        return
+    if key not in _HEADER_SPEC:
+        return
+    dtypes, want = _HEADER_SPEC[key]
+    if h.descr not in dtypes:
+        names = " or ".join(_dtype_name(d) for d in dtypes)
+        raise npz_reader.NpzError(key, f"dtype must be {names}, got {_dtype_name(h.descr)}")
+    shape, got = h.shape, npz_reader.shape_text(h.shape)
+    if want is not None and shape != want:
+        raise npz_reader.NpzError(key, f"shape must be {npz_reader.shape_text(want)}, got {got}")
+    if key == "planes":
+        if len(shape) != 4 or shape[0] != 3 or shape[1] != N_CHANNELS:
+            raise npz_reader.NpzError(key, f"shape must be (3, {N_CHANNELS}, H, W), got {got}")
+        height, width = shape[2], shape[3]
+        if not (2 <= height <= MAX_PLANE_SIZE and 2 <= width <= MAX_PLANE_SIZE):
+            raise npz_reader.NpzError(key, f"H and W must be in [2, {MAX_PLANE_SIZE}], got {height}x{width}")
+    if key == "occupancy":
+        if len(shape) != 3 or shape[1] != shape[0] or shape[2] != shape[0]:
+            raise npz_reader.NpzError(key, f"shape must be (G, G, G), got {got}")
+        if not 1 <= shape[0] <= MAX_OCCUPANCY_RESOLUTION:
+            raise npz_reader.NpzError(
+                key, f"G must be in [1, {MAX_OCCUPANCY_RESOLUTION}], got G = {shape[0]}"
+            )
+
+
+def _as_float32(value: float) -> float:
+    with np.errstate(over="ignore"):
+        return float(np.float32(value))
+
+
+def _check_bounds(box_warp: float, ray_start: float, ray_end: float) -> None:
+    """The scene bounds, checked as stored (float64) and as the renderer uses them (float32), so a
+    value that overflows float32 (``ray_end = 1e300``) is an error here and in Rust alike."""
+    b32, s32, e32 = _as_float32(box_warp), _as_float32(ray_start), _as_float32(ray_end)
+    for key, v, v32 in (
+        ("box_warp", box_warp, b32),
+        ("ray_start", ray_start, s32),
+        ("ray_end", ray_end, e32),
+    ):
+        if math.isfinite(v) and not math.isfinite(v32):
+            raise npz_reader.NpzError(key, f"{v:e} is not finite as float32 (the renderer's precision)")
+    if not (math.isfinite(box_warp) and box_warp > 0.0 and b32 > 0.0):
+        raise npz_reader.NpzError("box_warp", f"must be finite and > 0 (also as float32), got {box_warp:e}")
+    if not (math.isfinite(ray_start) and ray_start >= 0.0 and s32 >= 0.0):
+        raise npz_reader.NpzError(
+            "ray_start", f"must be finite and >= 0 (also as float32), got {ray_start:e}"
+        )
+    if not (math.isfinite(ray_end) and ray_end > ray_start and e32 > s32):
+        raise npz_reader.NpzError(
+            "ray_end", f"must be finite and > ray_start ({ray_start:e}) (also as float32), got {ray_end:e}"
+        )
+
+
+def _open_regular_file(path: Path) -> tuple[IO[bytes], int]:
+    """``path`` opened for reading, and its size, after checking it is a regular file. Opened
+    non-blocking: a FIFO would otherwise wait for a writer forever (for a regular file the flag
+    changes nothing)."""
+    flags = os.O_RDONLY
+    for name in ("O_NONBLOCK", "O_NOCTTY", "O_CLOEXEC", "O_BINARY"):
+        flags |= getattr(os, name, 0)
+    fd = os.open(path, flags)  # FileNotFoundError / PermissionError, naming the path
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            mode = st.st_mode
+            if stat.S_ISDIR(mode):
+                raise IsADirectoryError(f"{path}: is a directory, not a regular file (a triplane .npz)")
+            kind = (
+                "is a FIFO (named pipe)"
+                if stat.S_ISFIFO(mode)
+                else "is a character device"
+                if stat.S_ISCHR(mode)
+                else "is a block device"
+                if stat.S_ISBLK(mode)
+                else "is a socket"
+                if stat.S_ISSOCK(mode)
+                else "is not a regular file"
+            )
+            raise OSError(f"{path}: {kind}, not a regular file (a triplane .npz)")
+        return os.fdopen(fd, "rb"), st.st_size
+    except BaseException:
+        os.close(fd)
+        raise
 
 
 def load_triplane(path: str | os.PathLike[str]) -> TriplaneData:
     """Read a triplane ``.npz`` written by :func:`save_triplane` (or the Rust writer).
 
-    Raises OSError if the file cannot be opened (missing, permission) and ValueError
-    (:class:`TriplaneFileError`), naming the file and the key, for anything wrong with its content:
-    not a zip / truncated / corrupt, pickled (object) arrays, missing or unknown keys, an unsupported
-    ``format_version``, bad shapes, dtypes or values (NaN/Inf included).
+    Raises OSError if the file cannot be opened (missing, permission) or is not a regular file (a
+    directory, FIFO or device: at once, never a hang), and ValueError (:class:`TriplaneFileError`),
+    naming the file and the key, for anything wrong with its content: not a zip, truncated or corrupt,
+    compressed, too large for the caps (:data:`FILE_LIMITS`), pickled (object) arrays, missing or
+    unknown keys, an unsupported ``format_version``, bad shapes, dtypes or values (NaN/Inf included).
+    Every size the file claims is checked before anything is allocated. ``lp3d_render.Triplane.load``
+    makes the same decisions (``tests/test_triplane_files.py``).
     """
     path = Path(path)
-    current: str | None = None  # the key being read, for error messages
-    values: dict[str, object] = {}
-    try:
-        # Check the magic ourselves: for a non-zip, non-.npy file numpy's message talks about pickles.
-        with open(path, "rb") as f:
-            magic = f.read(6)
-        if not magic.startswith((b"PK\x03\x04", b"PK\x05\x06", b"\x93NUMPY")):
-            raise _fail(path, None, "not an .npz (zip) file" + (" (empty)" if not magic else ""))
-        loaded = np.load(path, allow_pickle=False)
-        if not isinstance(loaded, np.lib.npyio.NpzFile):
-            raise _fail(path, None, "is a single .npy array, not an .npz triplane file")
-        with loaded as npz:
-            keys = set(npz.files)
-            # Check the version first, so a newer file is reported as such rather than by its new keys.
-            if "format_version" not in keys:
-                raise _fail(path, "format_version", "missing key (not an lp3d triplane file?)")
-            current = "format_version"
-            version = int(_scalar(path, current, npz[current], "iu"))
-            if version != FORMAT_VERSION:
-                raise _fail(
-                    path, current, f"unknown format_version {version} (this reader supports {FORMAT_VERSION})"
-                )
-            missing = sorted(set(REQUIRED_KEYS) - keys)
-            if missing:
-                raise _fail(path, missing[0], f"missing required key(s) {missing}")
-            extra = sorted(keys - set(REQUIRED_KEYS) - set(OPTIONAL_KEYS) - {CHECKSUM_KEY})
-            if extra:
-                raise _fail(path, extra[0], f"unknown key(s) {extra} (format_version {FORMAT_VERSION})")
-            if ("occupancy" in keys) != (CHECKSUM_KEY in keys):
-                missing_key = CHECKSUM_KEY if "occupancy" in keys else "occupancy"
-                raise _fail(path, missing_key, f"missing ('occupancy' and '{CHECKSUM_KEY}' go together)")
-            checksum = None
-            if CHECKSUM_KEY in keys:
-                current = CHECKSUM_KEY
-                checksum = int(_scalar(path, current, npz[current], "iu"))
-            for key in sorted(keys - {"format_version", CHECKSUM_KEY}):
-                current = key
-                values[_FIELD_OF_KEY[key]] = _read_value(path, key, npz[key])
-    except (TriplaneFileError, FileNotFoundError, PermissionError, IsADirectoryError):
-        raise
-    except ValueError as e:  # numpy: pickled/object data, bad .npy header, size mismatch
-        raise _fail(path, current, f"unreadable ({e})") from e
-    except (zipfile.BadZipFile, EOFError, OSError, KeyError) as e:
-        raise _fail(path, current, f"truncated or corrupt file ({type(e).__name__}: {e})") from e
+    file, size = _open_regular_file(path)
+    with file:
+        if size == 0:
+            raise _fail(path, None, "empty file, not an .npz triplane")
+        if size > MAX_FILE_BYTES:
+            raise _fail(
+                path, None, f"{size} bytes, more than the cap of {MAX_FILE_BYTES} for a triplane file"
+            )
+        try:
+            if file.read(6) == b"\x93NUMPY":
+                raise npz_reader.NpzError("", "is a single .npy array, not an .npz triplane file")
+            file.seek(0)
+            npz = npz_reader.NpzReader(file, size)
+            try:
+                values, checksum = _read_values(npz)
+            finally:
+                npz.close()
+        except npz_reader.NpzError as e:
+            raise _fail(path, e.key or None, e.message) from None
+        except (OSError, zipfile.BadZipFile, EOFError) as e:  # a read failing mid-way
+            raise _fail(path, None, f"truncated or corrupt file ({type(e).__name__}: {e})") from None
     try:
         tri = TriplaneData(**values)  # type: ignore[arg-type]
     except TriplaneError as e:
@@ -212,3 +292,59 @@ def load_triplane(path: str | os.PathLike[str]) -> TriplaneData:
             "baked for another triplane; bake it again",
         )
     return tri
+
+
+def _read_values(npz: npz_reader.NpzReader) -> tuple[dict[str, object], int | None]:
+    """TriplaneData's arguments and the stored occupancy checksum, in the order of checks the Rust
+    reader follows: the version, the set of keys, every header, then the data."""
+    keys = sorted(npz.keys())
+    version_key = "format_version"
+    # The version first, so a newer file is reported as such rather than by its new keys.
+    if version_key not in keys:
+        raise npz_reader.NpzError(version_key, "missing key (not an lp3d triplane file?)")
+    header = npz.header(version_key)
+    _check_header(version_key, header)
+    version = int(np.asarray(npz.read(version_key, header))[()])
+    if version != FORMAT_VERSION:
+        raise npz_reader.NpzError(
+            version_key, f"unknown format_version {version} (this reader supports {FORMAT_VERSION})"
+        )
+    unknown = [k for k in keys if k not in REQUIRED_KEYS and k not in OPTIONAL_KEYS and k != CHECKSUM_KEY]
+    if unknown:
+        raise npz_reader.NpzError(unknown[0], f"unknown key(s) {unknown} (format_version {FORMAT_VERSION})")
+    missing = sorted(set(REQUIRED_KEYS) - set(keys))
+    if missing:
+        raise npz_reader.NpzError(missing[0], f"missing required key(s) {missing}")
+    if ("occupancy" in keys) != (CHECKSUM_KEY in keys):
+        absent = CHECKSUM_KEY if "occupancy" in keys else "occupancy"
+        raise npz_reader.NpzError(absent, f"missing ('occupancy' and '{CHECKSUM_KEY}' go together)")
+
+    # Every header against the format before any data is read: no claim reaches the allocator.
+    headers = {}
+    for key in keys:
+        if key != version_key:
+            headers[key] = npz.header(key)
+            _check_header(key, headers[key])
+    data = {key: npz.read(key, h) for key, h in headers.items()}
+
+    values: dict[str, object] = {}
+    for key in ("planes", "decoder_w0", "decoder_b0", "decoder_w1", "decoder_b1", "occupancy", "source"):
+        if key in data:
+            values[_FIELD_OF_KEY[key]] = data[key]
+    bounds = [float(np.asarray(data[k])[()]) for k in ("box_warp", "ray_start", "ray_end")]
+    _check_bounds(*bounds)
+    values["box_warp"], values["ray_start"], values["ray_end"] = bounds
+    if "camera" in data:
+        camera = np.asarray(data["camera"], dtype=np.float64)
+        try:
+            validate_camera(camera)
+        except ValueError as e:
+            raise npz_reader.NpzError("camera", str(e)) from None
+        with np.errstate(over="ignore"):
+            bad = np.flatnonzero(~np.isfinite(camera.astype(np.float32)))
+        if bad.size:
+            i = int(bad[0])
+            raise npz_reader.NpzError("camera", f"value {camera[i]} at index {i} is not finite as float32")
+        values["camera"] = camera
+    checksum = int(np.asarray(data[CHECKSUM_KEY])[()]) if CHECKSUM_KEY in data else None
+    return values, checksum

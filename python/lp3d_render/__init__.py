@@ -12,6 +12,7 @@ See ``docs/triplane-format.md`` for the file format and ``lp3d.camera`` for came
 """
 
 from lp3d_render._lp3d_render import (
+    FILE_LIMITS,
     FORMAT_VERSION,
     MAX_RESOLUTION,
     MAX_SAMPLES,
@@ -26,6 +27,7 @@ from lp3d_render._lp3d_render import (
 )
 
 __all__ = [
+    "FILE_LIMITS",
     "FORMAT_VERSION",
     "MAX_RESOLUTION",
     "MAX_SAMPLES",

@@ -10,6 +10,8 @@ MAX_RESOLUTION: int
 MAX_SAMPLES: int
 PLANE_AXES: list[tuple[int, int]]
 FORMAT_VERSION: int
+#: The triplane file's caps (docs/triplane-format.md, "Caps"), by name.
+FILE_LIMITS: dict[str, int]
 __version__: str
 
 class Triplane:

@@ -2,7 +2,9 @@
 //! the argument it is about.
 
 use numpy::{PyArrayDyn, PyArrayMethods, PyUntypedArray, PyUntypedArrayMethods};
+use pyo3::exceptions::{PyOverflowError, PyTypeError};
 use pyo3::prelude::*;
+use pyo3::types::{PyBool, PyString};
 
 use crate::error::invalid;
 
@@ -68,31 +70,141 @@ pub fn expect_shape(a: &FloatArray, field: &str, shape: &[usize]) -> PyResult<()
     Ok(())
 }
 
-/// An integer setting in `[lo, hi]`, accepting any Python int (so negatives give a clear
-/// ValueError rather than an OverflowError).
-pub fn int_in(obj: &Bound<'_, PyAny>, field: &str, lo: i64, hi: i64) -> PyResult<u32> {
-    if obj.is_instance_of::<pyo3::types::PyBool>() {
-        return Err(invalid(field, "must be an int, got bool"));
-    }
-    let v: i64 =
-        obj.extract().map_err(|_| invalid(field, format!("must be an int, got {}", type_name(obj))))?;
-    if v < lo || v > hi {
-        return Err(invalid(field, format!("must be in [{lo}, {hi}], got {v}")));
-    }
-    Ok(v as u32)
+/// A scalar argument as Python gave it, or its default when it was left out. Taking the raw
+/// object (instead of letting PyO3 convert it) lets the functions below validate every value
+/// in one place, with messages naming the argument and the bad value: PyO3's own conversion
+/// raises OverflowError for a large int, accepts `True` as 1 and names neither.
+pub enum Arg<'py, T> {
+    Default(T),
+    Given(Bound<'py, PyAny>),
 }
 
-/// An integer setting in `[lo, hi]`.
-pub fn in_range(v: i64, field: &str, lo: u32, hi: u32) -> PyResult<u32> {
-    if v < lo as i64 || v > hi as i64 {
-        return Err(invalid(field, format!("must be in [{lo}, {hi}], got {v}")));
+impl<'a, 'py, T> FromPyObject<'a, 'py> for Arg<'py, T> {
+    type Error = PyErr;
+
+    fn extract(obj: Borrowed<'a, 'py, PyAny>) -> PyResult<Self> {
+        Ok(Arg::Given(obj.to_owned()))
     }
-    Ok(v as u32)
 }
 
-pub fn finite_f32(v: f64, field: &str) -> PyResult<f32> {
+/// `obj`'s type and repr for an error message, e.g. `float 32.0` (shortened when long; a
+/// repr that fails, such as that of an int too long to print, gives the type alone).
+fn shown(obj: &Bound<'_, PyAny>) -> String {
+    let repr = obj.repr().map(|r| r.to_string());
+    match repr {
+        Ok(r) if r.chars().count() > 60 => {
+            format!("{} {}...", type_name(obj), r.chars().take(57).collect::<String>())
+        }
+        Ok(r) => format!("{} {r}", type_name(obj)),
+        Err(_) => match obj.call_method0("bit_length").and_then(|b| b.extract::<u64>()) {
+            Ok(bits) => format!("{} of {bits} bits", type_name(obj)),
+            Err(_) => type_name(obj),
+        },
+    }
+}
+
+fn wrong_type(field: &str, expected: &str, obj: &Bound<'_, PyAny>) -> PyErr {
+    PyTypeError::new_err(format!("{field}: must be {expected}, got {}", shown(obj)))
+}
+
+/// Python's bool and NumPy's bool_ (neither counts as a number here).
+fn is_bool(obj: &Bound<'_, PyAny>) -> bool {
+    obj.is_instance_of::<PyBool>()
+        || (obj.get_type().module().is_ok_and(|m| m == "numpy")
+            && obj.get_type().name().is_ok_and(|n| n == "bool_" || n == "bool"))
+}
+
+/// An integer argument in `[lo, hi]`: a Python or NumPy int (not a bool, not a float).
+/// Wrong types are TypeErrors, values out of range (of any size) ValueErrors.
+pub fn int_arg(arg: &Arg<'_, i64>, field: &str, lo: i64, hi: i64) -> PyResult<i64> {
+    let out_of_range = |got: String| invalid(field, format!("must be an int in [{lo}, {hi}], got {got}"));
+    let obj = match arg {
+        Arg::Default(v) if (lo..=hi).contains(v) => return Ok(*v),
+        Arg::Default(v) => return Err(out_of_range(v.to_string())),
+        Arg::Given(obj) => obj,
+    };
+    if is_bool(obj) || !obj.hasattr("__index__").unwrap_or(false) {
+        return Err(wrong_type(field, "an int", obj));
+    }
+    let index = obj.call_method0("__index__").map_err(|_| wrong_type(field, "an int", obj))?;
+    match index.extract::<i64>() {
+        Ok(v) if (lo..=hi).contains(&v) => Ok(v),
+        Ok(v) => Err(out_of_range(v.to_string())),
+        Err(_) => Err(out_of_range(shown(obj))),
+    }
+}
+
+/// A number argument (Python or NumPy int or float; not a bool), finite.
+pub fn float_arg(arg: &Arg<'_, f64>, field: &str) -> PyResult<f64> {
+    let (v, obj) = match arg {
+        Arg::Default(v) => (*v, None),
+        Arg::Given(obj) => {
+            if is_bool(obj) || obj.is_instance_of::<PyString>() {
+                return Err(wrong_type(field, "a number", obj));
+            }
+            match obj.extract::<f64>() {
+                Ok(v) => (v, Some(obj)),
+                Err(e) if e.is_instance_of::<PyOverflowError>(obj.py()) => {
+                    return Err(invalid(field, format!("must be finite, got {}", shown(obj))));
+                }
+                Err(_) => return Err(wrong_type(field, "a number", obj)),
+            }
+        }
+    };
     if !v.is_finite() {
-        return Err(invalid(field, format!("must be finite, got {v}")));
+        let got = obj.map_or_else(|| format!("{v:?}"), shown);
+        return Err(invalid(field, format!("must be finite, got {got}")));
+    }
+    Ok(v)
+}
+
+/// A number argument the GPU uses as float32: finite, and still finite in float32 (1e300 is a
+/// finite float64 but Inf in float32).
+pub fn f32_arg(arg: &Arg<'_, f64>, field: &str) -> PyResult<f32> {
+    finite_f32(float_arg(arg, field)?, field)
+}
+
+/// A flag: Python's `True`/`False` or a NumPy bool (not `"yes"`, not `1`).
+pub fn bool_arg(arg: &Arg<'_, bool>, field: &str) -> PyResult<bool> {
+    match arg {
+        Arg::Default(v) => Ok(*v),
+        Arg::Given(obj) if is_bool(obj) => {
+            obj.extract::<bool>().map_err(|_| wrong_type(field, "a bool", obj))
+        }
+        Arg::Given(obj) => Err(wrong_type(field, "a bool (True or False)", obj)),
+    }
+}
+
+/// Most names a list argument may hold (the loop below must end even on an endless iterator).
+const MAX_NAMES: usize = 64;
+
+/// A list (any iterable) of strings, such as `outputs=["rgb", "depth"]`. A bare string is
+/// refused: iterating it would give its letters.
+pub fn names_arg(obj: &Bound<'_, PyAny>, field: &str) -> PyResult<Vec<String>> {
+    let expected = "a list of strings such as ['rgb']";
+    if obj.is_instance_of::<PyString>() {
+        return Err(wrong_type(field, expected, obj));
+    }
+    let iter = obj.try_iter().map_err(|_| wrong_type(field, expected, obj))?;
+    let mut names = Vec::new();
+    for item in iter {
+        let item = item?;
+        if names.len() == MAX_NAMES {
+            return Err(invalid(field, format!("holds more than {MAX_NAMES} names")));
+        }
+        let name = item
+            .cast::<PyString>()
+            .map_err(|_| PyTypeError::new_err(format!("{field}: must hold strings, got {}", shown(&item))))?;
+        names.push(name.to_str()?.to_owned());
+    }
+    Ok(names)
+}
+
+/// A finite float32 from a float64 (both checks: 1e300 is finite only in float64).
+pub fn finite_f32(v: f64, field: &str) -> PyResult<f32> {
+    if !(v.is_finite() && (v as f32).is_finite()) {
+        let why = if v.is_finite() { " (it overflows float32)" } else { "" };
+        return Err(invalid(field, format!("must be finite, got {v:?}{why}")));
     }
     Ok(v as f32)
 }

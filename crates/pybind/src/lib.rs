@@ -20,7 +20,10 @@ use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use convert::{camera_array, expect_shape, finite_f32, float_array, in_range, int_in};
+use convert::{
+    bool_arg, camera_array, expect_shape, f32_arg, finite_f32, float_arg, float_array, int_arg, names_arg,
+    Arg,
+};
 use error::{invalid, to_py};
 
 struct Gpu {
@@ -97,20 +100,24 @@ fn f32_array<'py>(py: Python<'py>, data: &[f32], shape: &[usize]) -> PyResult<Bo
 #[pymethods]
 impl Triplane {
     #[new]
-    #[pyo3(signature = (planes, w0, b0, w1, b1, box_warp=1.0, ray_start=2.25, ray_end=3.3, *, camera=None, source=None, occupancy=None))]
+    #[pyo3(
+        signature = (planes, w0, b0, w1, b1, box_warp=Arg::Default(1.0), ray_start=Arg::Default(2.25),
+                     ray_end=Arg::Default(3.3), *, camera=None, source=None, occupancy=None),
+        text_signature = "(planes, w0, b0, w1, b1, box_warp=1.0, ray_start=2.25, ray_end=3.3, *, camera=None, source=None, occupancy=None)"
+    )]
     #[allow(clippy::too_many_arguments)]
-    fn new(
-        planes: &Bound<'_, PyAny>,
-        w0: &Bound<'_, PyAny>,
-        b0: &Bound<'_, PyAny>,
-        w1: &Bound<'_, PyAny>,
-        b1: &Bound<'_, PyAny>,
-        box_warp: f64,
-        ray_start: f64,
-        ray_end: f64,
-        camera: Option<&Bound<'_, PyAny>>,
+    fn new<'py>(
+        planes: &Bound<'py, PyAny>,
+        w0: &Bound<'py, PyAny>,
+        b0: &Bound<'py, PyAny>,
+        w1: &Bound<'py, PyAny>,
+        b1: &Bound<'py, PyAny>,
+        box_warp: Arg<'py, f64>,
+        ray_start: Arg<'py, f64>,
+        ray_end: Arg<'py, f64>,
+        camera: Option<&Bound<'py, PyAny>>,
         source: Option<String>,
-        occupancy: Option<&Bound<'_, PyAny>>,
+        occupancy: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Self> {
         guarded(|| {
             let p = float_array(planes, "planes", &["float16", "float32"])?;
@@ -156,9 +163,9 @@ impl Triplane {
                 plane_dtype: if p.was_f16 { PlaneDtype::F16 } else { PlaneDtype::F32 },
                 planes: p.data,
                 decoder: Decoder { w0: w0.data, b0: b0.data, w1: w1.data, b1: b1.data },
-                box_warp: finite_f32(box_warp, "box_warp")?,
-                ray_start: finite_f32(ray_start, "ray_start")?,
-                ray_end: finite_f32(ray_end, "ray_end")?,
+                box_warp: f32_arg(&box_warp, "box_warp")?,
+                ray_start: f32_arg(&ray_start, "ray_start")?,
+                ray_end: f32_arg(&ray_end, "ray_end")?,
                 camera,
                 occupancy,
                 source,
@@ -240,9 +247,9 @@ impl Triplane {
 
     /// Bakes an occupancy grid (G, G, G) for this triplane on the CPU and returns it (the
     /// triplane is immutable: pass it as ``occupancy=`` to a new Triplane to keep or save it).
-    #[pyo3(signature = (resolution=64))]
-    fn bake_occupancy<'py>(&self, py: Python<'py>, resolution: i64) -> PyResult<Bound<'py, PyAny>> {
-        let g = in_range(resolution, "resolution", 1, occupancy::MAX_RESOLUTION as u32)? as usize;
+    #[pyo3(signature = (resolution=Arg::Default(64)), text_signature = "($self, resolution=64)")]
+    fn bake_occupancy<'py>(&self, py: Python<'py>, resolution: Arg<'py, i64>) -> PyResult<Bound<'py, PyAny>> {
+        let g = int_arg(&resolution, "resolution", 1, occupancy::MAX_RESOLUTION as i64)? as usize;
         let grid = py.detach(|| guarded(|| Occupancy::bake(&self.inner, g).map_err(to_py)))?;
         f32_array(py, &grid.bound, &[g; 3])
     }
@@ -280,27 +287,35 @@ impl Triplane {
 /// none), at most ``occupancy_epsilon`` opacity per skipped interval (docs/occupancy.md), in the
 /// final composite; ``occupancy_coarse`` skips in the coarse pass too (faster; moves the
 /// importance samples, so that part of the error is measured, not bounded).
+///
+/// Every argument is checked here, before any GPU work: a wrong type is a TypeError and a bad
+/// value a ValueError, each naming the argument and the value (`resolution=True` and
+/// `resolution=32.0` are refused, not read as 1 and 32).
 #[pyfunction]
-#[pyo3(signature = (triplane, camera, resolution=128, depth_resolution=48, depth_resolution_importance=48,
-                    deterministic=true, seed=None, outputs=None, white_back=false, *,
-                    transmittance_threshold=0.0, empty_threshold=0.0, occupancy_epsilon=0.0,
-                    occupancy_coarse=false))]
+#[pyo3(
+    signature = (triplane, camera, resolution=Arg::Default(128), depth_resolution=Arg::Default(48),
+                 depth_resolution_importance=Arg::Default(48), deterministic=Arg::Default(true), seed=None,
+                 outputs=None, white_back=Arg::Default(false), *,
+                 transmittance_threshold=Arg::Default(0.0), empty_threshold=Arg::Default(0.0),
+                 occupancy_epsilon=Arg::Default(0.0), occupancy_coarse=Arg::Default(false)),
+    text_signature = "(triplane, camera, resolution=128, depth_resolution=48, depth_resolution_importance=48, deterministic=True, seed=None, outputs=None, white_back=False, *, transmittance_threshold=0.0, empty_threshold=0.0, occupancy_epsilon=0.0, occupancy_coarse=False)"
+)]
 #[allow(clippy::too_many_arguments)]
 fn render<'py>(
     py: Python<'py>,
     triplane: &Bound<'py, PyAny>,
     camera: &Bound<'py, PyAny>,
-    resolution: i64,
-    depth_resolution: i64,
-    depth_resolution_importance: i64,
-    deterministic: bool,
+    resolution: Arg<'py, i64>,
+    depth_resolution: Arg<'py, i64>,
+    depth_resolution_importance: Arg<'py, i64>,
+    deterministic: Arg<'py, bool>,
     seed: Option<&Bound<'py, PyAny>>,
-    outputs: Option<Vec<String>>,
-    white_back: bool,
-    transmittance_threshold: f64,
-    empty_threshold: f64,
-    occupancy_epsilon: f64,
-    occupancy_coarse: bool,
+    outputs: Option<&Bound<'py, PyAny>>,
+    white_back: Arg<'py, bool>,
+    transmittance_threshold: Arg<'py, f64>,
+    empty_threshold: Arg<'py, f64>,
+    occupancy_epsilon: Arg<'py, f64>,
+    occupancy_coarse: Arg<'py, bool>,
 ) -> PyResult<Bound<'py, PyDict>> {
     guarded(|| {
         let tri = triplane.cast::<Triplane>().map_err(|_| {
@@ -311,38 +326,45 @@ fn render<'py>(
         })?;
         let (labels, batched) = camera_array(camera)?;
         let cameras = Camera::batch_from_labels(&labels).map_err(to_py)?;
+        let deterministic = bool_arg(&deterministic, "deterministic")?;
         let seed = match (deterministic, seed) {
             (true, Some(s)) if !s.is_none() => {
                 return Err(invalid("seed", "only applies with deterministic=False"));
             }
-            (false, Some(s)) if !s.is_none() => int_in(s, "seed", 0, u32::MAX as i64)?,
+            (false, Some(s)) if !s.is_none() => {
+                int_arg(&Arg::Given(s.clone()), "seed", 0, u32::MAX as i64)? as u32
+            }
             // Jitter without a seed: a fresh one per call, like EG3D's torch.rand.
             (false, _) => std::collections::hash_map::RandomState::new().hash_one(0u8) as u32,
             (true, _) => 0,
         };
+        let samples = |arg: &Arg<'py, i64>, field: &str, lo: i64| -> PyResult<u32> {
+            Ok(int_arg(arg, field, lo, MAX_SAMPLES as i64)? as u32)
+        };
         let settings = RenderSettings {
-            resolution: in_range(resolution, "resolution", 1, MAX_RESOLUTION)?,
-            depth_resolution: in_range(depth_resolution, "depth_resolution", 2, MAX_SAMPLES)?,
-            depth_resolution_importance: in_range(
-                depth_resolution_importance,
+            resolution: int_arg(&resolution, "resolution", 1, MAX_RESOLUTION as i64)? as u32,
+            depth_resolution: samples(&depth_resolution, "depth_resolution", 2)?,
+            depth_resolution_importance: samples(
+                &depth_resolution_importance,
                 "depth_resolution_importance",
                 0,
-                MAX_SAMPLES,
             )?,
-            white_back,
+            white_back: bool_arg(&white_back, "white_back")?,
             deterministic,
             seed,
             skips: Skips {
-                transmittance_threshold: finite_f32(transmittance_threshold, "transmittance_threshold")?,
-                empty_threshold: finite_f32(empty_threshold, "empty_threshold")?,
-                occupancy_epsilon: finite_f32(occupancy_epsilon, "occupancy_epsilon")?,
-                occupancy_coarse,
+                transmittance_threshold: f32_arg(&transmittance_threshold, "transmittance_threshold")?,
+                empty_threshold: f32_arg(&empty_threshold, "empty_threshold")?,
+                occupancy_epsilon: f32_arg(&occupancy_epsilon, "occupancy_epsilon")?,
+                occupancy_coarse: bool_arg(&occupancy_coarse, "occupancy_coarse")?,
             },
         };
         settings.validate().map_err(to_py)?;
-        let outputs = match &outputs {
-            None => Outputs::ALL,
-            Some(names) => Outputs::from_names(names).map_err(to_py)?,
+        let outputs = match outputs {
+            Some(names) if !names.is_none() => {
+                Outputs::from_names(&names_arg(names, "outputs")?).map_err(to_py)?
+            }
+            _ => Outputs::ALL,
         };
         let gpu = gpu(py)?;
         let tri = tri.get();
@@ -385,23 +407,27 @@ fn render<'py>(
 /// `Camera::orbit`, the camera the viewer uses. Matches `lp3d.camera.look_at_camera`.
 #[pyfunction]
 #[pyo3(
-    signature = (*, yaw_deg=0.0, pitch_deg=0.0, roll_deg=0.0, radius=2.7, lookat=(0.0, 0.0, 0.2), focal=4.2647),
+    signature = (*, yaw_deg=Arg::Default(0.0), pitch_deg=Arg::Default(0.0), roll_deg=Arg::Default(0.0),
+                 radius=Arg::Default(2.7), lookat=(0.0, 0.0, 0.2), focal=Arg::Default(4.2647)),
     text_signature = "(*, yaw_deg=0.0, pitch_deg=0.0, roll_deg=0.0, radius=2.7, lookat=(0.0, 0.0, 0.2), focal=4.2647)"
 )]
 fn look_at_camera<'py>(
     py: Python<'py>,
-    yaw_deg: f64,
-    pitch_deg: f64,
-    roll_deg: f64,
-    radius: f64,
+    yaw_deg: Arg<'py, f64>,
+    pitch_deg: Arg<'py, f64>,
+    roll_deg: Arg<'py, f64>,
+    radius: Arg<'py, f64>,
     lookat: (f64, f64, f64),
-    focal: f64,
+    focal: Arg<'py, f64>,
 ) -> PyResult<Bound<'py, PyAny>> {
-    for (name, v) in
-        [("yaw_deg", yaw_deg), ("pitch_deg", pitch_deg), ("roll_deg", roll_deg), ("radius", radius)]
-    {
-        finite_f32(v, name)?;
-    }
+    let yaw_deg = float_arg(&yaw_deg, "yaw_deg")?;
+    let pitch_deg = float_arg(&pitch_deg, "pitch_deg")?;
+    let roll_deg = float_arg(&roll_deg, "roll_deg")?;
+    // These two land in the float32 label as they are: they must fit float32.
+    let radius = float_arg(&radius, "radius")?;
+    finite_f32(radius, "radius")?;
+    let focal = float_arg(&focal, "focal")?;
+    finite_f32(focal, "focal")?;
     if !(-90.0 < pitch_deg && pitch_deg < 90.0) {
         return Err(invalid("pitch_deg", format!("must be in (-90, 90), got {pitch_deg}")));
     }
@@ -418,23 +444,27 @@ fn look_at_camera<'py>(
 /// once per process (a windowing limitation).
 #[cfg(feature = "viewer")]
 #[pyfunction]
-#[pyo3(signature = (path=None, *, screenshot=None, yaw=0.0, pitch=0.0, resolution=128, frames=3))]
-fn view(
-    py: Python<'_>,
+#[pyo3(
+    signature = (path=None, *, screenshot=None, yaw=Arg::Default(0.0), pitch=Arg::Default(0.0),
+                 resolution=Arg::Default(128), frames=Arg::Default(3)),
+    text_signature = "(path=None, *, screenshot=None, yaw=0.0, pitch=0.0, resolution=128, frames=3)"
+)]
+fn view<'py>(
+    py: Python<'py>,
     path: Option<PathBuf>,
     screenshot: Option<PathBuf>,
-    yaw: f64,
-    pitch: f64,
-    resolution: i64,
-    frames: i64,
+    yaw: Arg<'py, f64>,
+    pitch: Arg<'py, f64>,
+    resolution: Arg<'py, i64>,
+    frames: Arg<'py, i64>,
 ) -> PyResult<()> {
     let options = lp3d_viewer::ViewerOptions {
         path,
         screenshot,
-        yaw: finite_f32(yaw, "yaw").map(|_| yaw)?,
-        pitch: finite_f32(pitch, "pitch").map(|_| pitch)?,
-        resolution: in_range(resolution, "resolution", 16, MAX_RESOLUTION)?,
-        frames: in_range(frames, "frames", 1, 10_000)?,
+        yaw: float_arg(&yaw, "yaw")?,
+        pitch: float_arg(&pitch, "pitch")?,
+        resolution: int_arg(&resolution, "resolution", 16, MAX_RESOLUTION as i64)? as u32,
+        frames: int_arg(&frames, "frames", 1, 10_000)? as u32,
         help: false,
     };
     options.validate().map_err(|e| invalid("view", e))?;
@@ -475,6 +505,12 @@ fn _lp3d_render(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("MAX_SAMPLES", MAX_SAMPLES)?;
     m.add("PLANE_AXES", lp3d_renderer::triplane::PLANE_AXES.map(|a| (a[0], a[1])).to_vec())?;
     m.add("FORMAT_VERSION", lp3d_renderer::triplane::FORMAT_VERSION)?;
+    // The triplane file's caps by name; lp3d.triplane_io.FILE_LIMITS must agree (a test checks).
+    let limits = PyDict::new(m.py());
+    for (name, value) in lp3d_renderer::triplane::FILE_LIMITS {
+        limits.set_item(name, value)?;
+    }
+    m.add("FILE_LIMITS", limits)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

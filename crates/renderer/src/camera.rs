@@ -60,12 +60,21 @@ impl Camera {
             ));
         }
         let mut out = [0f32; 25];
-        for (o, v) in out.iter_mut().zip(label) {
+        for (i, (o, v)) in out.iter_mut().zip(label).enumerate() {
             *o = *v as f32;
+            // The GPU computes in float32: a finite float64 beyond its range would become Inf
+            // there and turn every ray into NaN (an empty image, no error).
+            if !o.is_finite() {
+                return Err(Error::invalid(
+                    field,
+                    format!("value {v:e} at index {i} ({}) overflows float32", element_name(i)),
+                ));
+            }
         }
         if out[16] == 0.0 || out[20] == 0.0 {
             return Err(Error::invalid(format!("{field} focal"), "too small for float32"));
         }
+        check_ray_range(label, field)?;
         Ok(Camera(out))
     }
 
@@ -114,6 +123,65 @@ impl Camera {
     pub fn look_at(h: f64, v: f64, radius: f64, lookat: [f64; 3], focal: f64) -> Camera {
         Camera(look_at_label(h, v, radius, lookat, focal).map(|v| v as f32))
     }
+}
+
+/// What label index `i` holds, for error messages.
+fn element_name(i: usize) -> String {
+    match i {
+        0..=15 => format!("cam2world[{}][{}]", i / 4, i % 4),
+        16 => "fx".into(),
+        17 => "skew".into(),
+        18 => "cx".into(),
+        20 => "fy".into(),
+        21 => "cy".into(),
+        _ => format!("intrinsics[{}][{}]", (i - 16) / 3, (i - 16) % 3),
+    }
+}
+
+/// Largest magnitude a ray's unnormalised direction may reach. The kernel normalises it with
+/// `length()`, whose squared sum must stay below float32's maximum (3.4e38); 1e18 leaves room
+/// for the three terms and rounding.
+const MAX_RAY_DIRECTION: f64 = 1e18;
+
+/// Rejects a label whose ray construction (`shaders/camera.wgsl::camera_ray`) would leave
+/// float32's range for some pixel: huge rotation entries or a focal length so small that the
+/// lifted pixel coordinates overflow. Each term is bounded over pixel centres in [0, 1]² in
+/// float64, so the check is exact arithmetic on a bound, not a sample of pixels.
+fn check_ray_range(label: &[f64], field: &str) -> Result<()> {
+    let (fx, sk, cx, fy, cy) = (label[16], label[17], label[18], label[20], label[21]);
+    // x_lift = (x - cx + cy sk / fy - sk y / fy) / fx, y_lift = (y - cy) / fy, x, y in [0, 1].
+    let terms = [cy.abs() * sk.abs(), cy.abs() * sk.abs() / fy, sk.abs() / fy];
+    let x_lift = (1.0 + cx.abs() + terms[1] + terms[2]) / fx;
+    let y_lift = (1.0 + cy.abs()) / fy;
+    let mut dir2 = 0.0;
+    for r in 0..3 {
+        let row = &label[4 * r..4 * r + 4];
+        let d = row[0].abs() * x_lift + row[1].abs() * y_lift + row[2].abs();
+        // world = d + origin must stay finite in float32 too.
+        if !below(d + row[3].abs(), f32::MAX as f64 / 2.0) {
+            return Err(Error::invalid(
+                field,
+                format!("rays overflow float32 (cam2world row {r} or the focal length is out of range)"),
+            ));
+        }
+        dir2 += d * d;
+    }
+    if terms.iter().any(|&t| !below(t, MAX_RAY_DIRECTION)) || !below(dir2.sqrt(), MAX_RAY_DIRECTION) {
+        return Err(Error::invalid(
+            field,
+            format!(
+                "ray directions reach {:.3e}, beyond float32's range (rotation entries too large or \
+                 focal length too small)",
+                dir2.sqrt().max(terms[1]).max(terms[2])
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// `x < limit`, with NaN (a bound of `0 * Inf`) counting as out of range.
+fn below(x: f64, limit: f64) -> bool {
+    x < limit
 }
 
 /// The float64 label of [`Camera::look_at`].
@@ -195,5 +263,33 @@ mod tests {
         }
         assert!(Camera::from_label(&bad, "camera").unwrap_err().to_string().contains("singular"));
         assert!(Camera::batch_from_labels(&good[..24]).unwrap_err().to_string().contains("camera"));
+    }
+
+    #[test]
+    fn values_beyond_float32_are_refused() {
+        let good = Camera::look_at(1.2, 1.4, 2.7, [0.0; 3], 4.26).0.map(f64::from);
+        // Finite in float64, Inf in float32: rendered an empty image before.
+        let mut bad = good;
+        bad[3] = 1e300;
+        let e = Camera::batch_from_labels(&bad).unwrap_err().to_string();
+        assert!(
+            e.starts_with("camera[0]:") && e.contains("index 3") && e.contains("overflows float32"),
+            "{e}"
+        );
+        // Finite in float32, but the ray directions' squared length overflows it.
+        let mut bad = good;
+        bad[0] = 1e20;
+        assert!(Camera::from_label(&bad, "camera").unwrap_err().to_string().contains("ray directions"));
+        let mut bad = good;
+        bad[16] = 1e-30;
+        assert!(Camera::from_label(&bad, "camera").unwrap_err().to_string().contains("ray directions"));
+        // A translation near float32's maximum: world points overflow.
+        let mut bad = good;
+        bad[7] = 3e38;
+        assert!(Camera::from_label(&bad, "camera").unwrap_err().to_string().contains("overflow"));
+        // Far but representable cameras are fine.
+        let mut far = good;
+        far[11] = 1e30;
+        Camera::from_label(&far, "camera").unwrap();
     }
 }

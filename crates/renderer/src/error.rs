@@ -28,6 +28,10 @@ impl fmt::Display for Error {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Error::InvalidInput { field, message } => write!(f, "{field}: {message}"),
+            // An empty field: the archive as a whole (not a zip, empty, too large).
+            Error::Format { path, field, message } if field.is_empty() => {
+                write!(f, "{}: {message}", path.display())
+            }
             Error::Format { path, field, message } => {
                 write!(f, "{}: key '{field}': {message}", path.display())
             }

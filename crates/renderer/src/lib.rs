@@ -6,6 +6,7 @@
 //! (planes + decoder, the plane-axis convention), [`settings`] (how to render), [`renderer`]
 //! (GPU pipelines and dispatch), [`npz`] (the `.npz` triplane file).
 
+pub mod atomic;
 pub mod camera;
 pub mod device;
 pub mod error;

@@ -4,7 +4,7 @@
 
 use std::fs::File;
 use std::io::BufReader;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use crate::camera::Camera;
 use crate::error::{Error, Result};
@@ -27,8 +27,25 @@ pub const HIDDEN: usize = 64;
 pub const N_OUT: usize = 33;
 /// Current triplane file format version.
 pub const FORMAT_VERSION: i64 = 1;
-/// Largest accepted plane side.
+/// Largest accepted plane side (H and W).
 pub const MAX_PLANE_SIZE: usize = 2048;
+/// Largest accepted occupancy grid side G.
+pub const MAX_OCCUPANCY_RESOLUTION: usize = crate::occupancy::MAX_RESOLUTION;
+/// Longest accepted `source` text, in characters.
+pub const MAX_SOURCE_CHARS: usize = 4096;
+/// Largest accepted triplane file (2048 x 2048 float32 planes and a 512^3 grid are just over 2 GiB).
+pub const MAX_FILE_BYTES: u64 = 3 << 30;
+/// The file format's caps (`docs/triplane-format.md`, "Caps"), by name, as `lp3d_render.FILE_LIMITS`
+/// exposes them; `lp3d.triplane_io.FILE_LIMITS` must agree (a test checks).
+pub const FILE_LIMITS: [(&str, u64); 7] = [
+    ("max_file_bytes", MAX_FILE_BYTES),
+    ("max_entry_bytes", npz::MAX_ENTRY_BYTES),
+    ("max_entries", npz::MAX_ENTRIES as u64),
+    ("max_npy_header_bytes", npz::MAX_NPY_HEADER_BYTES as u64),
+    ("max_plane_size", MAX_PLANE_SIZE as u64),
+    ("max_occupancy_resolution", MAX_OCCUPANCY_RESOLUTION as u64),
+    ("max_source_chars", MAX_SOURCE_CHARS as u64),
+];
 
 /// EG3D OSGDecoder with *effective* weights (stored weights × lr_mul / sqrt(fan_in)).
 #[derive(Debug, Clone, PartialEq)]
@@ -161,140 +178,169 @@ impl Triplane {
     }
 
     /// Loads a triplane `.npz` (never with pickle). Errors name the file and the key.
+    ///
+    /// Nothing the file claims is trusted before it is checked: the path must be a regular file
+    /// (a FIFO, device or directory is an [`Error::Io`] at once, never a hang), the zip's entry
+    /// sizes must fit the file and [`MAX_ENTRY_BYTES`](npz::MAX_ENTRY_BYTES), and every `.npy`
+    /// header's dtype, shape and size must match the format (and its caps, [`FILE_LIMITS`])
+    /// before any data is read. `lp3d.triplane_io.load_triplane` makes the same decisions.
     pub fn load(path: impl AsRef<Path>) -> Result<Triplane> {
         let path = path.as_ref();
-        let file = File::open(path).map_err(|e| Error::Io { path: path.into(), message: e.to_string() })?;
+        let (file, bytes) = open_regular_file(path)?;
+        Triplane::from_reader(BufReader::new(file), bytes, path)
+    }
+
+    /// [`Triplane::load`] from any reader of an `.npz` that is `bytes` long in all (the real size:
+    /// every size the archive claims is checked against it); `path` names it in errors.
+    pub fn from_reader<R: std::io::Read + std::io::Seek>(
+        reader: R,
+        bytes: u64,
+        path: &Path,
+    ) -> Result<Triplane> {
         let fmt =
             |field: &str, message: String| Error::Format { path: path.into(), field: field.into(), message };
-        let arrays = npz::read_npz(BufReader::new(file)).map_err(|(k, m)| fmt(&k, m))?;
-        let get = |key: &str| arrays.iter().find(|(k, _)| k == key).map(|(_, a)| a);
-        const REQUIRED: [&str; 9] = [
-            "planes",
-            "decoder_w0",
-            "decoder_b0",
-            "decoder_w1",
-            "decoder_b1",
-            "box_warp",
-            "ray_start",
-            "ray_end",
-            "format_version",
-        ];
-        const OPTIONAL: [&str; 4] = ["camera", "occupancy", "occupancy_checksum", "source"];
-        for (k, _) in &arrays {
-            if !REQUIRED.contains(&k.as_str()) && !OPTIONAL.contains(&k.as_str()) {
-                return Err(fmt(
-                    k,
-                    format!("unknown key; expected {REQUIRED:?} and optionally {OPTIONAL:?}"),
-                ));
-            }
+        if bytes == 0 {
+            return Err(fmt("", "empty file, not an .npz triplane".into()));
         }
-        for k in REQUIRED {
-            if get(k).is_none() {
-                return Err(fmt(k, "missing".into()));
-            }
+        if bytes > MAX_FILE_BYTES {
+            return Err(fmt(
+                "",
+                format!("{bytes} bytes, more than the cap of {MAX_FILE_BYTES} for a triplane file"),
+            ));
         }
-        let version = get("format_version").unwrap();
-        match (&version.data, version.scalar_f64()) {
-            (NpyData::I64(_) | NpyData::I32(_), Some(v)) if v as i64 == FORMAT_VERSION => {}
-            _ => {
-                return Err(fmt(
-                    "format_version",
-                    format!(
-                        "unsupported version {:?}; this build reads version {FORMAT_VERSION}",
-                        version.data
-                    ),
-                ))
-            }
+        let mut npz = npz::NpzReader::new(reader, bytes).map_err(|(k, m)| fmt(&k, m))?;
+        let mut keys: Vec<String> = npz.keys().map(str::to_string).collect();
+        keys.sort();
+        let has = |k: &str| keys.iter().any(|x| x == k);
+
+        // The version first, so a newer file is reported as such rather than by its new keys.
+        const VERSION: &str = "format_version";
+        if !has(VERSION) {
+            return Err(fmt(VERSION, "missing key (not an lp3d triplane file?)".into()));
         }
-        let floats = |key: &str, shape: &[usize]| -> Result<Vec<f32>> {
-            let a = get(key).unwrap();
-            if a.shape != shape {
-                return Err(fmt(key, format!("expected shape {shape:?}, got {:?}", a.shape)));
-            }
-            a.to_f32().ok_or_else(|| fmt(key, format!("expected a float array, got {}", a.dtype_name())))
+        let header = npz.header(VERSION).map_err(|m| fmt(VERSION, m))?;
+        check_header(VERSION, &header).map_err(|m| fmt(VERSION, m))?;
+        let version = match npz.read(VERSION, &header).map_err(|m| fmt(VERSION, m))? {
+            NpyData::I64(v) => v[0],
+            NpyData::I32(v) => v[0] as i64,
+            _ => unreachable!("check_header admits integers only"),
         };
-        let scalar = |key: &str| -> Result<f32> {
-            get(key)
-                .unwrap()
-                .scalar_f64()
-                .map(|v| v as f32)
-                .ok_or_else(|| fmt(key, "expected a numeric scalar".into()))
-        };
-        let pa = get("planes").unwrap();
-        if pa.shape.len() != 4 || pa.shape[0] != 3 || pa.shape[1] != N_CHANNELS {
-            return Err(fmt("planes", format!("expected shape (3, 32, H, W), got {:?}", pa.shape)));
+        if version != FORMAT_VERSION {
+            return Err(fmt(
+                VERSION,
+                format!("unknown format_version {version} (this reader supports {FORMAT_VERSION})"),
+            ));
         }
-        let plane_dtype = match pa.data {
-            NpyData::F16(_) => PlaneDtype::F16,
-            NpyData::F32(_) => PlaneDtype::F32,
-            _ => return Err(fmt("planes", format!("expected float16 or float32, got {}", pa.dtype_name()))),
+        let unknown: Vec<&String> = keys
+            .iter()
+            .filter(|k| !REQUIRED_KEYS.contains(&k.as_str()) && !OPTIONAL_KEYS.contains(&k.as_str()))
+            .collect();
+        if let Some(first) = unknown.first() {
+            return Err(fmt(first, format!("unknown key(s) {unknown:?} (format_version {FORMAT_VERSION})")));
+        }
+        let missing: Vec<&str> = {
+            let mut m: Vec<&str> = REQUIRED_KEYS.iter().copied().filter(|k| !has(k)).collect();
+            m.sort();
+            m
         };
-        let camera = match get("camera") {
+        if let Some(first) = missing.first() {
+            return Err(fmt(first, format!("missing required key(s) {missing:?}")));
+        }
+        if has("occupancy") != has("occupancy_checksum") {
+            let absent = if has("occupancy") { "occupancy_checksum" } else { "occupancy" };
+            return Err(fmt(absent, "missing ('occupancy' and 'occupancy_checksum' go together)".into()));
+        }
+
+        // Every header against the format before any data is read: no claim reaches the allocator.
+        let mut headers = Vec::with_capacity(keys.len());
+        for key in keys.iter().filter(|k| *k != VERSION) {
+            let h = npz.header(key).map_err(|m| fmt(key, m))?;
+            check_header(key, &h).map_err(|m| fmt(key, m))?;
+            headers.push((key.clone(), h));
+        }
+        let mut arrays: Vec<(String, NpyArray)> = Vec::with_capacity(headers.len());
+        for (key, h) in headers {
+            let data = npz.read(&key, &h).map_err(|m| fmt(&key, m))?;
+            arrays.push((key, NpyArray { shape: h.shape, data }));
+        }
+        let mut take = |key: &str| {
+            let i = arrays.iter().position(|(k, _)| k == key)?;
+            Some(arrays.swap_remove(i).1)
+        };
+
+        let planes = take("planes").expect("required key present");
+        let (height, width) = (planes.shape[2], planes.shape[3]);
+        let (planes, plane_dtype) = match planes.data {
+            NpyData::F16(v) => {
+                (v.iter().map(|&b| half::f16::from_bits(b).to_f32()).collect(), PlaneDtype::F16)
+            }
+            NpyData::F32(v) => (v, PlaneDtype::F32),
+            _ => unreachable!("check_header admits float16 and float32 planes only"),
+        };
+        let mut floats = |key: &str| take(key).and_then(|a| a.to_f32()).expect("required float key present");
+        let decoder = Decoder {
+            w0: floats("decoder_w0"),
+            b0: floats("decoder_b0"),
+            w1: floats("decoder_w1"),
+            b1: floats("decoder_b1"),
+        };
+        let mut scalar = |key: &str| take(key).and_then(|a| a.scalar_f64()).expect("required scalar present");
+        let (box_warp, ray_start, ray_end) = (scalar("box_warp"), scalar("ray_start"), scalar("ray_end"));
+        check_bounds(box_warp, ray_start, ray_end).map_err(|(k, m)| fmt(k, m))?;
+        let camera = match take("camera") {
             None => None,
             Some(a) => {
-                let v = a
-                    .to_f32()
-                    .filter(|v| v.len() == 25)
-                    .ok_or_else(|| fmt("camera", "expected 25 floats".into()))?;
-                let v64: Vec<f64> = v.iter().map(|&x| x as f64).collect();
-                Some(Camera::from_label(&v64, "camera").map_err(|e| fmt("camera", e.to_string()))?)
-            }
-        };
-        let occupancy = match (get("occupancy"), get("occupancy_checksum")) {
-            (None, None) => None,
-            (Some(_), None) => {
-                return Err(fmt("occupancy_checksum", "missing (required with occupancy)".into()))
-            }
-            (None, Some(_)) => {
-                return Err(fmt("occupancy", "missing (occupancy_checksum without a grid)".into()))
-            }
-            (Some(a), Some(_)) => {
-                let g = a.shape.first().copied().unwrap_or(0);
-                if a.shape.len() != 3 || a.shape.iter().any(|&d| d != g) {
+                let v64: Vec<f64> = match a.data {
+                    NpyData::F64(v) => v,
+                    NpyData::F32(v) => v.iter().map(|&x| x as f64).collect(),
+                    _ => unreachable!("check_header admits float32 and float64 cameras only"),
+                };
+                let camera = Camera::from_label(&v64, "camera").map_err(|e| fmt("camera", e.to_string()))?;
+                if let Some(i) = v64.iter().position(|&x| !(x as f32).is_finite()) {
                     return Err(fmt(
-                        "occupancy",
-                        format!("expected a (G, G, G) grid, got shape {:?}", a.shape),
+                        "camera",
+                        format!("value {} at index {i} is not finite as float32", v64[i]),
                     ));
                 }
-                let NpyData::F32(bound) = &a.data else {
-                    return Err(fmt("occupancy", format!("expected float32, got {}", a.dtype_name())));
-                };
-                Some(Occupancy { resolution: g, bound: bound.clone() })
+                Some(camera)
             }
         };
-        let source = match get("source") {
+        let checksum = match take("occupancy_checksum").map(|a| a.data) {
             None => None,
-            Some(NpyArray { data: NpyData::Str(s), .. }) => Some(s.clone()),
-            Some(_) => return Err(fmt("source", "expected a unicode string".into())),
+            Some(NpyData::I64(v)) => Some(v[0]),
+            Some(NpyData::I32(v)) => Some(v[0] as i64),
+            Some(_) => unreachable!("check_header admits integer checksums only"),
+        };
+        let occupancy = match take("occupancy") {
+            None => None,
+            Some(NpyArray { shape, data: NpyData::F32(bound) }) => {
+                Some(Occupancy { resolution: shape[0], bound })
+            }
+            Some(_) => unreachable!("check_header admits float32 grids only"),
+        };
+        let source = match take("source").map(|a| a.data) {
+            None => None,
+            Some(NpyData::Str(s)) => Some(s),
+            Some(_) => unreachable!("check_header admits unicode sources only"),
         };
         let tri = Triplane {
-            planes: pa.to_f32().unwrap(),
-            height: pa.shape[2],
-            width: pa.shape[3],
+            planes,
+            height,
+            width,
             plane_dtype,
-            decoder: Decoder {
-                w0: floats("decoder_w0", &[HIDDEN, N_CHANNELS])?,
-                b0: floats("decoder_b0", &[HIDDEN])?,
-                w1: floats("decoder_w1", &[N_OUT, HIDDEN])?,
-                b1: floats("decoder_b1", &[N_OUT])?,
-            },
-            box_warp: scalar("box_warp")?,
-            ray_start: scalar("ray_start")?,
-            ray_end: scalar("ray_end")?,
+            decoder,
+            box_warp: box_warp as f32,
+            ray_start: ray_start as f32,
+            ray_end: ray_end as f32,
             camera,
             occupancy,
             source,
         };
         tri.validate().map_err(|e| match e {
-            Error::InvalidInput { field, message } => fmt(&field, message),
+            Error::InvalidInput { field, message } => fmt(key_of_field(&field), message),
             other => other,
         })?;
-        if tri.occupancy.is_some() {
-            let a = get("occupancy_checksum").unwrap();
-            let stored = match (&a.data, a.shape.is_empty()) {
-                (NpyData::I64(v), true) => v[0],
-                _ => return Err(fmt("occupancy_checksum", "expected an int64 scalar".into())),
-            };
+        if let Some(stored) = checksum {
             let actual = Occupancy::checksum(&tri) as i64;
             if stored != actual {
                 return Err(fmt(
@@ -309,8 +355,10 @@ impl Triplane {
         Ok(tri)
     }
 
-    /// Writes the triplane atomically: a temporary file in the same directory, then rename.
-    /// On failure nothing is left behind and an existing file is untouched.
+    /// Writes the triplane atomically ([`crate::atomic`]): a temporary file of this call's own in
+    /// the same directory, synced, then renamed. Threads and processes may save one path at once
+    /// (each publishes a whole file); on failure nothing is left behind and an existing file is
+    /// untouched.
     pub fn save(&self, path: impl AsRef<Path>) -> Result<()> {
         self.validate()?;
         let path = path.as_ref();
@@ -344,29 +392,166 @@ impl Triplane {
         if let Some(s) = &self.source {
             arrays.push(("source", NpyArray { shape: vec![], data: NpyData::Str(s.clone()) }));
         }
-        write_atomically(path, |file| npz::write_npz(file, &arrays))
+        crate::atomic::write_atomically(path, |file| npz::write_npz(file, &arrays))
     }
 }
 
-/// Runs `write` on a temporary sibling of `path`, then renames it into place.
-pub fn write_atomically(path: &Path, write: impl FnOnce(&mut File) -> std::io::Result<()>) -> Result<()> {
-    let io_err = |p: &Path, e: std::io::Error| Error::Io { path: p.into(), message: e.to_string() };
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-        _ => PathBuf::from("."),
+/// Keys a format-version-1 file must hold.
+pub const REQUIRED_KEYS: [&str; 9] = [
+    "planes",
+    "decoder_w0",
+    "decoder_b0",
+    "decoder_w1",
+    "decoder_b1",
+    "box_warp",
+    "ray_start",
+    "ray_end",
+    "format_version",
+];
+/// Keys it may hold besides (`occupancy` and `occupancy_checksum` only together).
+pub const OPTIONAL_KEYS: [&str; 4] = ["camera", "occupancy", "occupancy_checksum", "source"];
+
+/// Opens `path` for reading and checks that it is a regular file, returning it and its size.
+/// Opened non-blocking: a FIFO would otherwise wait for a writer forever (and a blocked open
+/// ignores Ctrl-C); for a regular file the flag changes nothing.
+fn open_regular_file(path: &Path) -> Result<(File, u64)> {
+    let io = |message: String| Error::Io { path: path.into(), message };
+    let mut options = std::fs::OpenOptions::new();
+    options.read(true);
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::OpenOptionsExt;
+        options.custom_flags(libc::O_NONBLOCK | libc::O_NOCTTY);
+    }
+    let file = options.open(path).map_err(|e| io(e.to_string()))?;
+    let meta = file.metadata().map_err(|e| io(e.to_string()))?;
+    if !meta.is_file() {
+        return Err(io(format!("{}, not a regular file (a triplane .npz)", file_kind(&meta.file_type()))));
+    }
+    Ok((file, meta.len()))
+}
+
+/// What a non-regular file is, for the error message.
+fn file_kind(t: &std::fs::FileType) -> &'static str {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        if t.is_fifo() {
+            return "is a FIFO (named pipe)";
+        }
+        if t.is_char_device() {
+            return "is a character device";
+        }
+        if t.is_block_device() {
+            return "is a block device";
+        }
+        if t.is_socket() {
+            return "is a socket";
+        }
+    }
+    if t.is_dir() {
+        "is a directory"
+    } else {
+        "is not a regular file"
+    }
+}
+
+/// Checks one entry's `.npy` header (dtype, shape, caps) against the format's table before any
+/// of its data is read. `lp3d.triplane_io` holds the same table.
+fn check_header(key: &str, h: &npz::NpyHeader) -> std::result::Result<(), String> {
+    use npz::Dtype::{F16, F32, F64, I32, I64};
+    const REAL: &[npz::Dtype] = &[F16, F32, F64, I32, I64];
+    let shape = h.shape.as_slice();
+    let (dtypes, want): (&[npz::Dtype], Option<&[usize]>) = match key {
+        "planes" => (&[F16, F32], None),
+        "decoder_w0" => (&[F32, F64], Some(&[HIDDEN, N_CHANNELS])),
+        "decoder_b0" => (&[F32, F64], Some(&[HIDDEN])),
+        "decoder_w1" => (&[F32, F64], Some(&[N_OUT, HIDDEN])),
+        "decoder_b1" => (&[F32, F64], Some(&[N_OUT])),
+        "box_warp" | "ray_start" | "ray_end" => (REAL, Some(&[])),
+        "format_version" | "occupancy_checksum" => (&[I32, I64], Some(&[])),
+        "camera" => (&[F32, F64], Some(&[25])),
+        "occupancy" => (&[F32], None),
+        "source" => {
+            return match h.dtype {
+                npz::Dtype::Unicode(n) if n <= MAX_SOURCE_CHARS => Ok(()),
+                npz::Dtype::Unicode(n) => {
+                    Err(format!("a string of {n} characters, more than the cap of {MAX_SOURCE_CHARS}"))
+                }
+                d => Err(format!("dtype must be a unicode string (<U…), got {}", d.name())),
+            }
+        }
+        _ => return Ok(()),
     };
-    let name =
-        path.file_name().ok_or_else(|| Error::Io { path: path.into(), message: "not a file path".into() })?;
-    let tmp = dir.join(format!(".{}.tmp-{}", name.to_string_lossy(), std::process::id()));
-    let result = (|| {
-        let mut file = File::create(&tmp)?;
-        write(&mut file)?;
-        file.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    if let Err(e) = result {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(io_err(path, e));
+    if !dtypes.contains(&h.dtype) {
+        let names: Vec<String> = dtypes.iter().map(|d| d.name()).collect();
+        return Err(format!("dtype must be {}, got {}", names.join(" or "), h.dtype.name()));
+    }
+    let got = h.shape_text();
+    match (key, want) {
+        (_, Some(want)) if shape != want => {
+            Err(format!("shape must be {}, got {got}", npz::shape_text(want)))
+        }
+        ("planes", _) => {
+            if shape.len() != 4 || shape[0] != 3 || shape[1] != N_CHANNELS {
+                return Err(format!("shape must be (3, {N_CHANNELS}, H, W), got {got}"));
+            }
+            let (height, width) = (shape[2], shape[3]);
+            if !(2..=MAX_PLANE_SIZE).contains(&height) || !(2..=MAX_PLANE_SIZE).contains(&width) {
+                return Err(format!("H and W must be in [2, {MAX_PLANE_SIZE}], got {height}x{width}"));
+            }
+            Ok(())
+        }
+        ("occupancy", _) => {
+            if shape.len() != 3 || shape[1] != shape[0] || shape[2] != shape[0] {
+                return Err(format!("shape must be (G, G, G), got {got}"));
+            }
+            if !(1..=MAX_OCCUPANCY_RESOLUTION).contains(&shape[0]) {
+                return Err(format!("G must be in [1, {MAX_OCCUPANCY_RESOLUTION}], got G = {}", shape[0]));
+            }
+            Ok(())
+        }
+        _ => Ok(()),
+    }
+}
+
+/// The scene bounds, checked as stored (float64) and as the renderer uses them (float32), so a
+/// value that overflows float32 (`ray_end = 1e300`) is an error here and in Python alike.
+fn check_bounds(
+    box_warp: f64,
+    ray_start: f64,
+    ray_end: f64,
+) -> std::result::Result<(), (&'static str, String)> {
+    let (b32, s32, e32) = (box_warp as f32, ray_start as f32, ray_end as f32);
+    for (key, v, v32) in
+        [("box_warp", box_warp, b32), ("ray_start", ray_start, s32), ("ray_end", ray_end, e32)]
+    {
+        if v.is_finite() && !v32.is_finite() {
+            return Err((key, format!("{v:e} is not finite as float32 (the renderer's precision)")));
+        }
+    }
+    if !(box_warp.is_finite() && box_warp > 0.0 && b32 > 0.0) {
+        return Err(("box_warp", format!("must be finite and > 0 (also as float32), got {box_warp:e}")));
+    }
+    if !(ray_start.is_finite() && ray_start >= 0.0 && s32 >= 0.0) {
+        return Err(("ray_start", format!("must be finite and >= 0 (also as float32), got {ray_start:e}")));
+    }
+    if !(ray_end.is_finite() && ray_end > ray_start && e32 > s32) {
+        return Err((
+            "ray_end",
+            format!("must be finite and > ray_start ({ray_start:e}) (also as float32), got {ray_end:e}"),
+        ));
     }
     Ok(())
+}
+
+/// The file key of a [`Triplane::validate`] field (`w0` is stored as `decoder_w0`).
+fn key_of_field(field: &str) -> &str {
+    match field {
+        "w0" => "decoder_w0",
+        "b0" => "decoder_b0",
+        "w1" => "decoder_w1",
+        "b1" => "decoder_b1",
+        f => f,
+    }
 }

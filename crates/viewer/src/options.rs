@@ -1,6 +1,8 @@
 //! Command-line options of `lp3d-view` (also filled in by `lp3d_render.view` from Python).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+
+use crate::screenshot::sidecar_path;
 
 pub const USAGE: &str = "\
 usage: lp3d-view [options] [triplane.npz]
@@ -10,8 +12,9 @@ Drag to orbit, right-drag or shift-drag to pan, scroll to zoom, double-click to 
 Drop a .npz file on the window to open it.
 
 options:
-  --screenshot PATH   render a few frames, save a PNG of the window to PATH, and exit
-                      (a JSON file next to it records where the 3D view is in the image)
+  --screenshot PATH   render a few frames, save a PNG of the window to PATH (.png), and exit
+                      (PATH with .json records where the 3D view is in the image; neither
+                      may be the triplane file)
   --yaw DEG           initial yaw in degrees (camera toward +x for > 0) [0]
   --pitch DEG         initial pitch in degrees (camera above for > 0) [0]
   --resolution R      rays per image side [128]
@@ -82,8 +85,85 @@ impl ViewerOptions {
         if self.screenshot.is_some() && self.path.is_none() {
             return Err("--screenshot needs a triplane file".into());
         }
+        if let (Some(shot), Some(input)) = (&self.screenshot, &self.path) {
+            check_screenshot_paths(input, shot)?;
+        }
         Ok(())
     }
+}
+
+/// A screenshot writes a PNG and its JSON sidecar. Refused here, before any window opens: either
+/// of them being the triplane file or each other (by name, link or relative path), a name that is
+/// not `.png`, a folder in their place, a missing folder.
+fn check_screenshot_paths(input: &Path, shot: &Path) -> Result<(), String> {
+    let sidecar = sidecar_path(shot);
+    let (input_id, shot_id, sidecar_id) = (file_id(input), file_id(shot), file_id(&sidecar));
+    let s = shot.display();
+    if shot_id == input_id {
+        return Err(format!(
+            "--screenshot {s} is the triplane file {}: it would be replaced",
+            input.display()
+        ));
+    }
+    if sidecar_id == input_id {
+        return Err(format!(
+            "--screenshot {s}: its JSON sidecar {} is the triplane file {}: it would be replaced",
+            sidecar.display(),
+            input.display()
+        ));
+    }
+    if sidecar_id == shot_id {
+        return Err(format!(
+            "--screenshot {s}: its JSON sidecar {} would replace the screenshot itself; give a .png file name",
+            sidecar.display()
+        ));
+    }
+    let is_png = shot.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("png"));
+    if !is_png {
+        return Err(format!("--screenshot {s}: the screenshot is a PNG image; give a .png file name"));
+    }
+    for p in [shot, sidecar.as_path()] {
+        if p.is_dir() {
+            return Err(format!("--screenshot {s}: {} is a folder", p.display()));
+        }
+    }
+    let folder = folder_of(shot);
+    if !folder.is_dir() {
+        return Err(format!("--screenshot {s}: folder {} does not exist", folder.display()));
+    }
+    Ok(())
+}
+
+fn folder_of(path: &Path) -> &Path {
+    match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    }
+}
+
+/// What identifies the file a path names: device and inode where it exists (symlinks, hard links
+/// and relative paths to one file agree), else the path with its folder resolved.
+#[derive(Debug, PartialEq)]
+enum FileId {
+    #[cfg(unix)]
+    Inode(u64, u64),
+    Path(PathBuf),
+}
+
+fn file_id(path: &Path) -> FileId {
+    #[cfg(unix)]
+    if let Ok(meta) = std::fs::metadata(path) {
+        use std::os::unix::fs::MetadataExt;
+        return FileId::Inode(meta.dev(), meta.ino());
+    }
+    if let Ok(full) = path.canonicalize() {
+        return FileId::Path(full);
+    }
+    let resolved = match (folder_of(path).canonicalize(), path.file_name()) {
+        (Ok(dir), Some(name)) => dir.join(name),
+        _ => path.to_path_buf(),
+    };
+    FileId::Path(resolved)
 }
 
 fn number(s: &str, name: &str) -> Result<f64, String> {
@@ -116,5 +196,37 @@ mod tests {
         assert!(parse(&["--bogus"]).unwrap_err().contains("unknown option"));
         assert!(parse(&["--screenshot", "s.png"]).unwrap_err().contains("needs a triplane"));
         assert!(parse(&["a.npz", "b.npz"]).unwrap_err().contains("at most one"));
+    }
+
+    #[test]
+    fn screenshot_outputs_never_alias_the_input_or_each_other() {
+        let dir = std::env::temp_dir().join(format!("lp3d-view-options-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(dir.join("folder.png")).unwrap();
+        let input = dir.join("v.npz");
+        std::fs::write(&input, b"a triplane").unwrap();
+        let p = |name: &str| dir.join(name).to_string_lossy().into_owned();
+        let input_s = p("v.npz");
+        let err = |shot: &str, input: &str| parse(&["--screenshot", shot, input]).unwrap_err();
+        assert!(err(&input_s, &input_s).contains("would be replaced"));
+        // The same file by another spelling, through a symlink, and through a hard link.
+        let dotted = format!("{}/./v.npz", dir.display());
+        assert!(err(&dotted, &input_s).contains("would be replaced"));
+        #[cfg(unix)]
+        {
+            std::os::unix::fs::symlink(&input, dir.join("link.png")).unwrap();
+            assert!(err(&p("link.png"), &input_s).contains("would be replaced"));
+            std::fs::hard_link(&input, dir.join("hard.png")).unwrap();
+            assert!(err(&p("hard.png"), &input_s).contains("would be replaced"));
+        }
+        // The sidecar of v.png is v.json: a triplane named v.json would be replaced by it.
+        std::fs::write(dir.join("v.json"), b"a triplane").unwrap();
+        assert!(err(&p("v.png"), &p("v.json")).contains("sidecar"));
+        assert!(err(&p("out.json"), &input_s).contains("sidecar"));
+        assert!(err(&p("out.jpg"), &input_s).contains(".png"));
+        assert!(err(&p("folder.png"), &input_s).contains("is a folder"));
+        assert!(err(&p("missing/s.png"), &input_s).contains("does not exist"));
+        parse(&["--screenshot", &p("ok.png"), &input_s]).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

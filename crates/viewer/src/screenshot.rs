@@ -5,6 +5,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use eframe::egui;
+use lp3d_renderer::atomic;
 
 /// The 3D view's place in the window image, in physical pixels.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -35,10 +36,49 @@ pub fn save_screenshot(path: &Path, image: &egui::ColorImage, view: &ViewRect) -
         "{{\n  \"window\": [{w}, {h}],\n  \"view\": {{\"x\": {}, \"y\": {}, \"size\": {}, \"scale\": {}, \"resolution\": {}}},\n  \"yaw\": {},\n  \"pitch\": {}\n}}\n",
         view.x, view.y, view.size, view.scale, view.resolution, view.yaw, view.pitch
     );
-    let write = |p: &Path, bytes: &[u8]| {
-        lp3d_renderer::triplane::write_atomically(p, |f| f.write_all(bytes)).map_err(|e| e.to_string())
-    };
-    write(path, &png_bytes)?;
-    write(&path.with_extension("json"), sidecar.as_bytes())?;
+    // Both files are written and synced before either is renamed into place, sidecar first: if a
+    // rename fails, `publish_all` removes what it already renamed, so a failure leaves neither.
+    let stage = |p: &Path, bytes: &[u8]| atomic::stage(p, |f| f.write_all(bytes)).map_err(|e| e.to_string());
+    let png = stage(path, &png_bytes)?;
+    let json = stage(&sidecar_path(path), sidecar.as_bytes())?;
+    atomic::publish_all(vec![json, png]).map_err(|e| e.to_string())?;
     Ok(path.to_path_buf())
+}
+
+/// The JSON file written next to a screenshot: the same name with the extension `.json`.
+pub fn sidecar_path(path: &Path) -> PathBuf {
+    path.with_extension("json")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn view() -> ViewRect {
+        ViewRect { x: 0, y: 0, size: 2, scale: 1, resolution: 2, yaw: 0.0, pitch: 0.0 }
+    }
+
+    #[test]
+    fn saves_both_files_or_neither() {
+        let dir = std::env::temp_dir().join(format!("lp3d-screenshot-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let image = egui::ColorImage::from_rgba_unmultiplied([2, 2], &[200; 16]);
+        let names = || {
+            let mut v: Vec<String> = std::fs::read_dir(&dir)
+                .unwrap()
+                .map(|e| e.unwrap().file_name().to_string_lossy().into())
+                .collect();
+            v.sort();
+            v
+        };
+        save_screenshot(&dir.join("ok.png"), &image, &view()).unwrap();
+        assert_eq!(names(), ["ok.json", "ok.png"]);
+        assert!(std::fs::read_to_string(dir.join("ok.json")).unwrap().contains("\"resolution\": 2"));
+        // The sidecar's place is taken by a folder: the write fails and leaves no PNG behind.
+        std::fs::create_dir_all(dir.join("bad.json").join("inside")).unwrap();
+        assert!(save_screenshot(&dir.join("bad.png"), &image, &view()).is_err());
+        assert_eq!(names(), ["bad.json", "ok.json", "ok.png"]);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }
