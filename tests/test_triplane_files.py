@@ -9,6 +9,7 @@ Also: the caps are the same in both languages and in ``docs/triplane-format.md``
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 import subprocess
@@ -122,3 +123,26 @@ def doc_limits() -> dict[str, int]:
 def test_caps_agree_across_languages_and_doc() -> None:
     assert lp3d_render.FILE_LIMITS == triplane_io.FILE_LIMITS
     assert doc_limits() == triplane_io.FILE_LIMITS
+
+
+def test_writers_refuse_what_the_readers_refuse(tmp_path: Path) -> None:
+    """Neither writer makes a file beyond the caps: a too-long ``source`` (both languages) and planes
+    wider than ``max_plane_size`` (Python; the Rust type cannot even hold them)."""
+    import numpy as np
+
+    from lp3d.sample_scenes import coloured_sphere
+
+    tri = coloured_sphere(size=8)
+    long = "x" * (triplane_io.MAX_SOURCE_CHARS + 1)
+    out = tmp_path / "t.npz"
+    with pytest.raises(ValueError, match="key 'source'.*cap of 4096"):
+        triplane_io.save_triplane(out, dataclasses.replace(tri, source=long))
+    native = lp3d_render.Triplane(tri.planes, tri.w0, tri.b0, tri.w1, tri.b1, source=long)
+    with pytest.raises(ValueError, match="source.*cap of 4096"):
+        native.save(str(out))
+    wide = np.zeros((3, 32, 2, triplane_io.MAX_PLANE_SIZE + 1), np.float16)
+    with pytest.raises(ValueError, match="key 'planes'.*cap of 2048"):
+        triplane_io.save_triplane(out, dataclasses.replace(tri, planes=wide))
+    assert not out.exists() and not list(tmp_path.iterdir())
+    with pytest.raises(ValueError, match="2048"):
+        lp3d_render.Triplane(wide, tri.w0, tri.b0, tri.w1, tri.b1)

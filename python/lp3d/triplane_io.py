@@ -89,12 +89,22 @@ def save_triplane(path: str | os.PathLike[str], tri: TriplaneData) -> None:
     """
     path = Path(path)
     tri.validate()
+    _check_writable_caps(path, tri)
     arrays = _arrays_of(tri)
     # A temporary file of this call's own (threads and processes may save one path at once), with
     # the permissions of any new file; synced, renamed, and deleted on failure (lp3d.atomic).
     with atomic_path(path, parents=False) as tmp, open(tmp, "wb") as f:
         # A file object, so numpy appends no ".npz"; our arrays are never object arrays (no pickle).
         np.savez(f, **arrays)
+
+
+def _check_writable_caps(path: Path, tri: TriplaneData) -> None:
+    """Refuse to write a file the readers would refuse (the caps of :data:`FILE_LIMITS`)."""
+    h, w = tri.planes.shape[-2:]
+    if max(h, w) > MAX_PLANE_SIZE:
+        raise _fail(path, "planes", f"{h}x{w} planes exceed the format's cap of {MAX_PLANE_SIZE} per side")
+    if tri.source is not None and len(tri.source) > MAX_SOURCE_CHARS:
+        raise _fail(path, "source", f"{len(tri.source)} characters, more than the cap of {MAX_SOURCE_CHARS}")
 
 
 class TriplaneFileError(ValueError):

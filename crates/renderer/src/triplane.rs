@@ -390,6 +390,14 @@ impl Triplane {
             arrays.push(("occupancy_checksum", NpyArray { shape: vec![], data: NpyData::I64(vec![crc]) }));
         }
         if let Some(s) = &self.source {
+            // Write only what the readers accept (the format's caps).
+            let n = s.chars().count();
+            if n > MAX_SOURCE_CHARS {
+                return Err(Error::invalid(
+                    "source",
+                    format!("{n} characters, more than the cap of {MAX_SOURCE_CHARS}"),
+                ));
+            }
             arrays.push(("source", NpyArray { shape: vec![], data: NpyData::Str(s.clone()) }));
         }
         crate::atomic::write_atomically(path, |file| npz::write_npz(file, &arrays))
