@@ -277,6 +277,6 @@ def test_total_steps_keeps_the_regression_share_of_the_schedule():
     small = TRAIN_CONFIGS["small"]
     assert small.regression_steps == small.total_steps
     assert _scaled_schedule(2400, small)["regression_steps"] == 2400
-    partial = dataclasses.replace(small, regression_steps=400)  # a quarter of 1,600
+    partial = dataclasses.replace(small, regression_steps=small.total_steps // 4)
     assert _scaled_schedule(2400, partial)["regression_steps"] == 600
     assert "regression_steps" not in _scaled_schedule(2400)  # the paper's configs have no such phase

@@ -521,7 +521,7 @@ TRAIN_CONFIGS: dict[str, TrainConfig] = {
         raw_resolution=128,
     ),
     "small": _cpu_recipe_config(
-        "small", samples=16, batch_size=8, total_steps=1_600, regression_steps=1_600, dataset_identities=1024
+        "small", samples=16, batch_size=8, total_steps=4_000, regression_steps=4_000, dataset_identities=2048
     ),
     "tiny": _cpu_recipe_config(
         "tiny", samples=12, batch_size=4, total_steps=1_000, regression_steps=1_000, dataset_identities=512
