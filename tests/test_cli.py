@@ -12,7 +12,6 @@ import json
 import os
 import shutil
 import struct
-import warnings
 import zlib
 from pathlib import Path
 
@@ -24,6 +23,7 @@ from lp3d.cli import main
 from lp3d.model_package import ModelPackageError, load_model_package, save_model_package
 from lp3d.sample_scenes import coloured_sphere
 from lp3d.triplane_io import load_triplane, save_triplane
+from tiny_model import tiny_onnx_package
 
 SMALL = ["--resolution", "32", "--samples", "12+12"]
 SPHERE_RADIUS = 0.3
@@ -58,27 +58,8 @@ def model(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     training-style checkpoint, all with the sphere's decoder."""
     import torch
 
-    from lp3d.encoder import build_encoder
-
     folder = tmp_path_factory.mktemp("model")
-    torch.manual_seed(0)
-    enc = build_encoder("tiny").eval()
-    s = enc.config.image_size
-    onnx_path = folder / "tiny.onnx"
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # legacy-exporter deprecation and tracer warnings
-        torch.onnx.export(
-            enc,
-            (torch.zeros(1, 3, s, s),),
-            str(onnx_path),
-            input_names=["image"],
-            output_names=["planes"],
-            dynamic_axes={"image": {0: "batch"}, "planes": {0: "batch"}},
-            dynamo=False,
-        )
-    tri = coloured_sphere(size=8)
-    bounds = {"box_warp": tri.box_warp, "ray_start": tri.ray_start, "ray_end": tri.ray_end}
-    save_model_package(onnx_path, (tri.w0, tri.b0, tri.w1, tri.b1), enc.config, bounds)
+    onnx_path, enc, tri, bounds = tiny_onnx_package(folder)
     decoder = {k: torch.from_numpy(getattr(tri, k)) for k in ("w0", "b0", "w1", "b1")}
     plain = folder / "tiny.pt"
     torch.save(

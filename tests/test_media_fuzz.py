@@ -21,7 +21,6 @@ import re
 import signal
 import struct
 import subprocess
-import warnings
 import zlib
 from collections import Counter
 from collections.abc import Callable, Iterator
@@ -33,6 +32,7 @@ from PIL import Image
 
 from lp3d.cli import main
 from lp3d.triplane_io import load_triplane
+from tiny_model import tiny_onnx_package
 
 VIDEO_SMALL = ["--resolution", "8", "--samples", "4+4"]
 #: Fuzz cases per run (the counts docs/reliability.md quotes). For a longer hunt, scale them and pick
@@ -51,32 +51,7 @@ DEADLINE_S = 60.0
 @pytest.fixture(scope="module")
 def model(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A randomly initialised ``tiny`` encoder as ONNX with its sidecar."""
-    import torch
-
-    from lp3d.encoder import build_encoder
-    from lp3d.model_package import save_model_package
-    from lp3d.sample_scenes import coloured_sphere
-
-    folder = tmp_path_factory.mktemp("model")
-    torch.manual_seed(0)
-    enc = build_encoder("tiny").eval()
-    s = enc.config.image_size
-    path = folder / "tiny.onnx"
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # legacy-exporter deprecation and tracer warnings
-        torch.onnx.export(
-            enc,
-            (torch.zeros(1, 3, s, s),),
-            str(path),
-            input_names=["image"],
-            output_names=["planes"],
-            dynamic_axes={"image": {0: "batch"}, "planes": {0: "batch"}},
-            dynamo=False,
-        )
-    tri = coloured_sphere(size=8)
-    bounds = {"box_warp": tri.box_warp, "ray_start": tri.ray_start, "ray_end": tri.ray_end}
-    save_model_package(path, (tri.w0, tri.b0, tri.w1, tri.b1), enc.config, bounds)
-    return path
+    return tiny_onnx_package(tmp_path_factory.mktemp("model"))[0]
 
 
 @pytest.fixture(scope="module")
