@@ -207,6 +207,7 @@ def test_viewer_refuses_an_overflowing_triplane(gpu, tmp_path) -> None:
         [*cmd, "--screenshot", str(shot), str(path)], capture_output=True, text=True, timeout=120
     )
     assert proc.returncode != 0 and "overflow float32" in proc.stderr, proc.stderr
+    assert f"{path}: planes" in proc.stderr, proc.stderr  # the message names the file
     assert not shot.exists()
 
 

@@ -141,7 +141,8 @@ impl ViewerApp {
     }
 
     fn install(&mut self, path: PathBuf, tri: &Triplane) -> Result<(), String> {
-        let gpu = self.renderer.upload(tri).map_err(|e| e.to_string())?;
+        // Name the file: the upload's checks (e.g. planes that overflow float32) only know the field.
+        let gpu = self.renderer.upload(tri).map_err(|e| format!("{}: {e}", path.display()))?;
         self.generation += 1;
         let summary = format!(
             "{}×{} planes ({}), rays {:.2}–{:.2}{}",
