@@ -848,7 +848,7 @@ def run(
         triplane_resolution=cfg.triplane_resolution,
         teacher_pkl=targs["teacher_pkl"],
         eg3d_source=targs["eg3d_source"],
-        conditioning=targs["conditioning"] or "gen_videos",
+        conditioning=targs["conditioning"],  # type: ignore[arg-type]
         device=device,
     )
     lpips: LPIPSLoss | None = None

@@ -1922,8 +1922,8 @@ def main(argv: list[str] | None = None) -> int:
             eg3d_source=args.eg3d_source,
             conditioning=args.eg3d_conditioning,
         )
-        if ckpt is not None and targs != resolve_teacher_args(ckpt):
-            recorded = resolve_teacher_args(ckpt)
+        recorded = resolve_teacher_args(ckpt) if ckpt is not None else None
+        if recorded is not None and _recordable(targs) != recorded:  # recorded paths are absolute
             if targs["conditioning"] != recorded["conditioning"]:
                 raise CheckpointError(
                     f"--eg3d-conditioning {targs['conditioning']}: the run was trained with "
@@ -1935,7 +1935,7 @@ def main(argv: list[str] | None = None) -> int:
             triplane_resolution=cfg.triplane_resolution,
             teacher_pkl=targs["teacher_pkl"],
             eg3d_source=targs["eg3d_source"],
-            conditioning=targs["conditioning"] or "gen_videos",
+            conditioning=targs["conditioning"],  # type: ignore[arg-type]
             device=device,
         )
         trainer = Trainer(
