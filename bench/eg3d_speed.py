@@ -1,0 +1,189 @@
+"""Exact mode against EG3D's own renderer: same head, camera and settings, one process.
+
+    EG3D_SRC=/path/to/eg3d/eg3d python bench/eg3d_speed.py [--resolution 128] [--samples 48] [--repeats 3]
+
+EG3D is not a dependency: point ``EG3D_SRC`` at the ``eg3d/`` folder of NVlabs/eg3d (the one holding
+``training/`` and ``torch_utils/``). Without it the script says so and exits 0, so anyone can run it.
+
+EG3D side: its unmodified ``ImportanceRenderer``, ``RaySampler`` and ``OSGDecoder`` (the decoder's
+``FullyConnectedLayer`` weights set so that its effective weights are the head's), float32, CPU,
+``torch.set_num_threads(--threads)``. Its two random draws (the coarse jitter's ``rand_like`` and
+``sample_pdf(det=False)``) are switched to lp3d's deterministic mode (no jitter, ``det=True``) from
+outside, so the two renders can be compared as well as timed. lp3d side: ``lp3d_render.render`` with
+every output (rgb, features, depth, weights), its pipeline compiled by an untimed warm-up.
+
+The scene: ``--scene random`` (default), ``bench/render_bench.py``'s 256² random triplane with an
+EG3D-scaled decoder, or ``--scene teacher``, a procedural teacher head (its decoder's gains of up to
+4000 turn float32 rounding in the plane fetch into feature differences of ~1e-2, so only its timing
+and depth compare). Reported: median seconds per frame of each, the ratio, and the largest
+differences in features and depth.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import functools
+import os
+import platform
+import statistics
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import numpy as np
+
+import lp3d_render
+from lp3d.camera import look_at_camera
+from lp3d.teachers import ProceduralTeacher
+from render_bench import scene as random_scene  # bench/ is on sys.path when run as a script
+
+
+def median_s(fn: Callable[[], object], repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+@contextlib.contextmanager
+def eg3d_on_path(src: Path) -> Iterator[None]:
+    if not (src / "training" / "volumetric_rendering" / "renderer.py").is_file():
+        raise SystemExit(
+            f"EG3D_SRC={src}: no training/volumetric_rendering/renderer.py there "
+            "(want NVlabs/eg3d's eg3d/ folder)"
+        )
+    sys.path.insert(0, str(src))
+    try:
+        yield
+    finally:
+        sys.path.remove(str(src))
+
+
+def eg3d_renderer(src: Path, w0: np.ndarray, b0: np.ndarray, w1: np.ndarray, b1: np.ndarray):  # noqa: ANN201
+    """EG3D's (ImportanceRenderer, RaySampler, OSGDecoder) with the given effective decoder weights,
+    its random draws replaced by lp3d's deterministic mode."""
+    import torch
+
+    with eg3d_on_path(src):
+        from training.triplane import OSGDecoder
+        from training.volumetric_rendering.ray_sampler import RaySampler
+        from training.volumetric_rendering.renderer import ImportanceRenderer
+
+    lr_mul = 1.0
+    decoder = OSGDecoder(w0.shape[1], {"decoder_lr_mul": lr_mul, "decoder_output_dim": w1.shape[0] - 1})
+    first, last = decoder.net[0], decoder.net[2]
+    with torch.no_grad():
+        first.weight.copy_(torch.from_numpy(w0) / first.weight_gain)
+        first.bias.copy_(torch.from_numpy(b0) / first.bias_gain)
+        last.weight.copy_(torch.from_numpy(w1) / last.weight_gain)
+        last.bias.copy_(torch.from_numpy(b1) / last.bias_gain)
+    renderer = ImportanceRenderer()
+    # No coarse jitter: EG3D adds rand_like(depths) * delta; a zero draw leaves the linspace.
+    module = sys.modules[ImportanceRenderer.__module__]
+    module.torch = _TorchWithoutJitter(torch)
+    renderer.sample_pdf = functools.partial(renderer.sample_pdf, det=True)
+    return renderer, RaySampler(), decoder
+
+
+class _TorchWithoutJitter:
+    """``torch`` as EG3D's renderer module sees it, with ``rand_like`` returning zeros."""
+
+    def __init__(self, torch: object) -> None:
+        self._torch = torch
+
+    def __getattr__(self, name: str) -> object:
+        if name == "rand_like":
+            return self._torch.zeros_like  # type: ignore[attr-defined]
+        return getattr(self._torch, name)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--resolution", type=int, default=128, help="rays per side (default 128)")
+    p.add_argument("--samples", type=int, default=48, help="coarse and importance samples each (default 48)")
+    p.add_argument("--repeats", type=int, default=3, help="timed frames per renderer (default 3)")
+    p.add_argument("--threads", type=int, default=2, help="torch threads for EG3D (default 2)")
+    p.add_argument(
+        "--scene", choices=("random", "teacher"), default="random", help="what to render (default random)"
+    )
+    p.add_argument("--seed", type=int, default=0, help="teacher identity for --scene teacher (default 0)")
+    args = p.parse_args(argv)
+    for name in ("resolution", "samples", "repeats", "threads"):
+        if getattr(args, name) < 1:
+            p.error(f"--{name} must be >= 1")
+    src = os.environ.get("EG3D_SRC")
+    if not src:
+        print(
+            "EG3D_SRC is not set: skipping the comparison with EG3D's renderer "
+            "(point it at NVlabs/eg3d's eg3d/ folder to run it)."
+        )
+        return 0
+    import torch
+
+    torch.set_num_threads(args.threads)
+    head = ProceduralTeacher().sample(args.seed) if args.scene == "teacher" else random_scene()
+    w0, b0, w1, b1 = head.w0, head.b0, head.w1, head.b1
+    renderer, rays, decoder = eg3d_renderer(Path(src), w0, b0, w1, b1)
+    camera = look_at_camera(yaw_deg=20.0, pitch_deg=5.0)
+    r, s = args.resolution, args.samples
+    options = {
+        "ray_start": head.ray_start,
+        "ray_end": head.ray_end,
+        "box_warp": head.box_warp,
+        "depth_resolution": s,
+        "depth_resolution_importance": s,
+        "disparity_space_sampling": False,
+        "clamp_mode": "softplus",
+        "white_back": False,
+    }
+    planes = torch.from_numpy(head.planes).unsqueeze(0)
+    cam = torch.from_numpy(np.asarray(camera, np.float32)).unsqueeze(0)
+
+    def eg3d() -> tuple[torch.Tensor, torch.Tensor]:
+        with torch.no_grad():
+            origins, directions = rays(cam[:, :16].view(-1, 4, 4), cam[:, 16:25].view(-1, 3, 3), r)
+            features, depth, _ = renderer(planes, decoder, origins, directions, options)
+        return features, depth
+
+    tri = lp3d_render.Triplane(head.planes, w0, b0, w1, b1, head.box_warp, head.ray_start, head.ray_end)
+
+    def lp3d() -> dict[str, np.ndarray]:
+        return lp3d_render.render(
+            tri, camera, resolution=r, depth_resolution=s, depth_resolution_importance=s
+        )
+
+    ours = lp3d()  # compiles the pipeline (untimed)
+    theirs = eg3d()
+    t_lp3d = median_s(lp3d, args.repeats)
+    t_eg3d = median_s(eg3d, args.repeats)
+    feat = theirs[0][0].numpy().reshape(r, r, -1)
+    depth = theirs[1][0].numpy().reshape(r, r)
+    d_feat = float(np.abs(ours["features"].transpose(1, 2, 0) - feat).max())  # lp3d: (32, R, R)
+    d_depth = float(np.abs(ours["depth"].reshape(r, r) - depth).max())
+
+    info = lp3d_render.adapter_info()
+    print(
+        f"Command: `EG3D_SRC=... python bench/eg3d_speed.py --scene {args.scene} --resolution {r} "
+        f"--samples {s} --repeats {args.repeats} --threads {args.threads}`  "
+    )
+    print(
+        f"{platform.machine()}, {os.cpu_count()} CPUs, load {os.getloadavg()[0]:.1f}; "
+        f"adapter {info.get('name')} ({info.get('driver_info', '')}); "
+        f"torch {torch.__version__}, {args.threads} threads\n"
+    )
+    print(
+        "| R | samples | EG3D ImportanceRenderer s/frame | lp3d_render s/frame | EG3D / lp3d "
+        "| max abs Δ features | max abs Δ depth |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    ratio = t_eg3d / t_lp3d
+    print(f"| {r} | {s}+{s} | {t_eg3d:.2f} | {t_lp3d:.2f} | {ratio:.2f}× | {d_feat:.1e} | {d_depth:.1e} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
