@@ -84,6 +84,21 @@ the encoder instead:
 
 Checkpoints are plain dicts of tensors and JSON strings (``torch.load(weights_only=True)``), written
 atomically; they carry the optimiser, scheduler, scaler and every RNG state, so resuming is exact.
+
+**Distributed training** (``torchrun --nproc-per-node N -m lp3d.train ...``; :mod:`lp3d.distributed`,
+``docs/training.md``). Each process takes ``cuda:LOCAL_RANK`` (NCCL) or the CPU (gloo) and builds its
+own teacher and models from the same seed (rank 0's weights are broadcast). ``batch_size`` is the
+global batch and must be a multiple of N: every rank draws the whole step's randomness from the one
+seeded data stream and keeps the rows ``rank, rank + N, ...`` (the CPU recipe's dataset rows, flips
+and rays likewise), so the stream does not depend on N. After each backward pass the student's and
+the discriminator's gradients are averaged over the ranks by hand (no ``DistributedDataParallel``:
+the student is called through ``encode``/``render``, parts freeze between stages and R1 takes a double
+backward); ``log.csv`` holds the losses' means over the ranks. Rank 0 alone holds ``.lock`` and
+writes the run directory (``world.json`` records N), computes the held-out curve and the samples
+while the others wait, and synthesises a missing dataset before the others read it. Checkpoints
+record N and every rank's RNG states: a resume on N processes is exact; on another number it is
+allowed, with a note, and continues the same training up to float rounding. Without torchrun nothing
+of this runs and one process trains exactly as described above.
 """
 
 from __future__ import annotations
@@ -110,6 +125,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from lp3d import distributed
 from lp3d.atomic import atomic_path
 from lp3d.camera_sampling import FFHQ_MULTIVIEW, FFHQ_REFERENCE, CameraDistribution, sample_cameras
 from lp3d.discriminator import (
@@ -669,7 +685,7 @@ def principal_planes(
         raise ValueError(f"principal planes need at least 2 planes, got {n}")
     found = min(k, n - 1)  # a small dataset (tests, trials) has n - 1 directions; the rest start at zero
     if found < k:
-        print(f"note: {n} planes give {found} principal planes; {k - found} start at zero", file=sys.stderr)
+        distributed.note(f"note: {n} planes give {found} principal planes; {k - found} start at zero")
     small = x.reshape(n, p * c, t, t)
     if resolution != t:
         small = F.interpolate(small, size=(resolution, resolution), mode="bilinear", antialias=True)
@@ -911,6 +927,24 @@ def load_checkpoint(
     return ckpt
 
 
+def _load_shared_checkpoint(
+    path: str | os.PathLike[str], device: str | torch.device = "cpu"
+) -> dict[str, Any]:
+    """:func:`load_checkpoint` on every rank of the same file: under torchrun rank 0 picks it (a run
+    directory means its newest readable checkpoint) and tells the others which."""
+    if distributed.is_main():
+        ckpt = load_checkpoint(path, map_location=device)
+        distributed.broadcast_object(ckpt["path"])
+        return ckpt
+    return load_checkpoint(distributed.broadcast_object(""), map_location=device)
+
+
+def _rank_seed(seed: int, rank: int, step: int) -> int:
+    """The torch seed of a rank other than 0 (its own dropout masks), from the run's seed, the rank and
+    the step it starts its streams at; rank 0 keeps the single-process streams."""
+    return int(np.random.SeedSequence([seed, rank, step]).generate_state(1)[0])
+
+
 def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
     out: dict[str, Any] = {}
     for k, v in d.items():
@@ -1056,10 +1090,20 @@ class Trainer:
         self.device = torch.device(device)
         self.teacher = teacher
         self.teacher_name = teacher_name
-        self.progress = progress
+        # Under torchrun (lp3d.distributed): this process's place, and its share of the global batch.
+        self.world_size = distributed.world_size()
+        self.rank = distributed.rank()
+        self.is_main = self.rank == 0
+        if cfg.batch_size % self.world_size != 0:
+            raise ValueError(
+                f"batch size {cfg.batch_size} is not a multiple of the world size {self.world_size}: "
+                "the global batch is split evenly over the processes (change --batch or --nproc-per-node)"
+            )
+        self.local_batch = cfg.batch_size // self.world_size
+        self.progress = progress and self.is_main  # one progress bar, rank 0's
         self.amp = bool(cfg.amp and self.device.type == "cuda")
 
-        ckpt = load_checkpoint(resume, map_location=self.device) if resume is not None else None
+        ckpt = _load_shared_checkpoint(resume, self.device) if resume is not None else None
         # Recorded in every checkpoint; a resume without them keeps the recorded ones.
         self.teacher_args = _recordable(
             teacher_args if teacher_args is not None else resolve_teacher_args(ckpt)
@@ -1083,14 +1127,18 @@ class Trainer:
         self.data_cache = data_cache
         self._perceptual, self._category = perceptual, category
         self._tb: TensorBoardLog | None = None
-        # One trainer per run directory, from before anything in it is written until train() ends.
-        self._lock = RunLock(self.out_dir)
-        self._lock.acquire()
+        # One trainer per run directory, from before anything in it is written until train() ends;
+        # under torchrun rank 0 alone writes it and holds the lock.
+        self._lock = RunLock(self.out_dir) if self.is_main else None
+        if self._lock is not None:
+            self._lock.acquire()
         try:
-            remove_stale_temporaries(self.out_dir)
+            if self.is_main:
+                remove_stale_temporaries(self.out_dir)
             self._build(ckpt)
         except BaseException:
-            self._lock.release()
+            if self._lock is not None:
+                self._lock.release()
             raise
 
     def _build(self, ckpt: dict[str, Any] | None) -> None:
@@ -1111,17 +1159,18 @@ class Trainer:
                 self.student.superres.load_state_dict(sr_state, strict=False)
                 self.pretrained_sr = True
             except RuntimeError:
-                print(
+                distributed.note(
                     f"note: the teacher's super-resolution does not fit configuration {cfg.name!r}; "
-                    "the student's SR starts from scratch and trains from stage 1",
-                    file=sys.stderr,
+                    "the student's SR starts from scratch and trains from stage 1"
                 )
 
         self.dataset: SyntheticDataset | None = None
         self.heldout: SyntheticDataset | None = None
         self._heldout_truth: list[Tensor] | None = None
         if cfg.recipe == "cpu":
-            self.dataset = self.open_dataset()
+            # Under torchrun: rank 0 synthesises a missing dataset, then the other machines' first
+            # processes (a no-op on shared storage), then the rest read it.
+            self.dataset = distributed.in_turn(self.open_dataset)
             # Channel scales of the normalised L_tri: each channel's spread over identities and texels.
             sample = torch.from_numpy(self.dataset.planes[: min(256, len(self.dataset))].astype(np.float32))
             self.plane_scale = sample.transpose(0, 2).reshape(sample.shape[2], -1).std(dim=1).clamp_min(1e-3)
@@ -1190,18 +1239,57 @@ class Trainer:
 
         if ckpt is not None:
             self._restore(ckpt)
-            set_aside_checkpoints_after(self.out_dir, self.step)
-        elif latest_checkpoint(self.out_dir) is not None:
-            raise CheckpointError(
-                f"{str(self.out_dir)!r} already holds checkpoints; pass --resume {self.out_dir} to continue "
-                "that run, or choose another --out"
-            )
+            if self.is_main:
+                set_aside_checkpoints_after(self.out_dir, self.step)
+        else:
+            if self.is_main and latest_checkpoint(self.out_dir) is not None:
+                raise CheckpointError(
+                    f"{str(self.out_dir)!r} already holds checkpoints; pass --resume {self.out_dir} to "
+                    "continue that run, or choose another --out"
+                )
+            if self.world_size > 1:
+                # Every rank starts from rank 0's weights (built from the same seed, but a start
+                # computed from data, e.g. the principal planes, may round differently elsewhere),
+                # and the other ranks draw their own dropout masks.
+                distributed.broadcast_module(self.student)
+                distributed.broadcast_module(self.discriminator)
+                if cfg.recipe == "cpu":
+                    distributed.broadcast_tensor(self.plane_scale)
+                if not self.is_main:
+                    torch.manual_seed(_rank_seed(cfg.seed, self.rank, 0))
         self._set_trainable(self.step)
+        if self.world_size > 1:
+            self._note_world()
+        if not self.is_main:
+            return
         self.out_dir.mkdir(parents=True, exist_ok=True)
         _atomic_write_text(self.out_dir / "config.json", cfg.to_json() + "\n")
+        world = {
+            "world_size": self.world_size,
+            "backend": distributed.backend(),
+            "batch_size": cfg.batch_size,
+            "batch_per_process": self.local_batch,
+        }
+        _atomic_write_text(self.out_dir / "world.json", json.dumps(world, indent=2) + "\n")
         self._init_log()
         if cfg.recipe == "cpu" and ckpt is None:
             self.log_heldout()  # the learning curve starts at the untrained student
+
+    def _note_world(self) -> None:
+        """Rank 0 says how the batch is split, and when the discriminator's minibatch-stddev groups
+        cannot hold the samples they would hold in one process."""
+        cfg, w, per = self.config, self.world_size, self.local_batch
+        backend = distributed.backend() or "no process group"
+        distributed.note(
+            f"world size {w}, batch {cfg.batch_size}, {per} per rank on {w} processes ({backend})"
+        )
+        group = cfg.discriminator.mbstd_group_size
+        if cfg.recipe == "paper" and group > 1 and per % group != 0:
+            distributed.note(
+                f"note: {per} samples per rank is not a multiple of the discriminator's minibatch-stddev "
+                f"group ({group}); each rank forms smaller groups, so the discriminator does not see the "
+                f"statistics one process at batch {cfg.batch_size} sees"
+            )
 
     def lr_factor(self, step: int) -> float:
         """The student's learning-rate multiplier: a linear ramp over ``lr_rampup_steps``, then 1 (the
@@ -1215,7 +1303,11 @@ class Trainer:
 
     # -- state -------------------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
-        """The checkpoint: tensors, plain numbers and JSON strings only."""
+        """The checkpoint: tensors, plain numbers and JSON strings only.
+
+        Under torchrun this is a collective call (every rank's RNG states are gathered, so a resume on
+        the same number of processes continues each rank's streams): call it on every rank."""
+        rngs = distributed.all_gather_objects(_rng_states())
         return {
             "format": CHECKPOINT_FORMAT,
             "config": self.config.to_json(),
@@ -1231,7 +1323,9 @@ class Trainer:
             "scheduler_d": self.sched_d.state_dict(),
             "scaler": self.scaler.state_dict(),
             "data_rng": json.dumps(self.data_rng.bit_generator.state),
-            "rng": _rng_states(),
+            "world_size": self.world_size,
+            "rng": rngs[0],
+            "rng_other_ranks": rngs[1:],
         }
 
     def _restore(self, ckpt: dict[str, Any]) -> None:
@@ -1247,17 +1341,31 @@ class Trainer:
         if ckpt.get("scaler"):
             self.scaler.load_state_dict(ckpt["scaler"])
         self.data_rng.bit_generator.state = json.loads(ckpt["data_rng"])
-        _set_rng_states(ckpt["rng"])
+        recorded = int(ckpt.get("world_size", 1))  # checkpoints from before torchrun: one process
+        if recorded != self.world_size:
+            distributed.note(
+                f"note: checkpoint {ckpt['path']!r} was written by a run of {recorded} process(es), this "
+                f"one has {self.world_size}: the data stream, weights and optimiser states carry over, so "
+                "it continues the same training up to float rounding (not bit for bit)"
+            )
+        states = [ckpt["rng"], *ckpt.get("rng_other_ranks", [])]
+        _set_rng_states(states[self.rank] if self.rank < len(states) else states[0])
+        if self.rank >= len(states):  # a rank the checkpoint has no streams for: its own
+            torch.manual_seed(_rank_seed(self.config.seed, self.rank, int(ckpt["step"])))
         self.scene = SceneBounds(**json.loads(ckpt["scene"]))
         self.student.scene = self.scene
         self.step = int(ckpt["step"])
 
     def save_checkpoint(self) -> Path:
-        """Write ``checkpoints/step-NNNNNN.pt`` atomically and prune old ones (keeps the last K)."""
-        if self.config.recipe == "cpu":
-            self.log_heldout()
+        """Write ``checkpoints/step-NNNNNN.pt`` atomically and prune old ones (keeps the last K).
+        Under torchrun every rank calls it and rank 0 writes."""
+        if self.config.recipe == "cpu" and self.is_main:
+            self.log_heldout()  # the other ranks wait in state_dict()'s gather
         path = checkpoint_path(self.out_dir, self.step)
-        _atomic_torch_save(self.state_dict(), path)
+        state = self.state_dict()  # on every rank: it gathers their RNG states
+        if not self.is_main:
+            return path
+        _atomic_torch_save(state, path)
         for _, p in checkpoints(self.out_dir)[: -self.config.keep_checkpoints]:
             p.unlink(missing_ok=True)
         return path
@@ -1326,12 +1434,18 @@ class Trainer:
         return planes
 
     def synthesize(self, step: int) -> Batch:
-        """Identities, cameras and teacher renders of ``step`` (all randomness from ``data_rng``)."""
+        """Identities, cameras and teacher renders of ``step`` (all randomness from ``data_rng``).
+
+        Under torchrun the whole global batch is drawn and this rank keeps its rows (``shard``), so the
+        stream does not depend on the number of processes; only this rank's rows are rendered."""
         cfg = self.config
         b = cfg.batch_size
         seeds = [int(s) for s in self.data_rng.integers(cfg.train_seeds[0], cfg.train_seeds[1], size=b)]
-        ref_cams = torch.from_numpy(sample_cameras(cfg.reference_cameras, b, self.data_rng).labels)
-        mv_cams = torch.from_numpy(sample_cameras(cfg.multiview_cameras, b, self.data_rng).labels)
+        ref_labels = sample_cameras(cfg.reference_cameras, b, self.data_rng).labels
+        mv_labels = sample_cameras(cfg.multiview_cameras, b, self.data_rng).labels
+        seeds, ref_labels, mv_labels = (self._shard(x) for x in (seeds, ref_labels, mv_labels))
+        ref_cams = torch.from_numpy(np.ascontiguousarray(ref_labels))
+        mv_cams = torch.from_numpy(np.ascontiguousarray(mv_labels))
         ref_cams = ref_cams.to(self.device, torch.float32)
         mv_cams = mv_cams.to(self.device, torch.float32)
         planes = self._teacher_planes(self.teacher.sample_batch(seeds))
@@ -1358,10 +1472,15 @@ class Trainer:
         self.check_batch(batch, step)
         return batch
 
+    def _shard(self, x: Any) -> Any:
+        """This rank's rows of a global batch (everything in one process)."""
+        return distributed.shard(x, rank_=self.rank, size=self.world_size)
+
     def check_batch(self, batch: Batch, step: int) -> None:
-        """Raise :class:`NonFiniteError` / ValueError naming the first bad tensor of a batch."""
+        """Raise :class:`NonFiniteError` / ValueError naming the first bad tensor of a batch (this
+        rank's share of it under torchrun)."""
         cfg = self.config
-        b, s, r = cfg.batch_size, cfg.image_size, cfg.raw_resolution
+        b, s, r = self.local_batch, cfg.image_size, cfg.raw_resolution
         t = cfg.triplane_resolution
         expected: list[tuple[str, Tensor, tuple[int, ...]]] = [
             ("teacher triplanes", batch.planes, (b, 3, cfg.encoder.plane_channels, -1, -1)),
@@ -1419,6 +1538,7 @@ class Trainer:
         if cfg.recipe == "cpu":
             row = self._cpu_step(step)
             self.step += 1
+            self._mean_over_ranks(row)
             row["seconds"] = time.perf_counter() - t0
             return row
         stage = cfg.stage(step)
@@ -1426,7 +1546,7 @@ class Trainer:
         batch = batch if batch is not None else self.synthesize(step)
         weights = cfg.weights(step)
         is_ref = batch.ref is not None
-        b = cfg.batch_size
+        b = self.local_batch
         use_d = stage == 2 and (weights.adversarial_reference > 0 or weights.adversarial_multiview > 0)
 
         self.student.train()
@@ -1480,13 +1600,26 @@ class Trainer:
         if use_d:
             row.update(self._discriminator_step(step, batch, rendered, is_ref))
         self.step += 1
+        self._mean_over_ranks(row)
         row["seconds"] = time.perf_counter() - t0
         return row
 
+    def _mean_over_ranks(self, row: dict[str, Any]) -> None:
+        """Under torchrun: the logged losses become their means over the ranks (each is a mean over
+        an equal share of the batch, so this is the global batch's mean)."""
+        if self.world_size > 1:
+            row.update(
+                distributed.mean_over_ranks(
+                    {k: v for k, v in row.items() if isinstance(v, float)}, self.device
+                )
+            )
+
     def _student_step(self, total: Tensor, row: dict[str, Any]) -> None:
-        """Backward ``total``, clip, one optimiser and scheduler step; logs the loss and rate in ``row``."""
+        """Backward ``total``, average the gradients over the ranks (torchrun), clip, one optimiser and
+        scheduler step; logs the loss and rate in ``row``."""
         self.opt_g.zero_grad(set_to_none=True)
         self.scaler.scale(total).backward()
+        distributed.average_gradients(self.student.parameters())
         if self.config.grad_clip > 0:
             self.scaler.unscale_(self.opt_g)
             torch.nn.utils.clip_grad_norm_(self.student.parameters(), self.config.grad_clip)
@@ -1503,11 +1636,14 @@ class Trainer:
         assert ds is not None
         self._set_trainable(step)
         self.student.train()
+        # The global batch's rows and flips, of which this rank keeps its share (torchrun).
         idx = np.sort(self.data_rng.integers(0, len(ds), size=cfg.batch_size))
+        flips = self.data_rng.random(len(idx)) < 0.5 if cfg.mirror_augment else None
+        idx = self._shard(idx)
         image = torch.from_numpy(ds.ref_image[idx].astype(np.float32)).to(self.device)
         target = torch.from_numpy(ds.planes[idx].astype(np.float32)).to(self.device)
-        if cfg.mirror_augment:  # a flipped input is the mirrored head: twice the identities for free
-            flip = torch.from_numpy(self.data_rng.random(len(idx)) < 0.5).to(self.device)
+        if flips is not None:  # a flipped input is the mirrored head: twice the identities for free
+            flip = torch.from_numpy(np.ascontiguousarray(self._shard(flips))).to(self.device)
             image = torch.where(flip[:, None, None, None], image.flip(-1), image)
             target = torch.where(flip[:, None, None, None, None], mirror_planes(target), target)
         planes = self.student.encode(image, amp=self.amp)
@@ -1612,11 +1748,15 @@ class Trainer:
 
     def _random_ray_rgb(self, planes: Tensor, target: Tensor) -> tuple[Tensor, Tensor]:
         """RGB (B, M, 3) of the student's planes and of the teacher's ``target`` planes on M random
-        pixel rays of one random multiview camera per identity (drawn from ``data_rng``)."""
+        pixel rays of one random multiview camera per identity (drawn from ``data_rng`` for the global
+        batch, of which this rank keeps its rows)."""
         cfg = self.config
-        b, m, r = planes.shape[0], cfg.rays_per_identity, cfg.raw_resolution
-        cams = torch.from_numpy(sample_cameras(cfg.multiview_cameras, b, self.data_rng).labels)
-        pixels = torch.from_numpy(self.data_rng.integers(0, r * r, size=(b, m))).to(self.device)
+        b, m, r = cfg.batch_size, cfg.rays_per_identity, cfg.raw_resolution
+        cams = torch.from_numpy(
+            np.ascontiguousarray(self._shard(sample_cameras(cfg.multiview_cameras, b, self.data_rng).labels))
+        )
+        pixels = self.data_rng.integers(0, r * r, size=(b, m))
+        pixels = torch.from_numpy(np.ascontiguousarray(self._shard(pixels))).to(self.device)
         origins, directions = rays_from_cameras(cams.to(self.device, torch.float32), r)
         gather = pixels.unsqueeze(-1).expand(-1, -1, 3)
         origins, directions = origins.gather(1, gather), directions.gather(1, gather)
@@ -1660,6 +1800,7 @@ class Trainer:
             out["r1"] = float(r1.detach())
         self.opt_d.zero_grad(set_to_none=True)
         loss.backward()
+        distributed.average_gradients(self.discriminator.parameters())
         self.opt_d.step()
         self.sched_d.step()
         self.discriminator.requires_grad_(False)
@@ -1720,10 +1861,14 @@ class Trainer:
         Ctrl-C (in the main thread) finishes the current step, saves a checkpoint and returns with
         ``self.interrupted`` set; a second Ctrl-C aborts at once (the last checkpoint stays valid).
         """
-        self._lock.acquire()  # released below: the run directory is free once train() returns
+        if self._lock is not None:
+            self._lock.acquire()  # released below: the run directory is free once train() returns
         try:
-            self._tensorboard()  # opened at the start step, so a resume purges what came after it
-            return self._train(max_steps)
+            if self.is_main:
+                self._tensorboard()  # opened at the start step, so a resume purges what came after it
+            row = self._train(max_steps)
+            distributed.barrier()  # under torchrun: every rank returns once rank 0 has written the end
+            return row
         finally:
             self.close()
 
@@ -1732,7 +1877,8 @@ class Trainer:
         if self._tb is not None:
             self._tb.close()
             self._tb = None
-        self._lock.release()
+        if self._lock is not None:
+            self._lock.release()
 
     def _tensorboard(self) -> TensorBoardLog:
         """The run's TensorBoard writer (a no-op without the package), opened at first use."""
@@ -1745,7 +1891,7 @@ class Trainer:
         end = cfg.total_steps if max_steps is None else max_steps
         self.interrupted = False
         if self.step >= end:
-            print(f"already at step {self.step} >= {end}; nothing to do", file=sys.stderr)
+            distributed.note(f"already at step {self.step} >= {end}; nothing to do")
             return None
         bar = None
         if self.progress:
@@ -1759,7 +1905,7 @@ class Trainer:
             if self.interrupted:
                 raise KeyboardInterrupt
             self.interrupted = True
-            print("\nstopping after this step (Ctrl-C again to abort)", file=sys.stderr)
+            distributed.note("\nstopping after this step (Ctrl-C again to abort)")
 
         previous = None
         if threading.current_thread() is threading.main_thread():
@@ -1768,8 +1914,9 @@ class Trainer:
         try:
             while self.step < end and not self.interrupted:
                 row = self.train_step()
-                self._log(row)
-                self._tensorboard().step_row(row)
+                if self.is_main:
+                    self._log(row)
+                    self._tensorboard().step_row(row)
                 if bar is not None:
                     bar.update(1)
                     post = {"stage": row["stage"], "loss": f"{row['loss']:.4f}"}
@@ -1777,10 +1924,12 @@ class Trainer:
                         if key in row:
                             post[key] = f"{row[key]:.4f}"
                     bar.set_postfix(post, refresh=False)
-                if cfg.sample_every and self.step % cfg.sample_every == 0:
-                    self.save_samples()
+                if cfg.sample_every and self.step % cfg.sample_every == 0 and self.is_main:
+                    self.save_samples()  # the other ranks wait at their next collective call
                 if self.step % cfg.checkpoint_every == 0:
                     self.save_checkpoint()
+                # Under torchrun a Ctrl-C reaches the ranks at different moments: all stop together.
+                self.interrupted = distributed.any_rank(self.interrupted, self.device)
         finally:
             if previous is not None:
                 signal.signal(signal.SIGINT, previous)
@@ -1788,7 +1937,7 @@ class Trainer:
                 bar.close()
         if self.step % cfg.checkpoint_every != 0:
             self.save_checkpoint()
-        if cfg.sample_every and self.step % cfg.sample_every != 0 and not self.interrupted:
+        if cfg.sample_every and self.step % cfg.sample_every != 0 and not self.interrupted and self.is_main:
             self.save_samples()
         return row
 
@@ -1809,9 +1958,17 @@ def _parser() -> argparse.ArgumentParser:
         help="named configuration (default tiny; on --resume, the checkpoint's)",
     )
     p.add_argument("--teacher", choices=TEACHERS, default=None, help="teacher (default procedural)")
-    p.add_argument("--teacher-pkl", default=None, help="EG3D generator pickle for --teacher eg3d")
     p.add_argument(
-        "--eg3d-source", default=None, help="NVlabs/eg3d's eg3d/ folder, to unpickle the generator"
+        "--teacher-pkl",
+        default=None,
+        help="EG3D generator pickle for --teacher eg3d (remembered on --resume)",
+    )
+    p.add_argument(
+        "--eg3d-source",
+        default=None,
+        help="NVlabs/eg3d's source, to unpickle the generator: the repository root or its inner eg3d/ "
+        "folder (the one holding torch_utils/, dnnlib/ and training/); not needed when those are "
+        "importable already (remembered on --resume)",
     )
     p.add_argument(
         "--eg3d-conditioning",
@@ -1855,25 +2012,43 @@ def _parser() -> argparse.ArgumentParser:
         default=None,
         help="write a checkpoint every N steps (default: the config's; may change on --resume)",
     )
-    p.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto")
+    p.add_argument(
+        "--device",
+        default="auto",
+        help="cpu, cuda, cuda:N or auto; under torchrun each process takes cuda:LOCAL_RANK (cuda:N is "
+        "refused) or the CPU",
+    )
+    p.add_argument(
+        "--dist-timeout",
+        type=float,
+        default=60.0,
+        metavar="MINUTES",
+        help="under torchrun, how long a process waits for the others at a collective call (default 60; "
+        "it must cover rank 0 synthesising a missing dataset)",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
-
-
-def _device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    dev = torch.device(name)
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        raise ValueError("--device cuda: CUDA is not available here (use --device cpu)")
-    return dev
 
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     try:
-        device = _device(args.device)
-        ckpt = load_checkpoint(args.resume) if args.resume else None
+        return _main(args)
+    finally:
+        distributed.shutdown()  # leaves torchrun's process group (a no-op for one process)
+
+
+def _main(args: argparse.Namespace) -> int:
+    # Errors are printed by every process (one rank may fail alone); under torchrun they name the rank.
+    def error(e: BaseException | str) -> None:
+        where = f" (rank {distributed.rank()})" if distributed.world_size() > 1 else ""
+        print(f"error{where}: {e}", file=sys.stderr)
+
+    try:
+        if not (math.isfinite(args.dist_timeout) and args.dist_timeout > 0):
+            raise ValueError(f"--dist-timeout must be a positive number of minutes, got {args.dist_timeout}")
+        device = distributed.setup(args.device, timeout_minutes=args.dist_timeout).device
+        ckpt = _load_shared_checkpoint(args.resume) if args.resume else None
         if ckpt is not None:
             cfg: TrainConfig = ckpt["train_config"]
             if args.config is not None and args.config != cfg.name:
@@ -1929,7 +2104,7 @@ def main(argv: list[str] | None = None) -> int:
                     f"--eg3d-conditioning {targs['conditioning']}: the run was trained with "
                     f"{recorded['conditioning']!r}; a resumed run keeps its teacher"
                 )
-            print(f"note: teacher arguments differ from the run's recorded ones: {targs}", file=sys.stderr)
+            distributed.note(f"note: teacher arguments differ from the run's recorded ones: {targs}")
         teacher = build_teacher(
             teacher_name,
             triplane_resolution=cfg.triplane_resolution,
@@ -1951,28 +2126,26 @@ def main(argv: list[str] | None = None) -> int:
             teacher_args=targs,
         )
     except (ValueError, RuntimeError, FileNotFoundError) as e:
-        print(f"error: {e}", file=sys.stderr)
+        error(e)
         return 2
-    print(
+    distributed.note(
         f"training {cfg.name!r} on {device} with the {teacher_name} teacher, batch {cfg.batch_size}, "
-        f"from step {trainer.step} to {args.max_steps or cfg.total_steps}; run directory {out}",
-        file=sys.stderr,
+        f"from step {trainer.step} to {args.max_steps or cfg.total_steps}; run directory {out}"
     )
     try:
         trainer.train(args.max_steps)
     except NonFiniteError as e:
-        print(f"error: {e}", file=sys.stderr)
+        error(e)
         return 3
     except KeyboardInterrupt:
-        print(f"aborted; the last checkpoint is {latest_checkpoint(out)}", file=sys.stderr)
+        distributed.note(f"aborted; the last checkpoint is {latest_checkpoint(out)}")
         return 130
-    last = latest_checkpoint(out)
     if trainer.interrupted:
-        print(
-            f"interrupted at step {trainer.step}; saved {last}; continue with --resume {out}", file=sys.stderr
-        )
+        last = latest_checkpoint(out) if trainer.is_main else None
+        distributed.note(f"interrupted at step {trainer.step}; saved {last}; continue with --resume {out}")
         return 130
-    print(f"done at step {trainer.step}; checkpoint {last}", file=sys.stderr)
+    if trainer.is_main:
+        print(f"done at step {trainer.step}; checkpoint {latest_checkpoint(out)}", file=sys.stderr)
     return 0
 
 
