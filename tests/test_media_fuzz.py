@@ -66,10 +66,10 @@ def load_encoder_once(monkeypatch: pytest.MonkeyPatch, encoders: dict) -> None:
 
     real = lp3d.inference.load_encoder
 
-    def load(path: Path, backend: str | None = None) -> object:
-        key = (str(path), backend)
+    def load(path: Path, backend: str | None = None, *, superres: bool = False) -> object:
+        key = (str(path), backend, superres)
         if key not in encoders:
-            encoders[key] = real(path, backend)
+            encoders[key] = real(path, backend, superres=superres)
         return encoders[key]
 
     monkeypatch.setattr(lp3d.inference, "load_encoder", load)

@@ -8,6 +8,15 @@
     lp3d video in.mp4 -o out.mp4 --yaw 20        lift a talking-head video frame by frame
     lp3d demo                                    the end-to-end demo
 
+**Super-resolution.** When the model package has a super-resolution network (SR; see
+``docs/model-package.md``), ``render``, ``orbit``, ``video`` and ``demo`` draw the raw feature image at
+the network's input size and write the super-resolved image at its output size (``--resolution``
+resizes that); ``--raw`` gives the plain volume render instead. ``video`` and ``demo`` use their
+``--model``'s SR. A triplane file names no model, so ``render`` and ``orbit`` apply the SR of
+``--model MODEL`` when given (an error if that package has none, or if the triplane's decoder and
+bounds are not that package's), else the shipped model's SR when the triplane has the shipped model's
+decoder and bounds (every triplane the shipped model encodes has), else none (raw, and they say why).
+
 Every subcommand has ``--help``. Errors go to stderr as ``lp3d <command>: error: <what and where>``,
 with exit status 1 (2 for a usage error); set ``LP3D_DEBUG=1`` for the traceback. Outputs are written
 to temporary files beside their destination and renamed into place only when everything succeeded,
@@ -330,8 +339,14 @@ def _render_args(p: argparse.ArgumentParser, resolution: int) -> None:
     p.add_argument(
         "--resolution",
         type=_resolution,
-        default=resolution,
-        help="pixels per image side (default: %(default)s)",
+        default=None,
+        help="pixels per image side (default: the super-resolution network's output size, or "
+        f"{resolution} for a raw render)",
+    )
+    p.add_argument(
+        "--raw",
+        action="store_true",
+        help="write the raw volume render at --resolution, not the super-resolved image",
     )
     p.add_argument(
         "--samples",
@@ -340,6 +355,16 @@ def _render_args(p: argparse.ArgumentParser, resolution: int) -> None:
         metavar="COARSE+FINE",
         help="samples per ray, EG3D's depth_resolution + depth_resolution_importance "
         "(default: 48+48; 64 alone skips the importance pass)",
+    )
+
+
+def _superres_model_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--model",
+        type=Path,
+        default=None,
+        help="MODEL.onnx (or CHECKPOINT.pt) whose super-resolution network to apply (default: the shipped "
+        "model's, when the triplane has its decoder)",
     )
 
 
@@ -359,14 +384,20 @@ def make_camera(
 
 
 def render_views(
-    tri: Any, cameras: np.ndarray, args: argparse.Namespace, outputs: Sequence[str] = ("rgb",)
+    tri: Any,
+    cameras: np.ndarray,
+    args: argparse.Namespace,
+    outputs: Sequence[str] = ("rgb",),
+    *,
+    resolution: int | None = None,
 ) -> dict[str, np.ndarray]:
-    """Render (B, 25) cameras; every output has a leading B axis."""
+    """Render (B, 25) cameras at ``resolution`` (default ``args.resolution``); every output has a
+    leading B axis."""
     coarse, fine = args.samples
     out = renderer().render(
         tri,
         np.atleast_2d(cameras),
-        resolution=args.resolution,
+        resolution=resolution or args.resolution,
         depth_resolution=coarse,
         depth_resolution_importance=fine,
         outputs=list(outputs),
@@ -375,14 +406,95 @@ def render_views(
 
 
 def render_file_views(
-    path: Path, tri: Any, cameras: np.ndarray, args: argparse.Namespace, outputs: Sequence[str] = ("rgb",)
+    path: Path,
+    tri: Any,
+    cameras: np.ndarray,
+    args: argparse.Namespace,
+    outputs: Sequence[str] = ("rgb",),
+    *,
+    resolution: int | None = None,
 ) -> dict[str, np.ndarray]:
     """:func:`render_views` of the triplane read from ``path``; the renderer's checks of its contents
     (such as values that overflow float32 in the decoder) become errors naming the file."""
     try:
-        return render_views(tri, cameras, args, outputs)
+        return render_views(tri, cameras, args, outputs, resolution=resolution)
     except ValueError as e:
         raise CLIError(f"{path}: {e}") from None
+
+
+def resize_image(image: np.ndarray, size: int) -> np.ndarray:
+    """(H, W, 3) or (H, W) uint8 resized to ``size``² (Lanczos; unchanged when already that size)."""
+    if image.shape[0] == size and image.shape[1] == size:
+        return image
+    from PIL import Image
+
+    return np.asarray(Image.fromarray(image).resize((size, size), Image.Resampling.LANCZOS))
+
+
+def final_images(
+    tri: Any,
+    cameras: np.ndarray,
+    args: argparse.Namespace,
+    sr: Any,
+    size: int,
+    *,
+    path: Path | None = None,
+    extra: Sequence[str] = (),
+) -> tuple[list[np.ndarray], dict[str, np.ndarray]]:
+    """The images (size, size, 3) uint8 of (B, 25) cameras: the super-resolved image when ``sr`` (a
+    :class:`lp3d.inference.LoadedSuperres`) is given, else the raw render at ``size``. Also returns the
+    raw render's outputs, ``extra`` ones included (e.g. depth, at the raw render's resolution)."""
+    from lp3d.images import rgb_to_uint8
+
+    resolution = sr.input_resolution if sr is not None else size
+    outputs = ["features" if sr is not None else "rgb", *extra]
+    if path is not None:
+        out = render_file_views(path, tri, cameras, args, outputs, resolution=resolution)
+    else:
+        out = render_views(tri, cameras, args, outputs, resolution=resolution)
+    rgb = sr(out["features"]) if sr is not None else out["rgb"]
+    return [resize_image(rgb_to_uint8(x), size) for x in rgb], out
+
+
+def choose_superres(args: argparse.Namespace, tri: Any) -> tuple[Any, str]:
+    """``(LoadedSuperres or None, a phrase for the output line)`` for rendering the triplane ``tri`` (a
+    TriplaneData) in ``render``/``orbit``: the rules in this module's docstring."""
+    from lp3d.inference import DEFAULT_MODEL, load_superres
+
+    if args.raw:
+        return None, "raw volume render (--raw)"
+    if args.model is not None:
+        model = _model_path(args.model)
+        sr = load_superres(model)
+        if sr is None:
+            raise CLIError(
+                f"--model {model}: the package has no super-resolution network; drop --model (or pass --raw)"
+            )
+        if not sr.accepts(tri):
+            raise CLIError(
+                f"{args.triplane}: its decoder or scene bounds are not those of --model {model}, whose "
+                "super-resolution network reads that decoder's features; pass --raw (or the triplane's model)"
+            )
+        return sr, f"super-resolved by {sr.description}"
+    if not DEFAULT_MODEL.exists():
+        return None, "raw volume render (no model: the shipped model is not installed)"
+    sr = load_superres(DEFAULT_MODEL)
+    if sr is None:
+        return None, "raw volume render (the shipped model has no super-resolution network)"
+    if not sr.accepts(tri):
+        return None, (
+            "raw volume render (no super-resolution: the triplane's decoder is not the shipped model's; "
+            "--model MODEL applies another package's)"
+        )
+    return sr, f"super-resolved by the shipped model's {sr.description}"
+
+
+def _describe_size(sr: Any, size: int) -> str:
+    """``64² raw -> 256²`` (and the resize, when ``size`` is not the network's output)."""
+    if sr is None:
+        return f"{size}²"
+    text = f"{sr.input_resolution}² raw -> {sr.output_resolution}²"
+    return text if size == sr.output_resolution else f"{text}, resized to {size}²"
 
 
 def write_image(path: Path, image: np.ndarray, fmt_suffix: str) -> None:
@@ -478,31 +590,36 @@ def cmd_render(args: argparse.Namespace) -> int:
     depth_path = check_output(args.depth, IMAGE_SUFFIXES, "--depth") if args.depth else None
     outputs = [("-o", out_path)] + ([("--depth", depth_path)] if depth_path is not None else [])
     check_distinct([("triplane", args.triplane)], outputs)
-    _, rtri = render_triplane_file(args.triplane)
-    from lp3d.images import depth_to_uint8, rgb_to_uint8
+    tri, rtri = render_triplane_file(args.triplane)
+    from lp3d.images import depth_to_uint8
 
-    outputs = ["features"] if args.features_channel is not None else ["rgb"]
-    if depth_path is not None:
-        outputs += ["depth", "weights_sum"]
+    camera = make_camera(args)[None]
+    extra = ["depth", "weights_sum"] if depth_path is not None else []
     start = time.perf_counter()
-    out = render_file_views(args.triplane, rtri, make_camera(args)[None], args, outputs)
-    seconds = time.perf_counter() - start
     if args.features_channel is not None:
+        # A feature channel is a raw quantity: never super-resolved.
+        sr, how = None, "raw volume render"
+        size = args.resolution or 256
+        out = render_file_views(args.triplane, rtri, camera, args, ["features", *extra], resolution=size)
         channel = out["features"][0, args.features_channel]
         image = np.round((np.clip(channel, -1.0, 1.0) + 1.0) * 127.5).astype(np.uint8)
     else:
-        image = rgb_to_uint8(out["rgb"][0])
+        sr, how = choose_superres(args, tri)
+        size = args.resolution or (sr.output_resolution if sr is not None else 256)
+        images, out = final_images(rtri, camera, args, sr, size, path=args.triplane, extra=extra)
+        image = images[0]
+    seconds = time.perf_counter() - start
     with Staged() as staged:
         write_image(staged.temp(out_path), image, out_path.suffix)
         if depth_path is not None:
             depth = depth_to_uint8(out["depth"][0], out["weights_sum"][0])
-            write_image(staged.temp(depth_path), depth, depth_path.suffix)
+            write_image(staged.temp(depth_path), resize_image(depth, size), depth_path.suffix)
         written = staged.commit()
     coarse, fine = args.samples
     what = f"feature channel {args.features_channel}" if args.features_channel is not None else "rgb"
     _say(
-        f"rendered {args.resolution}² ({coarse}+{fine} samples, yaw {args.yaw:+g}°, pitch {args.pitch:+g}°, "
-        f"{what}) in {seconds:.2f} s"
+        f"rendered {_describe_size(sr, size)} ({coarse}+{fine} samples, yaw {args.yaw:+g}°, pitch "
+        f"{args.pitch:+g}°, {what}; {how}) in {seconds:.2f} s"
     )
     for path in written:
         _say(f"wrote {path}")
@@ -529,10 +646,12 @@ def cmd_orbit(args: argparse.Namespace) -> int:
             f"--pitch {args.pitch:g} with --pitch-range {args.pitch_range:g} leaves (-90, 90) degrees"
         )
     check_distinct([("triplane", args.triplane)], [("-o", out_path)])
-    _, rtri = render_triplane_file(args.triplane)
+    tri, rtri = render_triplane_file(args.triplane)
+    sr, how = choose_superres(args, tri)
+    size = args.resolution or (sr.output_resolution if sr is not None else 128)
     angles = orbit_angles(args.frames, args.yaw_range, args.pitch_range)
     cams = np.stack([make_camera(args, yaw=y, pitch=args.pitch + p) for y, p in angles])
-    from lp3d.images import rgb_to_uint8
+    _say(f"orbit: {len(cams)} frames of {_describe_size(sr, size)}; {how}")
 
     start = time.perf_counter()
     with Staged() as staged:
@@ -540,10 +659,10 @@ def cmd_orbit(args: argparse.Namespace) -> int:
         bar = progress(len(cams), "orbit")
         try:
             for i in range(0, len(cams), args.batch):
-                rgb = render_file_views(args.triplane, rtri, cams[i : i + args.batch], args)["rgb"]
-                for frame in rgb:
-                    writer.add(rgb_to_uint8(frame))
-                bar.update(len(rgb))
+                frames, _ = final_images(rtri, cams[i : i + args.batch], args, sr, size, path=args.triplane)
+                for frame in frames:
+                    writer.add(frame)
+                bar.update(len(frames))
             writer.close()
         finally:
             writer.abort()
@@ -551,7 +670,7 @@ def cmd_orbit(args: argparse.Namespace) -> int:
         staged.commit()
     seconds = time.perf_counter() - start
     _say(
-        f"rendered {len(cams)} frames at {args.resolution}² in {seconds:.1f} s "
+        f"rendered {len(cams)} frames at {size}² in {seconds:.1f} s "
         f"({seconds / len(cams):.2f} s/frame); wrote {out_path}"
     )
     return 0
@@ -987,7 +1106,6 @@ def _smooth_crops(crops: list[Any], alpha: float) -> list[Any]:
 
 
 def cmd_video(args: argparse.Namespace) -> int:
-    from lp3d.images import rgb_to_uint8
     from lp3d.inference import load_encoder
     from lp3d.photo import (
         DETECT_MAX_SIDE,
@@ -1000,12 +1118,20 @@ def cmd_video(args: argparse.Namespace) -> int:
 
     out_path = check_output(args.output, VIDEO_SUFFIXES)
     check_distinct([("input video", args.input)], [("-o", out_path)])
-    encoder = load_encoder(_model_path(args.model), args.backend)
-    pkg = encoder.package
+    encoder = load_encoder(_model_path(args.model), args.backend, superres=not args.raw)
+    pkg, sr = encoder.package, encoder.superres
+    size = args.resolution or (sr.output_resolution if sr is not None else 128)
     meta, _ = read_video(args.input, 0)  # fail fast on an unreadable file
     fps = float(args.fps or meta.get("fps") or 25.0)
     w, h = meta["size"]
+    if args.raw:
+        how = "raw volume render (--raw)"
+    elif sr is not None:
+        how = f"super-resolved by {sr.description}"
+    else:
+        how = "raw volume render (the model has no super-resolution network)"
     _say(f"video: {args.input} {w}x{h} at {fps:g} fps; model {encoder.description}")
+    _say(f"frames: {_describe_size(sr, size)}; {how}")
     if max(w, h) > 4 * DETECT_MAX_SIDE:
         _warn(f"{w}x{h} frames are large; detection runs on downscaled copies")
 
@@ -1053,14 +1179,10 @@ def cmd_video(args: argparse.Namespace) -> int:
                 t_enc += time.perf_counter() - t0
                 state = planes if state is None else args.smooth * state + (1.0 - args.smooth) * planes
                 t0 = time.perf_counter()
-                rgb = render_views(render_triplane(pkg.triplane(state)), camera, args)["rgb"][0]
+                image = final_images(render_triplane(pkg.triplane(state)), camera, args, sr, size)[0][0]
                 t_render += time.perf_counter() - t0
-                image = rgb_to_uint8(rgb)
                 if args.side_by_side:
-                    import cv2
-
-                    small = cv2.resize(face, (args.resolution, args.resolution), interpolation=cv2.INTER_AREA)
-                    image = np.concatenate([small, image], axis=1)
+                    image = np.concatenate([resize_image(face, size), image], axis=1)
                 writer.add(image)
                 bar.update()
             if writer.count == 0:
@@ -1083,7 +1205,7 @@ def cmd_video(args: argparse.Namespace) -> int:
     total = time.perf_counter() - start
     _say(
         f"lifted {n} frames in {total:.1f} s (encode {t_enc / n:.3f} s/frame, render {t_render / n:.3f} "
-        f"s/frame at {args.resolution}²); wrote {out_path}"
+        f"s/frame at {size}²); wrote {out_path}"
     )
     return 0
 
@@ -1172,8 +1294,9 @@ def build_parser() -> argparse.ArgumentParser:
         type=_int_in(0, 31),
         default=None,
         metavar="K",
-        help="write decoder feature channel K (0-31, grayscale) instead of the RGB image",
+        help="write decoder feature channel K (0-31, grayscale) of the raw render instead of the image",
     )
+    _superres_model_arg(p)
     p.set_defaults(func=cmd_render)
 
     # orbit
@@ -1199,6 +1322,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--batch", type=_int_in(1, 64), default=4, help="frames per render call (default: 4)")
     _camera_args(p, yaw=None)
     _render_args(p, 128)
+    _superres_model_arg(p)
     p.set_defaults(func=cmd_orbit)
 
     # mesh

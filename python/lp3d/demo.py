@@ -12,7 +12,9 @@ Two portraits are lifted to triplanes by the encoder (onnxruntime) and rendered 
 
 Outputs (in ``--out``, written atomically): ``<name>.npz`` triplanes, ``<name>.crop.png`` encoder
 inputs, ``side_by_side.png`` (input | views from yaw -35° to 35°; the teacher's own views under its
-row) and ``orbit.gif`` (both heads turning).
+row) and ``orbit.gif`` (both heads turning). When the model package has a super-resolution network,
+the lifted heads' views are its images (at its output size unless ``--resolution`` says otherwise);
+``--raw`` shows the plain volume renders. The teacher's own views are always its volume renders.
 
     lp3d demo --out demo_out          (also: python -m lp3d.demo)
 """
@@ -58,7 +60,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="MODEL.onnx (with MODEL.json) or a training CHECKPOINT.pt (default: the shipped model)",
     )
-    p.add_argument("--resolution", type=_resolution, default=128, help="rays per image side (default: 128)")
+    p.add_argument(
+        "--resolution",
+        type=_resolution,
+        default=None,
+        help="pixels per image side (default: the super-resolution network's output size, else 128)",
+    )
+    p.add_argument(
+        "--raw", action="store_true", help="show raw volume renders, not the super-resolved images"
+    )
     p.add_argument(
         "--samples",
         type=parse_samples,
@@ -135,7 +145,17 @@ def _label(image: np.ndarray, text: str) -> np.ndarray:
 def run(args: argparse.Namespace) -> int:
     """The demo; raises :class:`lp3d.cli.CLIError` (or a ValueError) with a clear message."""
     from lp3d.camera import look_at_camera
-    from lp3d.cli import Staged, VideoWriter, _model_path, orbit_angles, progress, render_triplane, renderer
+    from lp3d.cli import (
+        Staged,
+        VideoWriter,
+        _describe_size,
+        _model_path,
+        final_images,
+        orbit_angles,
+        progress,
+        render_triplane,
+        renderer,
+    )
     from lp3d.images import save_png, tile
     from lp3d.inference import load_encoder
     from lp3d.photo import to_encoder_input
@@ -143,15 +163,22 @@ def run(args: argparse.Namespace) -> int:
 
     model = _model_path(args.model)
     t0 = time.perf_counter()
-    encoder = load_encoder(model)
-    pkg = encoder.package
+    encoder = load_encoder(model, superres=not args.raw)
+    pkg, sr = encoder.package, encoder.superres
     info = renderer().adapter_info()
     print(f"renderer: {info['name']} ({info['backend']}, {info['device_type']})")
     print(
         f"model: {encoder.description}, config {pkg.config_name!r}, {pkg.image_size}² -> "
         f"{pkg.triplane_resolution}² triplane, loaded in {time.perf_counter() - t0:.2f} s"
     )
-    r, samples = args.resolution, args.samples
+    r, samples = args.resolution or (sr.output_resolution if sr is not None else 128), args.samples
+    if args.raw:
+        how = "raw volume renders (--raw)"
+    elif sr is not None:
+        how = f"super-resolved by {sr.description}"
+    else:
+        how = "raw volume renders (the model has no super-resolution network)"
+    print(f"views: {_describe_size(sr, r)}; {how}")
     print("preparing the inputs (the first render compiles the shader: up to a few minutes on a CPU)")
     portraits = [teacher_portrait(pkg.image_size, samples), astronaut_portrait(pkg.image_size)]
     for p in portraits:
@@ -172,7 +199,7 @@ def run(args: argparse.Namespace) -> int:
     native = [render_triplane(tri) for tri in lifted]  # uploaded once, rendered many times
     rows: list[np.ndarray] = []
     for p, tri in zip(portraits, native, strict=True):
-        views = _views(tri, cams, r, samples)
+        views = final_images(tri, cams, args, sr, r)[0]
         rows += [_label(_fit(p.crop, r), "input")]
         rows += [_label(v, f"lp3d {y:+.0f}°") for v, y in zip(views, VIEW_YAWS, strict=True)]
         if p.truth is not None:
@@ -180,7 +207,10 @@ def run(args: argparse.Namespace) -> int:
             truth = _views(render_triplane(p.truth), cams, r, samples)
             rows += [_label(v, f"teacher {y:+.0f}°") for v, y in zip(truth, VIEW_YAWS, strict=True)]
     sheet = tile(rows, columns=1 + len(VIEW_YAWS))
-    print(f"rendered the views in {time.perf_counter() - t0:.1f} s ({r}², {samples[0]}+{samples[1]} samples)")
+    print(
+        f"rendered the views in {time.perf_counter() - t0:.1f} s ({_describe_size(sr, r)}, "
+        f"{samples[0]}+{samples[1]} samples)"
+    )
 
     args.out.mkdir(parents=True, exist_ok=True)
     with Staged() as staged:
@@ -196,7 +226,7 @@ def run(args: argparse.Namespace) -> int:
         )
         try:
             for i in range(0, len(orbit), ORBIT_BATCH):
-                heads = [_views(tri, orbit[i : i + ORBIT_BATCH], r, samples) for tri in native]
+                heads = [final_images(tri, orbit[i : i + ORBIT_BATCH], args, sr, r)[0] for tri in native]
                 for frame in zip(*heads, strict=True):
                     writer.add(np.concatenate(frame, axis=1))  # both heads side by side
                 bar.update(len(heads[0]))

@@ -6,6 +6,19 @@ then runs it in onnxruntime on seeded random images and compares with the PyTorc
 largest absolute difference on the triplane must be <= ``--tolerance`` (default 1e-3), else the
 command fails (exit 1) and the file is not kept.
 
+**Super-resolution.** When the model has a trained super-resolution network (SR), it is exported
+beside the encoder as ``MODEL.superres.onnx`` (``features (B, 32, R, R) -> image (B, 3, R_out,
+R_out)``, dynamic batch), checked against PyTorch with onnxruntime the same way (the largest absolute
+difference on the image <= ``--tolerance``), and recorded in the sidecar's ``superres`` entry with its
+SHA-256. Its source: ``--superres FIT.pt`` (a network fitted by ``python -m lp3d.superres_fit``), else
+the checkpoint's own SR when the paper recipe trained one; the CPU recipe trains none. The exported
+graph is :class:`lp3d.superres.FoldedSuperResolution` (the constant-w styles folded into plain
+convolutions), compared with the unfolded network. An existing package gains an SR without
+re-exporting its encoder::
+
+    python -m lp3d.export --superres runs/sr/superres-fit.pt --package python/lp3d/models/small.onnx \\
+        --weights python/lp3d/models/small.pt
+
 The ONNX graph holds the encoder only. The decoder weights and scene bounds a renderer needs go into
 the model package's JSON sidecar, ``<model>.json`` (:mod:`lp3d.model_package`), written beside the
 ``.onnx``; ``lp3d encode --model <model>.onnx`` reads both.
@@ -31,14 +44,28 @@ from torch import Tensor, nn
 
 from lp3d.atomic import atomic_path
 from lp3d.encoder import LP3DEncoder
-from lp3d.model_package import save_model_package
+from lp3d.model_package import (
+    ModelPackageError,
+    decoder_digest,
+    load_model_package,
+    save_model_package,
+    set_package_superres,
+    superres_entry,
+    superres_path,
+)
+from lp3d.superres import FoldedSuperResolution, SuperResolution
 from lp3d.train import CheckpointError, Student, load_checkpoint, student_from_checkpoint
 
 __all__ = [
     "ExportError",
+    "ParityError",
+    "add_superres_to_weights",
     "check_onnx",
+    "check_superres_onnx",
     "export_encoder",
+    "export_superres",
     "main",
+    "package_superres",
     "reduce_plane_basis",
     "round_to_float16",
     "save_weights",
@@ -51,6 +78,10 @@ MIN_OPSET = 17
 
 class ExportError(RuntimeError):
     """The ONNX model disagrees with PyTorch, or cannot be made."""
+
+
+class ParityError(ExportError):
+    """onnxruntime and PyTorch disagree by more than the tolerance (exit status 1)."""
 
 
 class StudentEncoder(nn.Module):
@@ -97,11 +128,111 @@ def export_encoder(
     return path
 
 
-def save_weights(student: Student, path: str | os.PathLike[str], *, half: bool = True) -> Path:
+class _FeaturesToImage(nn.Module):
+    """``features -> image`` of a folded SR (a module of its own so the exporter sees one input)."""
+
+    def __init__(self, sr: SuperResolution) -> None:
+        super().__init__()
+        self.folded = FoldedSuperResolution(sr.eval())
+
+    def forward(self, features: Tensor) -> Tensor:
+        return self.folded(features)
+
+
+def export_superres(sr: SuperResolution, path: str | os.PathLike[str], *, opset: int = MIN_OPSET) -> Path:
+    """Write ``sr`` as ONNX: input ``features`` (B, C, R, R), output ``image`` (B, 3, R_out, R_out),
+    dynamic batch, atomically. The graph is the folded form (plain convolutions; same outputs)."""
+    if opset < MIN_OPSET:
+        raise ValueError(f"opset must be >= {MIN_OPSET}, got {opset}")
+    path = Path(path)
+    module = _FeaturesToImage(sr).eval()
+    cfg = sr.config
+    example = torch.zeros(1, cfg.in_channels, cfg.input_resolution, cfg.input_resolution)
+    with atomic_path(path) as tmp, warnings.catch_warnings(), torch.no_grad():
+        warnings.simplefilter("ignore")  # legacy-exporter deprecation and tracer warnings
+        torch.onnx.export(
+            module,
+            (example,),
+            str(tmp),
+            dynamo=False,
+            opset_version=opset,
+            input_names=["features"],
+            output_names=["image"],
+            dynamic_axes={"features": {0: "batch"}, "image": {0: "batch"}},
+        )
+    return path
+
+
+def check_superres_onnx(
+    sr: SuperResolution, path: str | os.PathLike[str], *, batch: int = 2, seed: int = 0
+) -> float:
+    """Max absolute difference between onnxruntime and the (unfolded) PyTorch SR on seeded features
+    uniform in [-1, 1] (the range of the renderer's features), (batch, C, R, R)."""
+    import onnxruntime as ort
+
+    cfg = sr.config
+    g = torch.Generator().manual_seed(seed)
+    r = cfg.input_resolution
+    features = torch.rand(batch, cfg.in_channels, r, r, generator=g) * 2 - 1
+    with torch.no_grad():
+        expected = sr.eval()(features).float().numpy()
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    (got,) = session.run(["image"], {"features": features.numpy()})
+    if got.shape != expected.shape:
+        raise ExportError(f"SR ONNX output shape {got.shape} != PyTorch {expected.shape}")
+    return float(np.max(np.abs(got - expected)))
+
+
+def package_superres(
+    sr: SuperResolution,
+    model_path: str | os.PathLike[str],
+    *,
+    about: dict[str, Any] | None = None,
+    opset: int = MIN_OPSET,
+    tolerance: float = 1e-3,
+) -> tuple[dict[str, Any], float]:
+    """Export ``sr`` to ``MODEL.superres.onnx`` beside ``model_path`` and check it with onnxruntime.
+
+    Returns ``(the sidecar's superres entry, max abs error)``. Raises :class:`ParityError` (and removes
+    the file) when the error exceeds ``tolerance``."""
+    path = export_superres(sr, superres_path(model_path), opset=opset)
+    err = check_superres_onnx(sr, path)
+    if not err <= tolerance:
+        path.unlink(missing_ok=True)
+        raise ParityError(
+            f"super-resolution ONNX vs PyTorch max abs error {err:.3g} > {tolerance:g}; removed {path}"
+        )
+    cfg = sr.config
+    entry = superres_entry(
+        path,
+        input_resolution=cfg.input_resolution,
+        output_resolution=cfg.output_resolution,
+        in_channels=cfg.in_channels,
+        about={**(about or {}), "config": cfg.to_dict(), "onnx_max_abs_error": err},
+    )
+    return entry, err
+
+
+def _superres_weights(sr: SuperResolution) -> dict[str, Any]:
+    """The ``superres`` entry of an inference-weights file (float32: the network is small)."""
+    return {
+        "config": sr.config.to_dict(),
+        "state": {k: v.detach().cpu().float().clone() for k, v in sr.state_dict().items()},
+    }
+
+
+def save_weights(
+    student: Student,
+    path: str | os.PathLike[str],
+    *,
+    half: bool = True,
+    superres: SuperResolution | None = None,
+) -> Path:
     """The student's inference weights as a plain ``torch.load(weights_only=True)`` dict that
     ``lp3d encode --backend torch --model PATH`` reads: ``config`` (EncoderConfig), ``encoder`` (state
-    dict), ``plane_offset`` (or None), ``decoder`` {w0, b0, w1, b1} and ``bounds``. ``half`` stores the
-    encoder and offset in float16 (half the size; they load back into float32 parameters)."""
+    dict), ``plane_offset`` (or None), ``decoder`` {w0, b0, w1, b1} and ``bounds``, and with
+    ``superres`` its ``{"config", "state"}`` (float32). ``half`` stores the encoder and offset in
+    float16 (half the size; they load back into float32 parameters)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
 
@@ -119,9 +250,75 @@ def save_weights(student: Student, path: str | os.PathLike[str], *, half: bool =
         "decoder": {"w0": w0, "b0": b0, "w1": w1, "b1": b1},
         "bounds": {"box_warp": scene.box_warp, "ray_start": scene.ray_start, "ray_end": scene.ray_end},
     }
+    if superres is not None:
+        data["superres"] = _superres_weights(superres)
     with atomic_path(path) as tmp:
         torch.save(data, tmp)
     return path
+
+
+def add_superres_to_weights(path: str | os.PathLike[str], sr: SuperResolution, decoder_sha256: str) -> Path:
+    """Add (or replace) the ``superres`` entry of an existing inference-weights file written by
+    :func:`save_weights`, atomically; its decoder must be the one the SR was made for."""
+    path = Path(path)
+    try:
+        data = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:  # torch raises many types for non-checkpoints
+        raise ExportError(
+            f"--weights {path}: cannot be read as a plain state-dict checkpoint ({e})"
+        ) from None
+    if not isinstance(data, dict) or data.get("format") != "lp3d-encoder-weights-v1":
+        raise ExportError(f"--weights {path}: not an lp3d inference-weights file (lp3d-encoder-weights-v1)")
+    try:
+        same = decoder_digest(data.get("decoder", {})) == decoder_sha256
+    except ModelPackageError as e:
+        raise ExportError(f"--weights {path}: {e}") from None
+    if not same:
+        raise ExportError(
+            f"--weights {path}: its decoder is not the one the super-resolution network was fit for"
+        )
+    data["superres"] = _superres_weights(sr)
+    with atomic_path(path) as tmp:
+        torch.save(data, tmp)
+    return path
+
+
+def _fitted_superres(
+    path: str, decoder_sha256: str, allow_worse: bool
+) -> tuple[SuperResolution, dict[str, Any]]:
+    """The SR of a finished ``lp3d.superres_fit`` checkpoint, checked against the model's decoder and
+    its own held-out score; ``(network, about)``."""
+    from lp3d.superres_fit import FitError, load_fit
+
+    try:
+        fit = load_fit(path)
+    except FitError as e:
+        raise ExportError(f"--superres: {e}") from None
+    if not fit.finished:
+        raise ExportError(
+            f"--superres {fit.path}: the fit stopped at step {fit.step} of {fit.config.steps}; run the same "
+            "python -m lp3d.superres_fit command again to finish it"
+        )
+    if fit.model.get("decoder_sha256") != decoder_sha256:
+        raise ExportError(
+            f"--superres {fit.path}: fitted for a model with another decoder ({fit.model.get('path')}); its "
+            "feature images are not this model's"
+        )
+    report = fit.report or {}
+    if not report.get("gain_db", 0.0) > 0 and not allow_worse:
+        ours, bilinear = (float(report.get(k, float("nan"))) for k in ("superres_psnr", "bilinear_psnr"))
+        raise ExportError(
+            f"--superres {fit.path}: on its held-out pairs the SR ({ours:.2f} dB) does not beat bilinear "
+            f"upsampling of the raw render ({bilinear:.2f} dB); not worth shipping (--allow-worse-superres "
+            "to export it anyway)"
+        )
+    about = {
+        "source": "python -m lp3d.superres_fit",
+        "fit_checkpoint": str(fit.path),
+        "fit_config": fit.config.to_dict(),
+        "heldout": {k: v for k, v in report.items() if k != "per_pair"},
+    }
+    return fit.superres, about
 
 
 @torch.no_grad()
@@ -270,12 +467,54 @@ def check_onnx(
     return float(np.max(np.abs(got - expected)))
 
 
+def _add_superres_main(args: argparse.Namespace) -> int:
+    """``--superres FIT.pt --package MODEL.onnx``: give an existing package a fitted SR."""
+    try:
+        package = load_model_package(args.package)
+        digest = decoder_digest(package.decoder)
+        sr, about = _fitted_superres(args.superres, digest, args.allow_worse_superres)
+        entry, err = package_superres(
+            sr, package.model_path, about=about, opset=args.opset, tolerance=args.tolerance
+        )
+        sidecar = set_package_superres(package.sidecar, entry)
+        weights = add_superres_to_weights(args.weights, sr, digest) if args.weights else None
+    except (ModelPackageError, ExportError, ValueError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1 if isinstance(e, ParityError) else 2
+    _print_superres(entry, err, args.tolerance)
+    print(f"updated {sidecar} (its 'superres' entry)")
+    if weights is not None:
+        print(f"updated {weights} (its 'superres' entry, for --backend torch)")
+    return 0
+
+
+def _print_superres(entry: dict[str, Any], err: float, tolerance: float) -> None:
+    r, ro = entry["input_resolution"], entry["output_resolution"]
+    print(
+        f"wrote super-resolution {entry['model']} (features (B, 32, {r}, {r}) -> image (B, 3, {ro}, {ro})); "
+        f"onnxruntime vs PyTorch max abs error {err:.2e} <= {tolerance:g}"
+    )
+    held = entry.get("about", {}).get("heldout")
+    if held:
+        print(
+            f"  held-out: SR {held['superres_psnr']:.2f} dB PSNR vs bilinear upsampling "
+            f"{held['bilinear_psnr']:.2f} dB ({held['gain_db']:+.2f} dB over {held['pairs']} pairs)"
+        )
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m lp3d.export", description=__doc__.splitlines()[0])
-    p.add_argument("checkpoint", help="training checkpoint (.pt) or run directory (its latest checkpoint)")
-    p.add_argument("-o", "--output", required=True, help="ONNX file to write")
+    p.add_argument(
+        "checkpoint",
+        nargs="?",
+        default=None,
+        help="training checkpoint (.pt) or run directory (its latest checkpoint); leave out with --package",
+    )
+    p.add_argument("-o", "--output", default=None, help="ONNX file to write (with a checkpoint)")
     p.add_argument("--opset", type=int, default=MIN_OPSET, help=f"ONNX opset (>= {MIN_OPSET})")
-    p.add_argument("--tolerance", type=float, default=1e-3, help="max abs error allowed on the triplane")
+    p.add_argument(
+        "--tolerance", type=float, default=1e-3, help="max abs error allowed on the triplane / image"
+    )
     p.add_argument(
         "--weights", default=None, help="also write the inference weights (float16 .pt) for the torch backend"
     )
@@ -293,11 +532,68 @@ def main(argv: list[str] | None = None) -> int:
         "approximation over the run's cached training inputs; the change it makes is printed",
     )
     p.add_argument("--data-cache", default=None, help="where the run's synthetic dataset is cached")
+    p.add_argument(
+        "--superres",
+        default=None,
+        metavar="FIT.pt",
+        help="package this super-resolution network (a python -m lp3d.superres_fit checkpoint) instead of "
+        "the checkpoint's own",
+    )
+    p.add_argument(
+        "--no-superres", action="store_true", help="export no super-resolution network, even a trained one"
+    )
+    p.add_argument(
+        "--package",
+        default=None,
+        metavar="MODEL.onnx",
+        help="with --superres and no checkpoint: add the network to this existing package (and to --weights "
+        "if given) without re-exporting the encoder",
+    )
+    p.add_argument(
+        "--allow-worse-superres",
+        action="store_true",
+        help="export a fitted SR even if it does not beat bilinear upsampling on its held-out pairs",
+    )
     args = p.parse_args(argv)
+    if args.checkpoint is None:
+        if args.package is None or args.superres is None:
+            p.error("give a CHECKPOINT and -o MODEL.onnx, or --superres FIT.pt --package MODEL.onnx")
+        if args.output or args.float16 or args.basis_components is not None or args.no_superres:
+            p.error(
+                "--package adds a super-resolution network only; -o, --float16, --basis-components and "
+                "--no-superres need a CHECKPOINT"
+            )
+        return _add_superres_main(args)
+    if args.output is None:
+        p.error("-o/--output is required with a CHECKPOINT")
+    if args.package is not None:
+        p.error("--package is for adding a super-resolution network to an existing package (no CHECKPOINT)")
+    if args.superres is not None and args.no_superres:
+        p.error("--superres and --no-superres exclude each other")
     notes: list[str] = []
+    sr: SuperResolution | None = None
+    sr_entry: dict[str, Any] | None = None
+    sr_err = float("nan")
+    about: dict[str, Any] = {}
     try:
         ckpt = load_checkpoint(args.checkpoint)
         student = student_from_checkpoint(ckpt, "cpu")
+        if args.superres is not None:
+            sr, about = _fitted_superres(
+                args.superres, decoder_digest(student.decoder.weights()), args.allow_worse_superres
+            )
+        elif not args.no_superres and student.config.recipe == "paper":
+            sr = student.superres
+            about = {
+                "source": "training checkpoint",
+                "checkpoint": str(ckpt["path"]),
+                "step": ckpt.get("step"),
+            }
+        elif not args.no_superres:
+            notes.append(
+                "no super-resolution network: the CPU recipe trains none (fit one with python -m "
+                "lp3d.superres_fit, then add it with --superres FIT.pt --package MODEL.onnx)"
+            )
         if args.basis_components is not None:
             images = _training_inputs(student.config, ckpt["teacher"], args.data_cache)
             change = reduce_plane_basis(student, images, args.basis_components)
@@ -318,9 +614,22 @@ def main(argv: list[str] | None = None) -> int:
             store_float16(path)
         err = check_onnx(student, path)
         if err <= args.tolerance:
+            if sr is not None:
+                sr_entry, sr_err = package_superres(
+                    sr, path, about=about, opset=args.opset, tolerance=args.tolerance
+                )
             sidecar = save_model_package(
-                path, student.decoder.weights(), student.config.encoder, student.scene, output_name="triplane"
+                path,
+                student.decoder.weights(),
+                student.config.encoder,
+                student.scene,
+                output_name="triplane",
+                superres=sr_entry,
             )
+    except ParityError as e:
+        Path(args.output).unlink(missing_ok=True)  # no package without its super-resolution network
+        print(f"error: {e}; removed {args.output}", file=sys.stderr)
+        return 1
     except (CheckpointError, ValueError, ExportError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -337,11 +646,13 @@ def main(argv: list[str] | None = None) -> int:
         f"(B, 3, 32, {cfg.triplane_resolution}, {cfg.triplane_resolution}), opset {args.opset}); "
         f"onnxruntime vs PyTorch max abs error {err:.2e} <= {args.tolerance:g}"
     )
+    if sr_entry is not None:
+        _print_superres(sr_entry, sr_err, args.tolerance)
     for note in notes:
         print(note)
     print(f"wrote {sidecar} (decoder weights and scene bounds; lp3d encode --model {path})")
     if args.weights:
-        weights = save_weights(student, args.weights)
+        weights = save_weights(student, args.weights, superres=sr)
         print(f"wrote {weights} (float16 inference weights; lp3d encode --backend torch --model {weights})")
     return 0
 

@@ -13,18 +13,27 @@ the encoder was trained with and the scene bounds. The sidecar carries exactly t
       "box_warp": 1.0, "ray_start": 2.25, "ray_end": 3.3,
       "decoder": {"w0": [[...]], "b0": [...], "w1": [[...]], "b1": [...]},   # effective weights
       "encoder_config": {...},                   # optional: the full EncoderConfig.to_dict()
-      "input_name": "image", "output_name": "planes"   # optional ONNX tensor names
+      "input_name": "image", "output_name": "planes",  # optional ONNX tensor names
+      "superres": {                              # optional: the super-resolution network
+        "model": "small.superres.onnx",          # features (B, 32, R, R) -> image (B, 3, R_out, R_out)
+        "input_resolution": 64, "output_resolution": 256, "in_channels": 32,
+        "sha256": "...",                         # of the .onnx file, checked when it is loaded
+        "about": {...}                           # optional: how it was made, its held-out scores
+      }
     }
 
 :func:`save_model_package` writes the sidecar (atomically) next to an ``.onnx`` file;
-:func:`load_model_package` reads it back, given either the ``.onnx`` or the ``.json`` path.
+:func:`load_model_package` reads it back, given either the ``.onnx`` or the ``.json`` path;
+:func:`set_package_superres` adds (or replaces) the super-resolution entry of an existing sidecar.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,9 +50,16 @@ __all__ = [
     "PACKAGE_FORMAT_VERSION",
     "ModelPackage",
     "ModelPackageError",
+    "SuperresEntry",
+    "decoder_digest",
+    "file_sha256",
     "load_model_package",
     "save_model_package",
+    "set_package_superres",
     "sidecar_path",
+    "superres_entry",
+    "superres_path",
+    "verify_superres_file",
 ]
 
 #: The ``format`` string every sidecar carries.
@@ -61,6 +77,29 @@ _DECODER_SHAPES: dict[str, tuple[int, ...]] = {
 
 class ModelPackageError(ValueError):
     """A missing, unreadable or inconsistent model package; the message names the file and the field."""
+
+
+@dataclass(frozen=True)
+class SuperresEntry:
+    """A package's super-resolution network (the sidecar's ``superres`` object).
+
+    ``path`` is the ONNX file (beside the sidecar; it may not exist: :func:`verify_superres_file`
+    checks it and its ``sha256`` when it is loaded). The network maps a raw feature render
+    ``features (B, in_channels, input_resolution, input_resolution)`` (the renderer's ``features``
+    output, rgb = its first 3 channels, values in about [-1, 1]) to ``image (B, 3, output_resolution,
+    output_resolution)`` in about [-1, 1]. ``about`` is informational (how it was made, its scores).
+    """
+
+    path: Path
+    input_resolution: int
+    output_resolution: int
+    in_channels: int
+    sha256: str
+    about: dict[str, Any] | None = None
+
+    @property
+    def scale(self) -> int:
+        return self.output_resolution // self.input_resolution
 
 
 @dataclass(frozen=True, eq=False)
@@ -86,6 +125,7 @@ class ModelPackage:
     encoder_config: dict[str, Any] | None = None
     input_name: str | None = None
     output_name: str | None = None
+    superres: SuperresEntry | None = None
 
     @property
     def decoder(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -113,6 +153,31 @@ class ModelPackage:
 def sidecar_path(model_path: str | os.PathLike[str]) -> Path:
     """The sidecar of ``MODEL.onnx`` (or any model file): ``MODEL.json`` in the same folder."""
     return Path(model_path).with_suffix(".json")
+
+
+def superres_path(model_path: str | os.PathLike[str]) -> Path:
+    """Where ``lp3d.export`` writes the super-resolution network of ``MODEL.onnx``:
+    ``MODEL.superres.onnx``."""
+    p = Path(model_path)
+    return p.with_name(p.with_suffix("").name + ".superres.onnx")
+
+
+def file_sha256(path: str | os.PathLike[str]) -> str:
+    """The SHA-256 of a file's bytes, as 64 lowercase hex digits."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while chunk := f.read(1 << 22):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def decoder_digest(decoder: Any) -> str:
+    """SHA-256 of the decoder's effective weights as float32 (w0, b0, w1, b1 in that order): names the
+    feature space a super-resolution network was fit on."""
+    h = hashlib.sha256()
+    for arr in _decoder_arrays(decoder).values():
+        h.update(np.ascontiguousarray(arr, dtype="<f4").tobytes())
+    return h.hexdigest()
 
 
 # ------------------------------------------------------------------------------------------ writing
@@ -205,6 +270,7 @@ def save_model_package(
     *,
     input_name: str | None = "image",
     output_name: str | None = "planes",
+    superres: Mapping[str, Any] | None = None,
 ) -> Path:
     """Write the sidecar ``MODEL.json`` next to ``onnx_path`` (the ``.onnx`` need not exist yet).
 
@@ -215,6 +281,7 @@ def save_model_package(
         config: the encoder's :class:`~lp3d.encoder.EncoderConfig` (or its dict, or a config name).
         bounds: ``box_warp``, ``ray_start``, ``ray_end`` (e.g. ``lp3d.train.SceneBounds``, a dict, a tuple).
         input_name / output_name: the ONNX graph's tensor names (informational; None to omit).
+        superres: the ``superres`` entry (:func:`superres_entry`), or None for a package without one.
 
     Returns the sidecar path. Raises :class:`ModelPackageError` on bad values; the write is atomic.
     """
@@ -246,12 +313,135 @@ def save_model_package(
     if output_name is not None:
         data["output_name"] = output_name
     path = sidecar_path(onnx_path)
+    if superres is not None:
+        _parse_superres(str(path), dict(superres), path.parent)
+        data["superres"] = dict(superres)
+    _write_sidecar(path, data)
+    return path
+
+
+def _write_sidecar(path: Path, data: dict[str, Any]) -> None:
     # The shared atomic writer: a temporary file of this call's own, with the usual permissions (a
     # model file is meant to be shared), synced and renamed; deleted on failure.
     with atomic_path(path, parents=False) as tmp, open(tmp, "w", encoding="utf-8") as f:
         json.dump(data, f, indent=1)
         f.write("\n")
-    return path
+
+
+def superres_entry(
+    onnx_path: str | os.PathLike[str],
+    *,
+    input_resolution: int,
+    output_resolution: int,
+    in_channels: int = N_CHANNELS,
+    about: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
+    """The sidecar's ``superres`` object for an exported SR network at ``onnx_path`` (which must exist:
+    its SHA-256 is recorded). The file must sit beside the sidecar it goes into."""
+    p = Path(onnx_path)
+    if not p.is_file():
+        raise ModelPackageError(f"{p}: no such super-resolution model file")
+    entry: dict[str, Any] = {
+        "model": p.name,
+        "input_resolution": int(input_resolution),
+        "output_resolution": int(output_resolution),
+        "in_channels": int(in_channels),
+        "sha256": file_sha256(p),
+        "input_name": "features",
+        "output_name": "image",
+    }
+    if about is not None:
+        entry["about"] = json.loads(json.dumps(dict(about)))  # plain JSON values only
+    _parse_superres(str(p), entry, p.parent)
+    return entry
+
+
+def set_package_superres(path: str | os.PathLike[str], superres: Mapping[str, Any] | None) -> Path:
+    """Add, replace (or with None remove) the ``superres`` entry of an existing package, given its
+    ``.onnx`` or ``.json``; every other field is kept as it is. The sidecar is validated before and
+    after, and rewritten atomically. Returns the sidecar path."""
+    package = load_model_package(path)
+    side = package.sidecar
+    data = json.loads(side.read_text(encoding="utf-8"))
+    if superres is None:
+        data.pop("superres", None)
+    else:
+        _parse_superres(str(side), dict(superres), side.parent)
+        data["superres"] = dict(superres)
+    _write_sidecar(side, data)
+    load_model_package(side)
+    return side
+
+
+_SHA256 = re.compile(r"[0-9a-f]{64}")
+
+
+def _parse_superres(where: str, entry: Any, folder: Path) -> SuperresEntry:
+    """Validate a ``superres`` object; errors name the sidecar (``where``) and the field."""
+    if not isinstance(entry, dict):
+        raise ModelPackageError(f"{where}: field 'superres' must be an object, got {type(entry).__name__}")
+
+    def field(name: str, kind: type) -> Any:
+        if name not in entry:
+            raise ModelPackageError(f"{where}: missing field 'superres.{name}'")
+        value = entry[name]
+        if isinstance(value, bool) or not isinstance(value, kind):
+            raise ModelPackageError(
+                f"{where}: field 'superres.{name}' has the wrong type ({type(value).__name__})"
+            )
+        return value
+
+    model = field("model", str)
+    if Path(model).name != model or not model.lower().endswith(".onnx"):
+        raise ModelPackageError(
+            f"{where}: field 'superres.model' must be an .onnx file name beside the sidecar, got {model!r}"
+        )
+    r_in = field("input_resolution", int)
+    r_out = field("output_resolution", int)
+    channels = field("in_channels", int)
+    if not 8 <= r_in <= 4096:
+        raise ModelPackageError(
+            f"{where}: field 'superres.input_resolution' must be in [8, 4096], got {r_in}"
+        )
+    ratio = r_out // r_in if r_out > 0 else 0
+    if r_out % r_in or ratio < 2 or ratio & (ratio - 1) or r_out > 8192:
+        raise ModelPackageError(
+            f"{where}: field 'superres.output_resolution' ({r_out}) must be input_resolution ({r_in}) "
+            "times a power of two >= 2 (and at most 8192)"
+        )
+    if channels != N_CHANNELS:
+        raise ModelPackageError(
+            f"{where}: field 'superres.in_channels' must be {N_CHANNELS} (the renderer's feature image), "
+            f"got {channels}"
+        )
+    digest = field("sha256", str)
+    if not _SHA256.fullmatch(digest):
+        raise ModelPackageError(f"{where}: field 'superres.sha256' must be 64 lowercase hex digits")
+    about = entry.get("about")
+    if about is not None and not isinstance(about, dict):
+        raise ModelPackageError(f"{where}: field 'superres.about' must be an object")
+    return SuperresEntry(
+        path=folder / model,
+        input_resolution=r_in,
+        output_resolution=r_out,
+        in_channels=channels,
+        sha256=digest,
+        about=about,
+    )
+
+
+def verify_superres_file(entry: SuperresEntry) -> None:
+    """The SR file exists and has the recorded SHA-256 (:class:`ModelPackageError` naming it if not)."""
+    if not entry.path.is_file():
+        raise ModelPackageError(
+            f"{entry.path}: no such file (the package's field 'superres.model' names it beside the sidecar)"
+        )
+    digest = file_sha256(entry.path)
+    if digest != entry.sha256:
+        raise ModelPackageError(
+            f"{entry.path}: its SHA-256 ({digest[:12]}…) differs from the package's field 'superres.sha256' "
+            f"({entry.sha256[:12]}…): the file was changed or replaced after export"
+        )
 
 
 # ------------------------------------------------------------------------------------------ reading
@@ -323,6 +513,7 @@ def load_model_package(path: str | os.PathLike[str]) -> ModelPackage:
     cfg = data.get("encoder_config")
     if cfg is not None and not isinstance(cfg, dict):
         raise ModelPackageError(f"{side}: field 'encoder_config' must be an object")
+    superres = _parse_superres(str(side), data["superres"], side.parent) if "superres" in data else None
     return ModelPackage(
         sidecar=side,
         model_path=p if p.suffix.lower() != ".json" else side.parent / model_name,
@@ -339,4 +530,5 @@ def load_model_package(path: str | os.PathLike[str]) -> ModelPackage:
         encoder_config=cfg,
         input_name=data.get("input_name") if isinstance(data.get("input_name"), str) else None,
         output_name=data.get("output_name") if isinstance(data.get("output_name"), str) else None,
+        superres=superres,
     )

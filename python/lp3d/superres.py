@@ -39,7 +39,14 @@ from torch import Tensor, nn
 
 from lp3d.stylegan_ops import FullyConnectedLayer, bias_lrelu, setup_filter, upfirdn2d, upsample2d
 
-__all__ = ["SUPERRES_CONFIGS", "SuperresConfig", "SuperResolution", "build_superres", "modulated_conv2d"]
+__all__ = [
+    "SUPERRES_CONFIGS",
+    "FoldedSuperResolution",
+    "SuperresConfig",
+    "SuperResolution",
+    "build_superres",
+    "modulated_conv2d",
+]
 
 NoiseMode = Literal["none", "const", "random"]
 
@@ -273,6 +280,91 @@ class SuperResolution(nn.Module):
         w = self.w_const.to(x.dtype).unsqueeze(0)  # (1, w_dim): one style for the whole batch
         for block in self.blocks:
             x, img = block(x, img, w, noise_mode)
+        return img
+
+
+class FoldedSuperResolution(nn.Module):
+    """The inference form of a :class:`SuperResolution`: with its constant w, every style and
+    demodulation factor is a constant, so each modulated convolution is a plain convolution with the
+    weight ``w · style[in] · demod[out]`` folded in once. Same outputs (to float rounding), no
+    data-dependent shapes, and only standard ops: this is what ``lp3d.export`` writes to ONNX.
+
+    ``forward(features (B, C, R, R)) -> image (B, 3, R_out, R_out)`` with ``R = input_resolution``
+    exactly (no resize), ``noise_mode="none"``.
+    """
+
+    def __init__(self, sr: SuperResolution) -> None:
+        super().__init__()
+        cfg = sr.config
+        self.config = cfg
+        f = setup_filter()
+        self.fir_width = f.shape[-1]
+        # True convolution with the FIR filter (upfirdn2d flips it), gain 4 for ×2 upsampling.
+        fir = (f * 4.0).flip([0, 1])
+        w = sr.w_const.detach().float().unsqueeze(0)
+        self.convs_up = nn.ParameterList()
+        self.convs = nn.ParameterList()
+        self.biases_up = nn.ParameterList()
+        self.biases = nn.ParameterList()
+        self.rgb_weights = nn.ParameterList()
+        self.rgb_biases = nn.ParameterList()
+        self.channels: list[int] = []
+        with torch.no_grad():
+            for block in sr.blocks:
+                w0 = self._fold(block.conv0.weight, block.conv0.affine(w), demodulate=True)
+                w1 = self._fold(block.conv1.weight, block.conv1.affine(w), demodulate=True)
+                styles = block.torgb.affine(w) * block.torgb.weight_gain
+                wr = self._fold(block.torgb.weight, styles, demodulate=False)
+                self.convs_up.append(nn.Parameter(w0, requires_grad=False))
+                self.biases_up.append(nn.Parameter(block.conv0.bias.detach().clone(), requires_grad=False))
+                self.convs.append(nn.Parameter(w1, requires_grad=False))
+                self.biases.append(nn.Parameter(block.conv1.bias.detach().clone(), requires_grad=False))
+                self.rgb_weights.append(nn.Parameter(wr, requires_grad=False))
+                self.rgb_biases.append(nn.Parameter(block.torgb.bias.detach().clone(), requires_grad=False))
+                self.channels.append(int(w0.shape[0]))
+        # Depthwise FIR kernels with the channel counts baked in (ONNX needs static kernel shapes).
+        self.register_buffer("fir_rgb", fir.expand(3, 1, *fir.shape).clone())
+        for i, c in enumerate(self.channels):
+            self.register_buffer(f"fir_{i}", fir.expand(c, 1, *fir.shape).clone())
+
+    @staticmethod
+    def _fold(weight: Tensor, styles: Tensor, *, demodulate: bool) -> Tensor:
+        """``weight (O, I, k, k) · styles (1, I)`` (and ``· 1/‖·‖`` per output channel)."""
+        wm = weight.detach().float() * styles.reshape(1, -1, 1, 1)
+        if demodulate:
+            wm = wm * (wm.square().sum(dim=(1, 2, 3), keepdim=True) + 1e-8).rsqrt()
+        return wm.contiguous()
+
+    def _fir(self, x: Tensor, kernel: Tensor, pad: tuple[int, int], *, zero_insert: bool) -> Tensor:
+        """(B, C, H, W): optionally insert zeros (×2), pad (p0 before, p1 after; negative crops), then
+        filter with the depthwise ``kernel`` (C, 1, k, k)."""
+        c, h, w = kernel.shape[0], x.shape[2], x.shape[3]
+        if zero_insert:
+            x = F.pad(x.reshape(-1, c, h, 1, w, 1), [0, 1, 0, 0, 0, 1]).reshape(-1, c, 2 * h, 2 * w)
+        p0, p1 = pad
+        x = F.pad(x, [max(p0, 0), max(p1, 0), max(p0, 0), max(p1, 0)])
+        if p0 < 0 or p1 < 0:
+            n = x.shape[-1]
+            x = x[:, :, max(-p0, 0) : n - max(-p1, 0), max(-p0, 0) : n - max(-p1, 0)]
+        return F.conv2d(x, kernel, groups=c)
+
+    def forward(self, features: Tensor) -> Tensor:
+        c, r = self.config.in_channels, self.config.input_resolution
+        if features.ndim != 4 or tuple(features.shape[1:]) != (c, r, r):
+            raise ValueError(f"features must have shape (B, {c}, {r}, {r}), got {tuple(features.shape)}")
+        fw = self.fir_width
+        # modulated_conv2d's padding for up=2, a 3×3 kernel and padding 1 (p0, p1 there).
+        conv_pad = (1 + (fw + 1) // 2 - 2, 1 + (fw - 2) // 2 - 1)
+        skip_pad = ((fw + 1) // 2, (fw - 2) // 2)  # upsample2d's
+        x = features
+        img = x[:, :3]
+        for i in range(len(self.channels)):
+            x = F.conv_transpose2d(x, self.convs_up[i].transpose(0, 1), stride=2)
+            x = self._fir(x, getattr(self, f"fir_{i}"), conv_pad, zero_insert=False)
+            x = bias_lrelu(x, self.biases_up[i])
+            x = bias_lrelu(F.conv2d(x, self.convs[i], padding=1), self.biases[i])
+            img = self._fir(img, self.fir_rgb, skip_pad, zero_insert=True)
+            img = img + F.conv2d(x, self.rgb_weights[i]) + self.rgb_biases[i].reshape(1, -1, 1, 1)
         return img
 
 
