@@ -6,9 +6,11 @@ and warm (the cache filled by an earlier run), for ``lp3d_render.render``, ``lp3
     python bench/first_render.py --modes warm --out /tmp/first_render.md
 
 Times are wall-clock seconds of the whole process (interpreter start, imports, adapter, pipeline
-compile, upload, render and read-back). Cold runs point ``MESA_SHADER_CACHE_DIR`` at a new empty
-folder (only for ``lp3d_render.render`` by default: each cold run is minutes of compiling, and the
-other two compile the same kernel); warm runs use ``$MESA_SHADER_CACHE_DIR`` (as ``./dev`` sets it)
+compile, upload, render and read-back). By default (``LP3D_KERNEL`` unset) a cold process draws with
+the quick kernel while the fast one compiles in the background (crates/renderer/src/renderer.rs);
+the ``LP3D_KERNEL=fast`` row waits for the fast kernel instead. Cold runs point
+``MESA_SHADER_CACHE_DIR`` at a new empty folder (only for ``lp3d_render.render`` by default: the
+others compile the same kernels); warm runs use ``$MESA_SHADER_CACHE_DIR`` (as ``./dev`` sets it)
 after one untimed run has filled it. lavapipe compiles each pipeline on
 first use, so on this renderer the cold numbers are mostly LLVM's compile of the kernel.
 """
@@ -37,7 +39,8 @@ assert np.isfinite(out["rgb"]).all()
 """
 
 
-def _commands(work: Path) -> dict[str, list[str]]:
+def _commands(work: Path) -> dict[str, tuple[list[str], dict[str, str]]]:
+    """Label -> (command, extra environment)."""
     scene = work / "sphere.npz"
     if not scene.exists():
         from lp3d.sample_scenes import coloured_sphere
@@ -46,24 +49,25 @@ def _commands(work: Path) -> dict[str, list[str]]:
         save_triplane(scene, coloured_sphere(size=64))
     xvfb = ["xvfb-run", "-a", "-s", "-screen 0 1024x768x24"]
     return {
-        "lp3d_render.render (128², 48+48)": [sys.executable, "-c", RENDER],
-        "lp3d demo (2 encodes, 12 views, orbit GIF)": [
-            *(sys.executable, "-m", "lp3d.demo", "--out", str(work / "demo")),
-        ],
-        "lp3d-view first frame (screenshot, 128²)": [
-            *xvfb,
-            sys.executable,
-            "-m",
-            "lp3d.view",
-            "--screenshot",
-            str(work / "view.png"),
-            str(scene),
-        ],
+        "lp3d_render.render (128², 48+48)": ([sys.executable, "-c", RENDER], {}),
+        # The fast kernel alone (no quick kernel first): its compile is what a cold Auto run hides.
+        "lp3d_render.render (128², 48+48), LP3D_KERNEL=fast": (
+            [sys.executable, "-c", RENDER],
+            {"LP3D_KERNEL": "fast"},
+        ),
+        "lp3d demo (2 encodes, 12 views, orbit GIF)": (
+            [sys.executable, "-m", "lp3d.demo", "--out", str(work / "demo")],
+            {},
+        ),
+        "lp3d-view first frame (screenshot, 128²)": (
+            [*xvfb, sys.executable, "-m", "lp3d.view", "--screenshot", str(work / "view.png"), str(scene)],
+            {},
+        ),
     }
 
 
-def _run(cmd: list[str], cache: Path, timeout: float) -> float:
-    env = {**os.environ, "MESA_SHADER_CACHE_DIR": str(cache), "OMP_WAIT_POLICY": "PASSIVE"}
+def _run(cmd: list[str], extra_env: dict[str, str], cache: Path, timeout: float) -> float:
+    env = {**os.environ, **extra_env, "MESA_SHADER_CACHE_DIR": str(cache), "OMP_WAIT_POLICY": "PASSIVE"}
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=timeout)
     seconds = time.perf_counter() - t0
@@ -97,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.only:
             commands = {k: v for k, v in commands.items() if args.only in k}
         warm_cache = Path(os.environ.get("MESA_SHADER_CACHE_DIR") or work / "warm-cache")
-        for label, cmd in commands.items():
+        for label, (cmd, extra_env) in commands.items():
             for mode in modes:
                 if mode == "cold" and args.cold_for not in label:
                     continue
@@ -105,9 +109,9 @@ def main(argv: list[str] | None = None) -> int:
                     cache = Path(tempfile.mkdtemp(prefix="cold-cache-", dir=work))
                 else:
                     cache = warm_cache
-                    _run(cmd, cache, args.timeout)  # fill the cache (untimed)
+                    _run(cmd, extra_env, cache, args.timeout)  # fill the cache (untimed)
                 load = os.getloadavg()[0]
-                seconds = _run(cmd, cache, args.timeout)
+                seconds = _run(cmd, extra_env, cache, args.timeout)
                 rows.append((label, mode, seconds, load))
                 print(f"{label:45s} {mode:5s} {seconds:8.1f} s  (load {load:.1f})", flush=True)
 

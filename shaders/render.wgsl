@@ -1,18 +1,13 @@
 // Entry points. One invocation renders one ray end to end: the coarse density pass and
 // inverse-CDF importance draw (sample_importance), then a single streaming pass over the
-// merged, sorted samples that decodes each sample once and composites as it goes.
+// merged, sorted samples that decodes each sample once and composites as it goes. Both passes
+// run in one loop around one sample evaluation (see render_rays).
 // No per-sample buffers: the coarse list is recomputable from its index and the fine
 // depths come out sorted, so merging two sorted lists replaces EG3D's sort.
 
 // Per-invocation scratch: coarse densities -> weights -> pdf -> cdf, and the fine depths.
 var<private> scratch: array<f32, MAX_SAMPLES>;
 var<private> t_fine: array<f32, MAX_SAMPLES>;
-
-fn density_at(pos: vec3<f32>) -> f32 {
-    sample_triplane(pos);
-    decode_hidden();
-    return decode_density();
-}
 
 // A walk over a ray's samples in depth order (coarse k and fine j merged; n = 0 walks the
 // coarse samples alone) with the occupancy of samples i - 1, i and i + 1 (docs/occupancy.md).
@@ -77,39 +72,13 @@ fn walk_to_needed(w: ptr<function, Walk>, ray: Ray, ray_index: u32, n: u32) {
     }
 }
 
-// sample_importance + sample_pdf: fills t_fine[0..N] (ascending). Returns the number of fine
-// samples to use: N, or 0 when the skip "no importance pass for (nearly) empty rays" applies.
-fn importance_depths(ray: Ray, ray_index: u32) -> u32 {
+// Steps 3-5 of sample_importance + sample_pdf, after the coarse pass left the coarse weights
+// w_0..w_{S-2} in `scratch` and its transmittance in `transmittance`: fills t_fine[0..N]
+// (ascending). Returns the number of fine samples to use: N, or 0 when the skip "no importance
+// pass for (nearly) empty rays" applies.
+fn importance_depths(ray_index: u32, transmittance: f32) -> u32 {
     let s = params.depth_resolution;
     let n = params.depth_resolution_importance;
-    // 1-2. Raw densities at the coarse samples and the coarse weights w_0..w_{S-2}
-    //      (MipRayMarcher2 on the coarse samples), in one front-to-back loop so that early
-    //      termination can stop evaluating densities; weights behind it, and of intervals
-    //      the occupancy grid skips, stay 0.
-    for (var i = 0u; i + 1u < s; i++) {
-        scratch[i] = 0.0;
-    }
-    var transmittance = 1.0;
-    var t_prev = 0.0;
-    var sigma_prev = 0.0;
-    // Skipping here too is faster but moves the importance samples (docs/occupancy.md).
-    var w = walk_start(ray, ray_index, 0u, (params.flags & FLAG_OCCUPANCY_COARSE) != 0u);
-    loop {
-        walk_to_needed(&w, ray, ray_index, 0u);
-        if (w.i >= s || transmittance < params.transmittance_threshold) {
-            break;
-        }
-        let sigma = density_at(ray.origin + w.t_cur * ray.dir);
-        if (w.i > 0u && (w.occ_prev || w.occ_cur)) {
-            // Both ends were decoded (each is the other's neighbour).
-            let alpha = interval_alpha(sigma_prev, sigma, w.t_cur - t_prev);
-            scratch[w.i - 1u] = alpha * transmittance;
-            transmittance = transmit(transmittance, alpha);
-        }
-        t_prev = w.t_cur;
-        sigma_prev = sigma;
-        walk_advance(&w, ray, ray_index, 0u);
-    }
     if (1.0 - transmittance < params.empty_threshold) {
         return 0u;
     }
@@ -162,6 +131,13 @@ fn importance_depths(ray: Ray, ray_index: u32) -> u32 {
     return n;
 }
 
+// One loop walks a ray twice: first its coarse samples (the density pass of sample_importance,
+// weights into `scratch`), then, after the importance draw, the merged coarse + fine list
+// (the streaming composite). Both walks share one sample evaluation (triplane fetch + decoder)
+// so the kernel holds a single copy of that code: lavapipe inlines every call, and compile
+// time grows with each copy (bench/RESULTS.md, "Kernel compile time"). The importance draw
+// sits in the outer loop, between the walks: inside the per-sample loop it made every sample
+// slower.
 @compute @workgroup_size(64)
 fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
     let n_pix = params.resolution * params.resolution;
@@ -174,14 +150,22 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
     let out_index = gid.y * n_pix + pixel;
     let ray = camera_ray(cam, pixel);
     let s = params.depth_resolution;
-    var n = params.depth_resolution_importance;
     let n_feat = params.feature_channels;
-    if (n > 0u) {
-        n = importance_depths(ray, ray_index);
-    }
 
-    // Streaming composite over the merged samples, skipping as the coarse pass does.
-    var walk = walk_start(ray, ray_index, n, true);
+    // The coarse walk (only with an importance pass): densities alone, weights w_0..w_{S-2}
+    // (MipRayMarcher2 on the coarse samples) into `scratch`, front to back so that early
+    // termination can stop evaluating densities; weights behind it, and of intervals the
+    // occupancy grid skips, stay 0. Skipping here too is faster but moves the importance
+    // samples (docs/occupancy.md).
+    var coarse = params.depth_resolution_importance > 0u;
+    if (coarse) {
+        for (var i = 0u; i + 1u < s; i++) {
+            scratch[i] = 0.0;
+        }
+    }
+    // Fine samples in the current walk (none in the coarse walk).
+    var n = 0u;
+    var walk = walk_start(ray, ray_index, 0u, !coarse || (params.flags & FLAG_OCCUPANCY_COARSE) != 0u);
     var transmittance = 1.0;
     var weights_sum = 0.0;
     var depth_acc = 0.0;
@@ -190,41 +174,55 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
     var cur_feat = array<vec4<f32>, 8>();
     var prev_t = 0.0;
     var prev_sigma = 0.0;
+    // The walks: the coarse one (if any), then the composite. The inner loop holds the one
+    // sample evaluation; the outer loop runs it once per walk.
     loop {
-        walk_to_needed(&walk, ray, ray_index, n);
-        // Early ray termination (a skip; the exact mode's threshold is 0, so it never fires).
-        if (walk.i >= s + n || transmittance < params.transmittance_threshold) {
+        loop {
+            walk_to_needed(&walk, ray, ray_index, n);
+            // Early ray termination (a skip; the exact mode's threshold is 0, so it never fires).
+            if (walk.i >= walk.total || transmittance < params.transmittance_threshold) {
+                break;
+            }
+            let t = walk.t_cur;
+            sample_triplane(ray.origin + t * ray.dir);
+            // Only the requested decoder rows: none in the coarse walk, else all 32 features or
+            // the 4 that hold RGB.
+            let sigma = decode(select(n_feat, 0u, coarse), &cur_feat);
+            if (walk.i > 0u && (walk.occ_prev || walk.occ_cur)) {
+                // Both ends were decoded (each is the other's neighbour).
+                let alpha = interval_alpha(prev_sigma, sigma, t - prev_t);
+                let w = alpha * transmittance;
+                transmittance = transmit(transmittance, alpha);
+                if (coarse) {
+                    scratch[walk.i - 1u] = w;
+                } else {
+                    weights_sum += w;
+                    depth_acc += w * ((prev_t + t) * 0.5);
+                    if (n_feat == 32u) {
+                        for (var q = 0u; q < 8u; q++) {
+                            acc[q] += w * ((prev_feat[q] + cur_feat[q]) * 0.5);
+                        }
+                    } else {
+                        acc[0] += w * ((prev_feat[0] + cur_feat[0]) * 0.5);
+                    }
+                }
+            }
+            prev_t = t;
+            prev_sigma = sigma;
+            prev_feat = cur_feat;
+            walk_advance(&walk, ray, ray_index, n);
+        }
+        if (!coarse) {
             break;
         }
-        let t = walk.t_cur;
-        sample_triplane(ray.origin + t * ray.dir);
-        decode_hidden();
-        let sigma = decode_density();
-        // Only the requested decoder rows: all 32 features, or the 4 that hold RGB.
-        // (Branches on a uniform, so every lane takes the same one; loops have constant bounds.)
-        if (n_feat == 32u) {
-            decode_features(&cur_feat);
-        } else if (n_feat > 0u) {
-            cur_feat[0] = decode_rgb();
-        }
-        if (walk.i > 0u && (walk.occ_prev || walk.occ_cur)) {
-            let alpha = interval_alpha(prev_sigma, sigma, t - prev_t);
-            let w = alpha * transmittance;
-            transmittance = transmit(transmittance, alpha);
-            weights_sum += w;
-            depth_acc += w * ((prev_t + t) * 0.5);
-            if (n_feat == 32u) {
-                for (var q = 0u; q < 8u; q++) {
-                    acc[q] += w * ((prev_feat[q] + cur_feat[q]) * 0.5);
-                }
-            } else {
-                acc[0] += w * ((prev_feat[0] + cur_feat[0]) * 0.5);
-            }
-        }
-        prev_t = t;
-        prev_sigma = sigma;
-        prev_feat = cur_feat;
-        walk_advance(&walk, ray, ray_index, n);
+        // End of the coarse walk: draw the fine depths, then composite the merged list,
+        // skipping as the coarse walk does.
+        n = importance_depths(ray_index, transmittance);
+        coarse = false;
+        walk = walk_start(ray, ray_index, n, true);
+        transmittance = 1.0;
+        prev_t = 0.0;
+        prev_sigma = 0.0;
     }
 
     // Depth: EG3D turns 0/0 into +inf and clamps to the batch-global depth range, so a ray

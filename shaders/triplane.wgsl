@@ -44,7 +44,9 @@ fn add_tap(p: u32, x: i32, y: i32, w: f32) {
     }
 }
 
-// Bilinear tap weights of grid_sample at normalised (u, v) in [-1, 1] for plane p.
+// Bilinear taps of grid_sample at normalised (u, v) in [-1, 1] for plane p, added to `feat`.
+// The four taps are a loop (corner c: x + (c & 1), y + (c >> 1)), not four copies: lavapipe
+// inlines every call, and each copy of add_tap costs compile time (bench/RESULTS.md).
 fn add_plane(p: u32, u: f32, v: f32) {
     let ix = ((u + 1.0) * f32(params.plane_w) - 1.0) * 0.5;
     let iy = ((v + 1.0) * f32(params.plane_h) - 1.0) * 0.5;
@@ -58,10 +60,12 @@ fn add_plane(p: u32, u: f32, v: f32) {
     let fy = iy - y0;
     let xi = i32(x0);
     let yi = i32(y0);
-    add_tap(p, xi, yi, (1.0 - fx) * (1.0 - fy));
-    add_tap(p, xi + 1, yi, fx * (1.0 - fy));
-    add_tap(p, xi, yi + 1, (1.0 - fx) * fy);
-    add_tap(p, xi + 1, yi + 1, fx * fy);
+    for (var c = 0u; c < 4u; c++) {
+        let dx = c & 1u;
+        let dy = c >> 1u;
+        let w = select(1.0 - fx, fx, dx == 1u) * select(1.0 - fy, fy, dy == 1u);
+        add_tap(p, xi + i32(dx), yi + i32(dy), w);
+    }
 }
 
 // World point -> plane coordinates ([-1, 1] inside the box).
@@ -89,9 +93,11 @@ fn sample_triplane(pos: vec3<f32>) {
     for (var i = 0u; i < 8u; i++) {
         feat[i] = vec4<f32>(0.0);
     }
-    add_plane(0u, q.x, q.y);
-    add_plane(1u, q.x, q.z);
-    add_plane(2u, q.z, q.x);
+    for (var p = 0u; p < 3u; p++) {
+        // PLANE_AXES: (x, y), (x, z), (z, x).
+        let uv = select(select(q.zx, q.xz, p == 1u), q.xy, p == 0u);
+        add_plane(p, uv.x, uv.y);
+    }
     for (var i = 0u; i < 8u; i++) {
         feat[i] = feat[i] / 3.0;
     }

@@ -22,6 +22,6 @@ pub use camera::Camera;
 pub use device::GpuContext;
 pub use error::{Error, Result};
 pub use occupancy::Occupancy;
-pub use renderer::{Display, GpuTriplane, RenderOutput, Renderer, DISPLAY_FORMAT};
+pub use renderer::{Display, GpuTriplane, Kernel, KernelChoice, RenderOutput, Renderer, DISPLAY_FORMAT};
 pub use settings::{Outputs, RenderSettings, Skips};
 pub use triplane::{Decoder, PlaneDtype, SceneInfo, Triplane};

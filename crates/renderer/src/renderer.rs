@@ -2,7 +2,8 @@
 //! happens in the WGSL kernels of `shaders/` (one ray per invocation).
 
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, OnceLock};
+use std::thread::JoinHandle;
 
 use wgpu::util::DeviceExt;
 
@@ -20,6 +21,58 @@ const WORKGROUP: u32 = 64;
 pub const DISPLAY_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 /// Most cameras per call (one dispatch row each).
 pub const MAX_CAMERAS: usize = 65535;
+
+/// The two compiled forms of the render kernel (`shaders/decoder.wgsl`, picked by the override
+/// constant `ROLLED_DECODER`). They do the same arithmetic in the same order, so their outputs
+/// are bit-identical (a test checks); only the time to compile and to run differs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Kernel {
+    /// Unrolled decoder: the fastest to run; on lavapipe its first compile takes ~30 s of CPU.
+    Fast,
+    /// Rolled decoder: compiles in ~2 s on lavapipe and runs ~1.5x slower there.
+    Quick,
+}
+
+/// Which kernels a `Renderer` builds. `Renderer::new` reads it from the `LP3D_KERNEL`
+/// environment variable (`auto`, `fast` or `quick`; unset = `auto`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum KernelChoice {
+    /// On a CPU adapter (lavapipe, where a compile takes tens of seconds): draw with the quick
+    /// kernel at once while the fast one compiles on a background thread (on its own device,
+    /// so the compile never blocks this device's queue), and switch to it when it is ready;
+    /// Mesa's shader cache keeps both for later processes. Once a fast kernel has been
+    /// compiled into the cache folder `MESA_SHADER_CACHE_DIR` names (a marker file there
+    /// records it), later processes start with the fast kernel at once. On other adapters:
+    /// `Fast`.
+    Auto,
+    /// The quick kernel at once and the fast one from a background compile, on any adapter
+    /// and whatever the marker says (what `Auto` does on a CPU adapter the first time).
+    QuickThenFast,
+    /// The fast kernel only (its first use waits for its compile).
+    Fast,
+    /// The quick kernel only.
+    Quick,
+}
+
+impl KernelChoice {
+    /// `LP3D_KERNEL` as a choice (`parse`).
+    pub fn from_env() -> Result<KernelChoice> {
+        KernelChoice::parse(std::env::var("LP3D_KERNEL").ok().as_deref())
+    }
+
+    /// `auto`, `fast` or `quick`; unset or empty = `auto`. Anything else is an error naming
+    /// `LP3D_KERNEL`.
+    pub fn parse(value: Option<&str>) -> Result<KernelChoice> {
+        match value {
+            None | Some("") | Some("auto") => Ok(KernelChoice::Auto),
+            Some("fast") => Ok(KernelChoice::Fast),
+            Some("quick") => Ok(KernelChoice::Quick),
+            Some(other) => {
+                Err(Error::invalid("LP3D_KERNEL", format!("must be auto, fast or quick, got {other:?}")))
+            }
+        }
+    }
+}
 
 /// A triplane resident on the GPU: planes channel-last plus the decoder uniform, and the
 /// occupancy grid when it has one.
@@ -166,7 +219,19 @@ pub struct Renderer {
     queue: wgpu::Queue,
     limits: wgpu::Limits,
     layout: wgpu::BindGroupLayout,
-    render_pipeline: wgpu::ComputePipeline,
+    module: wgpu::ShaderModule,
+    pipeline_layout: wgpu::PipelineLayout,
+    /// render_rays with the unrolled decoder, once built (at once, or after the background
+    /// compile finished).
+    fast_pipeline: OnceLock<wgpu::ComputePipeline>,
+    /// render_rays with the rolled decoder, when the choice uses it.
+    quick_pipeline: Option<wgpu::ComputePipeline>,
+    /// The background compile of the fast kernel (`KernelChoice::QuickThenFast`, and `Auto` on
+    /// a CPU adapter without the marker).
+    background: Mutex<Option<JoinHandle<Result<()>>>>,
+    /// Where to record that the fast kernel is in Mesa's shader cache (`fast_kernel_marker`),
+    /// until a render with the fast kernel has done so.
+    marker: Mutex<Option<std::path::PathBuf>>,
     bounds_pipeline: wgpu::ComputePipeline,
     present_layout: wgpu::BindGroupLayout,
     present_pipeline: wgpu::ComputePipeline,
@@ -205,8 +270,14 @@ fn uniform_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
 }
 
 impl Renderer {
-    /// Builds the pipelines on `ctx`'s device (a first dispatch may JIT-compile them).
+    /// Builds the pipelines on `ctx`'s device (a first dispatch may JIT-compile them), with
+    /// the kernels `LP3D_KERNEL` asks for (`KernelChoice::from_env`, default `Auto`).
     pub fn new(ctx: &GpuContext) -> Result<Renderer> {
+        Renderer::with_kernel(ctx, KernelChoice::from_env()?)
+    }
+
+    /// Builds the pipelines with an explicit kernel choice.
+    pub fn with_kernel(ctx: &GpuContext, choice: KernelChoice) -> Result<Renderer> {
         let device = ctx.device.clone();
         let uncaptured = Arc::new(Mutex::new(None));
         {
@@ -272,7 +343,33 @@ impl Renderer {
                 cache: None,
             })
         };
-        let render_pipeline = make(shaders::RENDER_ENTRY, "lp3d render_rays", &pipeline_layout);
+        let marker = fast_kernel_marker(&ctx.adapter_info);
+        let background_compile = match choice {
+            KernelChoice::QuickThenFast => true,
+            KernelChoice::Auto => {
+                ctx.adapter_info.device_type == wgpu::DeviceType::Cpu
+                    && !marker.as_ref().is_some_and(|m| m.exists())
+            }
+            KernelChoice::Fast | KernelChoice::Quick => false,
+        };
+        let fast_pipeline = OnceLock::new();
+        let quick_pipeline = match choice {
+            KernelChoice::Quick => {
+                Some(build_render_pipeline(&device, &module, &pipeline_layout, Kernel::Quick))
+            }
+            _ if background_compile => {
+                Some(build_render_pipeline(&device, &module, &pipeline_layout, Kernel::Quick))
+            }
+            _ => {
+                let _ = fast_pipeline.set(build_render_pipeline(
+                    &device,
+                    &module,
+                    &pipeline_layout,
+                    Kernel::Fast,
+                ));
+                None
+            }
+        };
         let bounds_pipeline = make(shaders::DEPTH_BOUNDS_ENTRY, "lp3d depth_bounds_pass", &pipeline_layout);
         let present_pipeline = make(shaders::PRESENT_ENTRY, "lp3d present", &present_pipeline_layout);
         let no_occupancy = device.create_buffer(&wgpu::BufferDescriptor {
@@ -284,6 +381,17 @@ impl Renderer {
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(Error::Gpu(format!("building the render pipelines failed: {e}")));
         }
+        let background = if background_compile {
+            let adapter = ctx.adapter_info.name.clone();
+            let marker = marker.clone();
+            let thread = std::thread::Builder::new()
+                .name("lp3d kernel compile".into())
+                .spawn(move || compile_fast_kernel(&adapter, marker.as_deref()))
+                .map_err(|e| Error::Gpu(format!("starting the background kernel compile failed: {e}")))?;
+            Some(thread)
+        } else {
+            None
+        };
         Ok(Renderer {
             no_occupancy,
             last_frame_bytes: AtomicU64::new(0),
@@ -291,12 +399,83 @@ impl Renderer {
             queue: ctx.queue.clone(),
             limits: ctx.limits.clone(),
             layout,
-            render_pipeline,
+            module,
+            pipeline_layout,
+            fast_pipeline,
+            quick_pipeline,
+            background: Mutex::new(background),
+            marker: Mutex::new(marker),
             bounds_pipeline,
             present_layout,
             present_pipeline,
             uncaptured,
         })
+    }
+
+    /// The kernel the last render used (or the next will, before any render). With a
+    /// background compile (`KernelChoice::QuickThenFast`, or `Auto` on a CPU adapter the first
+    /// time) this is `Quick` until a render finds that compile finished (then `Fast`; it stays
+    /// `Quick` if the compile failed).
+    pub fn kernel(&self) -> Kernel {
+        if self.fast_pipeline.get().is_some() {
+            Kernel::Fast
+        } else {
+            Kernel::Quick
+        }
+    }
+
+    /// Blocks until the background compile of the fast kernel (if any) has finished, switches
+    /// to it and returns the kernel renders use from now on (`Quick` for `KernelChoice::Quick`).
+    /// An error means that compile failed; renders then keep using the quick kernel.
+    pub fn wait_for_fast_kernel(&self) -> Result<Kernel> {
+        let handle = self.background.lock().map_err(|_| Error::Gpu("kernel lock poisoned".into()))?.take();
+        if let Some(handle) = handle {
+            handle.join().map_err(|_| Error::Gpu("the background kernel compile panicked".into()))??;
+            self.set_fast();
+        }
+        Ok(self.kernel())
+    }
+
+    /// Joins a finished background compile and switches to the fast kernel; whether it did.
+    fn take_background(&self) -> bool {
+        let Ok(mut slot) = self.background.lock() else { return false };
+        if !slot.as_ref().is_some_and(|h| h.is_finished()) {
+            return self.fast_pipeline.get().is_some();
+        }
+        let ok = matches!(slot.take().map(|h| h.join()), Some(Ok(Ok(()))));
+        drop(slot);
+        if ok {
+            self.set_fast();
+        }
+        ok
+    }
+
+    /// Records (once) that the fast kernel has run, so is in Mesa's shader cache. Best effort:
+    /// without the marker, the next process only takes the slower `Auto` start.
+    fn record_fast_kernel(&self) {
+        if let Some(path) = self.marker.lock().ok().and_then(|mut m| m.take()) {
+            write_marker(&path);
+        }
+    }
+
+    fn set_fast(&self) {
+        self.fast_pipeline.get_or_init(|| {
+            build_render_pipeline(&self.device, &self.module, &self.pipeline_layout, Kernel::Fast)
+        });
+    }
+
+    /// The render_rays pipeline for the next dispatch (switching to the fast kernel once its
+    /// background compile has finished).
+    fn render_pipeline(&self) -> &wgpu::ComputePipeline {
+        if let Some(p) = self.fast_pipeline.get() {
+            return p;
+        }
+        if self.take_background() {
+            if let Some(p) = self.fast_pipeline.get() {
+                return p;
+            }
+        }
+        self.quick_pipeline.as_ref().or(self.fast_pipeline.get()).expect("a render pipeline was built")
     }
 
     /// Uploads a validated triplane, with its occupancy grid if it has one. Float16 planes
@@ -525,7 +704,7 @@ impl Renderer {
                 pass.set_pipeline(&self.bounds_pipeline);
                 pass.dispatch_workgroups(groups_x, frame.n_cam as u32, 1);
             }
-            pass.set_pipeline(&self.render_pipeline);
+            pass.set_pipeline(self.render_pipeline());
             pass.dispatch_workgroups(groups_x, count as u32, 1);
         }
         encoder
@@ -583,6 +762,9 @@ impl Renderer {
             first += count;
         }
         self.check(scope, "render dispatch")?;
+        if self.fast_pipeline.get().is_some() {
+            self.record_fast_kernel();
+        }
         // Validated inputs cannot produce NaN/Inf (`check_decoder_range`, `Camera::from_label`);
         // one pass over the results (cheap next to the render) keeps a broken promise from
         // reaching the caller as a silently black image.
@@ -722,6 +904,130 @@ impl Renderer {
     }
 }
 
+/// render_rays specialised for `kernel`.
+fn build_render_pipeline(
+    device: &wgpu::Device,
+    module: &wgpu::ShaderModule,
+    layout: &wgpu::PipelineLayout,
+    kernel: Kernel,
+) -> wgpu::ComputePipeline {
+    let rolled = match kernel {
+        Kernel::Fast => 0.0,
+        Kernel::Quick => 1.0,
+    };
+    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        label: Some(match kernel {
+            Kernel::Fast => "lp3d render_rays (fast kernel)",
+            Kernel::Quick => "lp3d render_rays (quick kernel)",
+        }),
+        layout: Some(layout),
+        module,
+        entry_point: Some(shaders::RENDER_ENTRY),
+        compilation_options: wgpu::PipelineCompilationOptions {
+            constants: &[("ROLLED_DECODER", rolled)],
+            ..Default::default()
+        },
+        cache: None,
+    })
+}
+
+/// The marker file that says this adapter's Mesa shader cache holds this build's fast kernel:
+/// `$MESA_SHADER_CACHE_DIR/lp3d-kernels/fast-<hash>`, the hash over the WGSL source and the
+/// adapter and driver. `None` without `MESA_SHADER_CACHE_DIR` or with Mesa's cache disabled (no
+/// marker: `Auto` then always starts with the quick kernel). Kept inside Mesa's folder so that
+/// clearing the cache clears the marker too.
+fn fast_kernel_marker(info: &wgpu::AdapterInfo) -> Option<std::path::PathBuf> {
+    use std::hash::{Hash, Hasher};
+    let disabled = std::env::var("MESA_SHADER_CACHE_DISABLE")
+        .is_ok_and(|v| matches!(v.to_ascii_lowercase().as_str(), "1" | "true" | "yes"));
+    let dir = std::env::var_os("MESA_SHADER_CACHE_DIR").filter(|d| !d.is_empty())?;
+    if disabled {
+        return None;
+    }
+    // FNV-1a: stable across Rust versions, unlike std's default hasher.
+    struct Fnv(u64);
+    impl Hasher for Fnv {
+        fn finish(&self) -> u64 {
+            self.0
+        }
+        fn write(&mut self, bytes: &[u8]) {
+            for b in bytes {
+                self.0 = (self.0 ^ *b as u64).wrapping_mul(0x100000001b3);
+            }
+        }
+    }
+    let mut h = Fnv(0xcbf29ce484222325);
+    shaders::render_module_source().hash(&mut h);
+    (&info.name, &info.driver, &info.driver_info, info.vendor, info.device).hash(&mut h);
+    Some(std::path::Path::new(&dir).join("lp3d-kernels").join(format!("fast-{:016x}", h.finish())))
+}
+
+/// Writes an empty marker file (best effort: a failure only costs later processes the quick
+/// start).
+fn write_marker(path: &std::path::Path) {
+    if let Some(dir) = path.parent() {
+        if std::fs::create_dir_all(dir).is_ok() {
+            let _ = crate::atomic::write_atomically(path, |_| Ok(()));
+        }
+    }
+}
+
+/// The background half of `KernelChoice::Auto`: compiles the fast kernel on a device of its
+/// own (lavapipe JIT-compiles a pipeline at its first dispatch, on the queue that runs it, so
+/// compiling on the renderer's own device would stall its renders for the whole compile) with
+/// one one-ray render, which leaves the compiled kernel in Mesa's on-disk shader cache. The
+/// device is dropped before returning, which flushes that cache, so the renderer's own first
+/// dispatch of the fast kernel then loads it instead of compiling it. (With Mesa's cache
+/// disabled, that dispatch compiles it again, once.)
+fn compile_fast_kernel(adapter: &str, marker: Option<&std::path::Path>) -> Result<()> {
+    let ctx = GpuContext::headless()?;
+    if ctx.adapter_info.name != adapter {
+        return Err(Error::Gpu(format!(
+            "the background kernel compile found adapter {:?}, not {adapter:?}",
+            ctx.adapter_info.name
+        )));
+    }
+    let renderer = Renderer::with_kernel(&ctx, KernelChoice::Fast)?;
+    // The marker is written below, after the device is gone, not by this render.
+    if let Ok(mut m) = renderer.marker.lock() {
+        *m = None;
+    }
+    let tri = Triplane {
+        planes: vec![0.0; 3 * N_CHANNELS * 2 * 2],
+        height: 2,
+        width: 2,
+        plane_dtype: PlaneDtype::F32,
+        decoder: crate::triplane::Decoder {
+            w0: vec![0.0; crate::triplane::HIDDEN * N_CHANNELS],
+            b0: vec![0.0; crate::triplane::HIDDEN],
+            w1: vec![0.0; crate::triplane::N_OUT * crate::triplane::HIDDEN],
+            b1: vec![0.0; crate::triplane::N_OUT],
+        },
+        box_warp: 1.0,
+        ray_start: 2.25,
+        ray_end: 3.3,
+        camera: None,
+        occupancy: None,
+        source: None,
+    };
+    let gpu = renderer.upload(&tri)?;
+    let camera = Camera::look_at(
+        std::f64::consts::FRAC_PI_2,
+        std::f64::consts::FRAC_PI_2,
+        crate::camera::FFHQ_RADIUS,
+        [0.0, 0.0, 0.0],
+        crate::camera::FFHQ_FOCAL,
+    );
+    let settings = RenderSettings { resolution: 1, ..Default::default() };
+    renderer.render(&gpu, &[camera], &settings, Outputs::ALL)?;
+    // Drop the device (flushing Mesa's cache writes) before the marker says it is cached.
+    drop((gpu, renderer, ctx));
+    if let Some(path) = marker {
+        write_marker(path);
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -763,5 +1069,16 @@ mod tests {
         let p = (f32::MAX as f64 / 2.0 / (64.0 * w as f64 * 32.0 * w as f64)) as f32;
         check_decoder_range(&constant(p * 0.99, w)).unwrap();
         assert!(check_decoder_range(&constant(p * 1.01, w)).is_err());
+    }
+
+    #[test]
+    fn kernel_choice_parses_lp3d_kernel() {
+        assert_eq!(KernelChoice::parse(None).unwrap(), KernelChoice::Auto);
+        assert_eq!(KernelChoice::parse(Some("")).unwrap(), KernelChoice::Auto);
+        assert_eq!(KernelChoice::parse(Some("auto")).unwrap(), KernelChoice::Auto);
+        assert_eq!(KernelChoice::parse(Some("fast")).unwrap(), KernelChoice::Fast);
+        assert_eq!(KernelChoice::parse(Some("quick")).unwrap(), KernelChoice::Quick);
+        let e = KernelChoice::parse(Some("Fast")).unwrap_err().to_string();
+        assert!(e.starts_with("LP3D_KERNEL:") && e.contains("auto, fast or quick"), "{e}");
     }
 }

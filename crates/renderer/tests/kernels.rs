@@ -1,0 +1,110 @@
+//! The two compiled forms of the render kernel (shaders/decoder.wgsl's unrolled and rolled
+//! decoders) give bit-identical outputs, and a renderer that starts with the quick kernel and
+//! switches to the fast one after its background compile changes no bit either.
+
+use lp3d_renderer::camera::{FFHQ_FOCAL, FFHQ_RADIUS};
+use lp3d_renderer::renderer::{Kernel, KernelChoice};
+use lp3d_renderer::{
+    Camera, Decoder, GpuContext, GpuTriplane, Outputs, PlaneDtype, RenderSettings, Renderer, Triplane,
+};
+
+fn test_triplane(dtype: PlaneDtype) -> Triplane {
+    let mut state = 2024u32;
+    let mut next = move || {
+        state ^= state << 13;
+        state ^= state >> 17;
+        state ^= state << 5;
+        (state as f32 / u32::MAX as f32) * 2.0 - 1.0
+    };
+    let (h, w) = (12, 10);
+    let mut planes: Vec<f32> = (0..3 * 32 * h * w).map(|_| next() * 1.5).collect();
+    if dtype == PlaneDtype::F16 {
+        planes = planes.iter().map(|&v| half::f16::from_f32(v).to_f32()).collect();
+    }
+    Triplane {
+        planes,
+        height: h,
+        width: w,
+        plane_dtype: dtype,
+        decoder: Decoder {
+            w0: (0..64 * 32).map(|_| next() * 0.3).collect(),
+            b0: (0..64).map(|_| next() * 0.1).collect(),
+            w1: (0..33 * 64).map(|_| next() * 0.2).collect(),
+            b1: (0..33).map(|_| next() * 0.1).collect(),
+        },
+        box_warp: 1.0,
+        ray_start: 2.25,
+        ray_end: 3.3,
+        camera: None,
+        occupancy: None,
+        source: Some("kernels test".into()),
+    }
+}
+
+/// Every output of a few settings (exact, jittered over white, no importance pass; all
+/// outputs and rgb alone), as float bits.
+fn render_bits(renderer: &Renderer, gpu: &GpuTriplane) -> Vec<Vec<u32>> {
+    let half_pi = std::f64::consts::FRAC_PI_2;
+    let cams = [
+        Camera::look_at(half_pi, half_pi, FFHQ_RADIUS, [0.0, 0.0, 0.0], FFHQ_FOCAL),
+        Camera::look_at(half_pi + 0.4, half_pi - 0.2, FFHQ_RADIUS, [0.0, 0.0, 0.2], FFHQ_FOCAL),
+    ];
+    let exact = RenderSettings {
+        resolution: 8,
+        depth_resolution: 12,
+        depth_resolution_importance: 12,
+        ..Default::default()
+    };
+    let jittered = RenderSettings { deterministic: false, white_back: true, seed: 7, ..exact };
+    let coarse_only = RenderSettings { depth_resolution_importance: 0, ..exact };
+    let mut all = Vec::new();
+    for settings in [exact, jittered, coarse_only] {
+        for outputs in [Outputs::ALL, Outputs::from_names(&["rgb"]).unwrap()] {
+            let out = renderer.render(gpu, &cams, &settings, outputs).unwrap();
+            for part in [out.features, out.rgb, out.depth, out.weights_sum].into_iter().flatten() {
+                all.push(part.iter().map(|v| v.to_bits()).collect());
+            }
+        }
+    }
+    all
+}
+
+fn assert_same(a: &[Vec<u32>], b: &[Vec<u32>], what: &str) {
+    assert_eq!(a.len(), b.len());
+    for (k, (x, y)) in a.iter().zip(b).enumerate() {
+        let differ = x.iter().zip(y).filter(|(p, q)| p != q).count();
+        assert_eq!(differ, 0, "{what}: output {k} differs in {differ} of {} values", x.len());
+    }
+}
+
+#[test]
+fn fast_and_quick_kernels_agree_bit_for_bit() {
+    let ctx = GpuContext::headless().expect("a GPU adapter (lavapipe in CI)");
+    let fast = Renderer::with_kernel(&ctx, KernelChoice::Fast).unwrap();
+    let quick = Renderer::with_kernel(&ctx, KernelChoice::Quick).unwrap();
+    assert_eq!(fast.kernel(), Kernel::Fast);
+    assert_eq!(quick.kernel(), Kernel::Quick);
+    for dtype in [PlaneDtype::F32, PlaneDtype::F16] {
+        let tri = test_triplane(dtype);
+        let a = render_bits(&fast, &fast.upload(&tri).unwrap());
+        let b = render_bits(&quick, &quick.upload(&tri).unwrap());
+        // Not vacuous: the scene has visible density.
+        let wsum = &a[3];
+        assert!(wsum.iter().any(|&w| f32::from_bits(w) > 0.05), "{dtype:?}: an empty render");
+        assert_same(&a, &b, &format!("{dtype:?} planes, fast vs quick"));
+    }
+}
+
+#[test]
+fn quick_then_fast_switches_kernels_without_changing_a_bit() {
+    let ctx = GpuContext::headless().expect("a GPU adapter (lavapipe in CI)");
+    let renderer = Renderer::with_kernel(&ctx, KernelChoice::QuickThenFast).unwrap();
+    let tri = test_triplane(PlaneDtype::F32);
+    let gpu = renderer.upload(&tri).unwrap();
+    assert_eq!(renderer.kernel(), Kernel::Quick);
+    let before = render_bits(&renderer, &gpu);
+    assert_eq!(renderer.wait_for_fast_kernel().unwrap(), Kernel::Fast);
+    let after = render_bits(&renderer, &gpu);
+    assert_eq!(renderer.kernel(), Kernel::Fast);
+    assert_same(&before, &after, "before vs after the switch");
+}
