@@ -1,7 +1,8 @@
-"""lp3d-view end to end, in a real window under Xvfb: its screenshot's 3D view must equal
-lp3d_render.render of the same camera (both run the same kernels), and bad inputs exit non-zero
-with a clear message. Needs xvfb-run (installed by scripts/install-system-deps.sh); without it
-the test fails, it is not skipped."""
+"""lp3d-view end to end, in a real window under Xvfb: a scripted drag renders at the quality rung
+the frame budget picks, the refined final image must equal lp3d_render.render of the same camera
+and settings (both run the same kernels), and bad inputs exit non-zero with a clear message.
+Needs xvfb-run (installed by scripts/install-system-deps.sh); without it the test fails, it is
+not skipped."""
 
 from __future__ import annotations
 
@@ -37,42 +38,91 @@ def sphere_file(tmp_path_factory) -> Path:
     return path
 
 
-def test_screenshot_matches_render(gpu, sphere_file: Path, tmp_path: Path) -> None:
+def bilinear_upscale(image: np.ndarray, size: int) -> np.ndarray:
+    """(R, R, C) -> (size, size, C) float: texture sampling at pixel centres, clamp to edge."""
+    res = image.shape[0]
+    coord = (np.arange(size) + 0.5) * res / size - 0.5
+    lo = np.floor(coord).astype(int)
+    frac = coord - lo
+    i0, i1 = np.clip(lo, 0, res - 1), np.clip(lo + 1, 0, res - 1)
+    img = image.astype(float)
+    rows = img[i0] * (1 - frac)[:, None, None] + img[i1] * frac[:, None, None]
+    return rows[:, i0] * (1 - frac)[None, :, None] + rows[:, i1] * frac[None, :, None]
+
+
+def test_drag_then_refined_image_matches_render(gpu, sphere_file: Path, tmp_path: Path) -> None:
+    """A scripted drag (synthetic pointer events through egui) renders at the ladder's cheapest
+    rung under a budget no rung can meet, then the view refines rung by rung to the chosen
+    settings; that final image, read back from its texture, equals lp3d_render.render, and the
+    window shows it scaled to fit with bilinear filtering."""
     shot = tmp_path / "shot.png"
-    yaw, pitch, res = 25.0, -8.0, 48
+    yaw, pitch, res, coarse, fine, drag = 25.0, -8.0, 48, 24, 16, 6
     proc = run_view(
-        "--screenshot",
-        str(shot),
-        "--yaw",
-        str(yaw),
-        "--pitch",
-        str(pitch),
-        "--resolution",
-        str(res),
+        *("--screenshot", str(shot), "--yaw", str(yaw), "--pitch", str(pitch)),
+        *("--resolution", str(res), "--samples", f"{coarse}+{fine}"),
+        *("--frame-budget-ms", "1", "--drag-frames", str(drag)),
         str(sphere_file),
     )
     assert proc.returncode == 0, proc.stderr
     meta = json.loads(shot.with_suffix(".json").read_text())
-    view = meta["view"]
-    assert view["resolution"] == res and view["size"] == res * view["scale"]
-    window = np.asarray(Image.open(shot).convert("RGB"))
-    assert window.shape[:2] == (meta["window"][1], meta["window"][0])
-    crop = window[view["y"] : view["y"] + view["size"], view["x"] : view["x"] + view["size"]]
-    # One ray is a scale x scale block (nearest filtering): sample the block centres.
-    s = view["scale"]
-    shown = crop[s // 2 :: s, s // 2 :: s][:res, :res].astype(int)
+    assert meta["settings"] == {
+        "resolution": res,
+        "depth_resolution": coarse,
+        "depth_resolution_importance": fine,
+    }
+    assert meta["quality"] == f"{res}² · {coarse}+{fine} (final)"
+    assert meta["frame_budget_ms"] == 1
+
+    # The frame log: every render during the drag at the cheapest rung, then one rung per frame
+    # up to the top after the release.
+    frames = meta["frames"]
+    dragging = [f for f in frames if f["dragging"]]
+    assert len(dragging) == drag, f"expected one render per drag step, got {len(dragging)}"
+    for f in dragging:
+        assert (f["rung"], f["phase"]) == (0, "moving"), f
+        assert (f["resolution"], f["depth_resolution"], f["depth_resolution_importance"]) == (12, 6, 4)
+        assert f["render_ms"] > 0 and f["interval_ms"] > 0
+    after = frames[frames.index(dragging[-1]) + 1 :]
+    assert [f["rung"] for f in after] == [1, 2, 3], after
+    assert after[-1]["phase"] == "final" and after[-1]["resolution"] == res
+    assert meta["drag"]["frames"] == drag and meta["drag"]["release_to_final_ms"] > 0
+    # The drag orbited the camera: a quarter of the view to the right is -30° of yaw.
+    assert meta["yaw"] == pytest.approx(yaw - 30.0, abs=0.5) and meta["pitch"] > pitch + 5
 
     tri = lp3d_render.Triplane.load(sphere_file)
+    camera = look_at_camera(yaw_deg=meta["yaw"], pitch_deg=meta["pitch"])
     expected = rgb_to_uint8(
         lp3d_render.render(
-            tri, look_at_camera(yaw_deg=yaw, pitch_deg=pitch), resolution=res, outputs=["rgb"]
+            tri,
+            camera,
+            resolution=res,
+            depth_resolution=coarse,
+            depth_resolution_importance=fine,
+            outputs=["rgb"],
         )["rgb"]
     ).astype(int)
-    diff = np.abs(shown - expected)
+    rendered = np.asarray(Image.open(shot.parent / meta["render"]))
+    assert rendered.shape == (res, res, 4) and (rendered[..., 3] == 255).all()
+    diff = np.abs(rendered[..., :3].astype(int) - expected)
     # 8-bit quantisation in the shader vs NumPy's rounding: at most one level apart.
     assert diff.max() <= 1, (
         f"max difference {diff.max()} levels at {np.unravel_index(diff.argmax(), diff.shape)}"
     )
+
+    view = meta["view"]
+    assert view["resolution"] == res and view["scale"] == pytest.approx(view["size"] / res)
+    window = np.asarray(Image.open(shot).convert("RGB")).astype(int)
+    assert window.shape[:2] == (meta["window"][1], meta["window"][0])
+    assert view["size"] > 4 * res, "the render is scaled to fill the view"
+    crop = window[view["y"] : view["y"] + view["size"], view["x"] : view["x"] + view["size"]]
+    # Bilinear magnification: within 2 levels of a float64 bilinear upscale (the window's 8-bit
+    # rounding, plus the sampler's fixed-point weights); a nearest-neighbour upscale is far off.
+    smooth = np.abs(crop - bilinear_upscale(expected, view["size"]))
+    assert smooth.max() <= 2, f"max {smooth.max():.2f} levels from a bilinear upscale"
+    blocks = expected[np.arange(view["size"]) * res // view["size"]][
+        :, np.arange(view["size"]) * res // view["size"]
+    ]
+    assert np.abs(crop - blocks).max() > 20, "the view looks nearest-filtered"
     # The controls are in the same window: the left panel is not the 3D view and not black.
     assert window[:, : view["x"] - 4].mean() > 10
 
@@ -94,3 +144,12 @@ def test_bad_inputs_exit_non_zero(tmp_path: Path) -> None:
     assert no_file.returncode == 2 and "needs a triplane file" in no_file.stderr
     pitch = run_view("--pitch", "95", str(corrupt), timeout=120)
     assert pitch.returncode != 0 and "pitch" in pitch.stderr
+    for args, name in [
+        (["--drag-frames", "3", str(corrupt)], "--drag-frames"),
+        (["--samples", "3+8", str(corrupt)], "samples"),
+        (["--frame-budget-ms", "0", str(corrupt)], "frame-budget-ms"),
+    ]:
+        out = subprocess.run(
+            [sys.executable, "-m", "lp3d.view", *args], capture_output=True, text=True, timeout=60
+        )
+        assert out.returncode != 0 and name in out.stderr, (args, out.stderr)

@@ -95,5 +95,9 @@ def view(
     yaw: float = 0.0,
     pitch: float = 0.0,
     resolution: int = 128,
+    depth_resolution: int = 48,
+    depth_resolution_importance: int = 48,
+    frame_budget_ms: float = 100.0,
     frames: int = 3,
+    drag_frames: int = 0,
 ) -> None: ...

@@ -1,10 +1,15 @@
 //! The egui app. Following egui's `custom3d_wgpu` pattern: GPU resources are built once on
-//! eframe's wgpu device; the renderer writes straight into a storage texture that egui shows
-//! (no readback), and a frame is re-rendered only when the camera or a setting changes.
+//! eframe's wgpu device; the renderer writes straight into a storage texture that egui shows,
+//! scaled to fit the view with bilinear filtering.
+//!
+//! Rendering follows a quality ladder (`crate::quality`): while the camera or a setting changes
+//! (or a pointer button is held), each frame renders at the rung predicted to fit the frame
+//! budget; once nothing has changed for `SETTLE`, one rung per UI frame refines the image up to
+//! the chosen settings, where it stops: an unchanged view is never rendered again.
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use eframe::egui;
 use eframe::egui_wgpu;
@@ -12,7 +17,13 @@ use lp3d_renderer::{Display, GpuContext, GpuTriplane, RenderSettings, Renderer, 
 
 use crate::options::ViewerOptions;
 use crate::orbit::Orbit;
-use crate::screenshot::{save_screenshot, ViewRect};
+use crate::quality::{FrameTimes, Ladder, Rung};
+use crate::screenshot::{json_number, json_string, save_screenshot, RenderImage, ViewRect};
+
+/// How long the view must stay unchanged (with no pointer button held) before refining.
+const SETTLE: Duration = Duration::from_millis(200);
+/// Rendered frames kept for the screenshot's report.
+const LOG_CAP: usize = 100_000;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Mode {
@@ -22,13 +33,92 @@ enum Mode {
     Channel,
 }
 
-/// Everything that decides the rendered image; a change means "render again".
+/// Everything that decides the image at the chosen quality; a change means "render again".
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct FrameKey {
     orbit: Orbit,
+    /// The chosen (final) settings; rungs derive from them.
     settings: RenderSettings,
     display: Display,
     generation: u64,
+}
+
+/// The image on screen.
+#[derive(Debug, Clone, Copy)]
+struct Shown {
+    key: FrameKey,
+    rung: Rung,
+    /// Index in the key's ladder, and the ladder's top index.
+    index: usize,
+    top: usize,
+    render_ms: f64,
+    /// When it finished, and in which UI frame.
+    at: Instant,
+    ui_frame: u64,
+}
+
+impl Shown {
+    fn is_final(&self) -> bool {
+        self.index == self.top
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Phase {
+    /// Rendered within the frame budget while the view was changing.
+    Moving,
+    /// A step up the ladder after the view stopped.
+    Refining,
+    /// The chosen settings.
+    Final,
+}
+
+impl Phase {
+    fn name(self) -> &'static str {
+        match self {
+            Phase::Moving => "moving",
+            Phase::Refining => "refining",
+            Phase::Final => "final",
+        }
+    }
+}
+
+/// One rendered frame, for the screenshot's JSON report (and `bench/viewer_frames.py`).
+#[derive(Debug, Clone, Copy)]
+struct FrameRecord {
+    /// Milliseconds since the app started, at the end of the render.
+    t_ms: f64,
+    ui_frame: u64,
+    render_ms: f64,
+    /// Time since the previous UI frame began: what the user sees as the frame time.
+    interval_ms: f64,
+    rung: Rung,
+    index: usize,
+    rungs: usize,
+    phase: Phase,
+    /// A pointer button was down (a drag in progress).
+    dragging: bool,
+}
+
+impl FrameRecord {
+    fn json(&self) -> String {
+        format!(
+            "{{\"t_ms\": {}, \"ui_frame\": {}, \"render_ms\": {}, \"interval_ms\": {}, \"resolution\": {}, \
+             \"depth_resolution\": {}, \"depth_resolution_importance\": {}, \"rung\": {}, \"rungs\": {}, \
+             \"phase\": \"{}\", \"dragging\": {}}}",
+            json_number(self.t_ms),
+            self.ui_frame,
+            json_number(self.render_ms),
+            json_number(self.interval_ms),
+            self.rung.resolution,
+            self.rung.depth_resolution,
+            self.rung.depth_resolution_importance,
+            self.index,
+            self.rungs,
+            self.phase.name(),
+            self.dragging
+        )
+    }
 }
 
 struct Loaded {
@@ -39,12 +129,26 @@ struct Loaded {
     generation: u64,
 }
 
-/// The display texture (an `Rgba8Unorm` storage texture registered with egui).
+/// A display texture (an `Rgba8Unorm` storage texture registered with egui), one per rung size.
 struct Target {
     texture: wgpu::Texture,
     view: wgpu::TextureView,
     id: egui::TextureId,
     size: u32,
+}
+
+/// `--drag-frames`: a synthetic left-button drag injected into egui's input, one step per UI
+/// frame, so tests and benchmarks drive the same code path as a mouse.
+#[derive(Debug, Clone, Copy)]
+struct DragScript {
+    frames: u32,
+    /// 0: waiting for the first final image; 1..=frames: moving; frames + 1: released.
+    step: u32,
+    start: egui::Pos2,
+    delta: egui::Vec2,
+    released: Option<Instant>,
+    /// Release to the refined image on screen.
+    release_to_final_ms: Option<f64>,
 }
 
 pub struct ViewerApp {
@@ -54,16 +158,28 @@ pub struct ViewerApp {
     generation: u64,
     orbit: Orbit,
     home: Orbit,
+    /// The chosen (final) quality.
     settings: RenderSettings,
     mode: Mode,
     channel: u32,
-    target: Option<Target>,
-    last: Option<FrameKey>,
-    render_ms: f64,
-    fps: f64,
-    last_frame: Instant,
-    frames_rendered: u32,
+    frame_budget_ms: f64,
+    times: FrameTimes,
+    targets: Vec<Target>,
+    shown: Option<Shown>,
+    /// The key whose render failed (not retried until something changes).
+    failed: Option<FrameKey>,
+    last_key: Option<FrameKey>,
+    last_change: Instant,
+    moving: bool,
+    started: Instant,
+    last_ui: Instant,
+    interval_ms: f64,
+    log: Vec<FrameRecord>,
+    /// The 3D view's square in points, from the last UI frame.
+    view_rect: Option<egui::Rect>,
+    drag: Option<DragScript>,
     error: Option<String>,
+    render_error: Option<String>,
     path_input: String,
     screenshot: Option<ScreenshotJob>,
     status: Option<String>,
@@ -75,9 +191,15 @@ struct ScreenshotJob {
     /// Exit after saving (the `--screenshot` mode) or keep running (the Save button).
     exit_after: bool,
     frames_before: u32,
-    requested: bool,
+    requested: Option<Captured>,
     result: Arc<Mutex<Option<Arc<egui::ColorImage>>>>,
-    view: Option<ViewRect>,
+}
+
+/// What was on screen when the window capture was requested.
+struct Captured {
+    view: ViewRect,
+    render: RenderImage,
+    quality: String,
 }
 
 /// What a `--screenshot` run reports back to `run`.
@@ -101,7 +223,7 @@ impl ViewerApp {
         );
         let renderer = Renderer::new(&ctx).map_err(|e| e.to_string())?;
         let orbit = Orbit::new(options.yaw, options.pitch);
-        let settings = RenderSettings { resolution: options.resolution, ..Default::default() };
+        let now = Instant::now();
         let mut app = ViewerApp {
             renderer,
             render_state,
@@ -109,16 +231,25 @@ impl ViewerApp {
             generation: 0,
             orbit,
             home: orbit,
-            settings,
+            settings: options.settings(),
             mode: Mode::Rgb,
             channel: 3,
-            target: None,
-            last: None,
-            render_ms: 0.0,
-            fps: 0.0,
-            last_frame: Instant::now(),
-            frames_rendered: 0,
+            frame_budget_ms: options.frame_budget_ms,
+            times: FrameTimes::default(),
+            targets: Vec::new(),
+            shown: None,
+            failed: None,
+            last_key: None,
+            last_change: now,
+            moving: false,
+            started: now,
+            last_ui: now,
+            interval_ms: 0.0,
+            log: Vec::new(),
+            view_rect: None,
+            drag: None,
             error: None,
+            render_error: None,
             path_input: String::new(),
             screenshot: None,
             status: None,
@@ -132,9 +263,18 @@ impl ViewerApp {
                 path: path.clone(),
                 exit_after: true,
                 frames_before: options.frames,
-                requested: false,
+                requested: None,
                 result: Arc::new(Mutex::new(None)),
-                view: None,
+            });
+        }
+        if options.drag_frames > 0 {
+            app.drag = Some(DragScript {
+                frames: options.drag_frames,
+                step: 0,
+                start: egui::Pos2::ZERO,
+                delta: egui::Vec2::ZERO,
+                released: None,
+                release_to_final_ms: None,
             });
         }
         Ok(app)
@@ -188,68 +328,149 @@ impl ViewerApp {
         }
     }
 
-    fn ensure_target(&mut self) {
-        let size = self.settings.resolution;
-        if self.target.as_ref().is_some_and(|t| t.size == size) {
-            return;
-        }
+    fn key(&self) -> Option<FrameKey> {
+        let generation = self.loaded.as_ref()?.generation;
+        Some(FrameKey { orbit: self.orbit, settings: self.settings, display: self.display(), generation })
+    }
+
+    /// The final image of the current view is on screen and nothing is changing.
+    fn settled_final(&self) -> bool {
+        !self.moving && self.shown.is_some_and(|s| s.is_final() && Some(s.key) == self.key())
+    }
+
+    /// The texture for `size` rays per side (made on first use); textures of sizes not in
+    /// `keep` are released.
+    fn target_for(&mut self, size: u32, keep: &[u32]) -> usize {
         let device = &self.render_state.device;
+        let mut egui_renderer = self.render_state.renderer.write();
+        self.targets.retain(|t| {
+            let kept = t.size == size || keep.contains(&t.size);
+            if !kept {
+                egui_renderer.free_texture(&t.id);
+            }
+            kept
+        });
+        if let Some(i) = self.targets.iter().position(|t| t.size == size) {
+            return i;
+        }
         let texture = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("lp3d-view display"),
+            label: Some(&format!("lp3d-view display {size}²")),
             size: wgpu::Extent3d { width: size, height: size, depth_or_array_layers: 1 },
             mip_level_count: 1,
             sample_count: 1,
             dimension: wgpu::TextureDimension::D2,
             format: DISPLAY_FORMAT,
-            usage: wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::TEXTURE_BINDING,
+            usage: wgpu::TextureUsages::STORAGE_BINDING
+                | wgpu::TextureUsages::TEXTURE_BINDING
+                | wgpu::TextureUsages::COPY_SRC,
             view_formats: &[],
         });
         let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
-        let mut egui_renderer = self.render_state.renderer.write();
-        let id = match self.target.take() {
-            Some(old) => {
-                egui_renderer.update_egui_texture_from_wgpu_texture(
-                    device,
-                    &view,
-                    wgpu::FilterMode::Nearest,
-                    old.id,
-                );
-                old.texture.destroy();
-                old.id
-            }
-            None => egui_renderer.register_native_texture(device, &view, wgpu::FilterMode::Nearest),
-        };
-        self.target = Some(Target { texture, view, id, size });
+        // Bilinear: the render is scaled to fit the view, usually larger than the render. Where it
+        // is shown 1:1 (the square snapped to whole pixels), each pixel centre falls on a texel
+        // centre and bilinear filtering returns the texel exactly, as nearest would.
+        let id = egui_renderer.register_native_texture(device, &view, wgpu::FilterMode::Linear);
+        self.targets.push(Target { texture, view, id, size });
+        self.targets.len() - 1
     }
 
-    /// Re-renders when the frame key changed.
-    fn render_if_needed(&mut self) {
-        let Some(generation) = self.loaded.as_ref().map(|l| l.generation) else { return };
-        let key =
-            FrameKey { orbit: self.orbit, settings: self.settings, display: self.display(), generation };
-        if self.last == Some(key) && self.target.as_ref().is_some_and(|t| t.size == self.settings.resolution)
-        {
-            return;
+    /// One step of the quality ladder: renders at most one frame.
+    fn step(&mut self, ctx: &egui::Context, pointer_down: bool) {
+        let Some(key) = self.key() else { return };
+        let now = Instant::now();
+        if self.last_key != Some(key) {
+            self.last_key = Some(key);
+            self.last_change = now;
         }
-        self.ensure_target();
-        let (Some(target), Some(loaded)) = (self.target.as_ref(), self.loaded.as_ref()) else { return };
+        let since_change = now.duration_since(self.last_change);
+        self.moving = pointer_down || since_change < SETTLE;
+        let ladder = Ladder::new(&self.settings);
+        let shown = self.shown.filter(|s| s.key == key);
+        let next = match shown {
+            None => Some(ladder.interactive(&self.times, self.frame_budget_ms)),
+            Some(s) if !self.moving && s.index < ladder.top() => Some(s.index + 1),
+            Some(_) => None,
+        };
+        match next {
+            Some(index) if self.failed != Some(key) => {
+                self.render(ctx, key, &ladder, index, pointer_down);
+                // Another UI frame: the panel shows this frame's numbers, refinement goes on.
+                ctx.request_repaint();
+            }
+            _ if self.moving && !pointer_down => ctx.request_repaint_after(SETTLE - since_change),
+            _ => {}
+        }
+    }
+
+    fn render(&mut self, ctx: &egui::Context, key: FrameKey, ladder: &Ladder, index: usize, dragging: bool) {
+        let rung = ladder.rungs[index];
+        let settings = rung.apply(&key.settings);
+        let sizes: Vec<u32> = ladder.rungs.iter().map(|r| r.resolution).collect();
+        let t = self.target_for(settings.resolution, &sizes);
+        let Some(loaded) = self.loaded.as_ref() else { return };
         let start = Instant::now();
         let result = self.renderer.render_to_texture(
             &loaded.gpu,
-            &self.orbit.camera(),
-            &self.settings,
+            &key.orbit.camera(),
+            &settings,
             key.display,
-            &target.view,
+            &self.targets[t].view,
         );
         // Wait for the GPU so the shown time is the render's, not just its submission.
         let _ = self.render_state.device.poll(wgpu::PollType::wait_indefinitely());
-        self.render_ms = start.elapsed().as_secs_f64() * 1e3;
+        let end = Instant::now();
+        let render_ms = end.duration_since(start).as_secs_f64() * 1e3;
         match result {
             Ok(()) => {
-                self.last = Some(key);
-                self.frames_rendered += 1;
+                self.times.record(rung, render_ms);
+                let shown = Shown {
+                    key,
+                    rung,
+                    index,
+                    top: ladder.top(),
+                    render_ms,
+                    at: end,
+                    ui_frame: ctx.cumulative_frame_nr(),
+                };
+                let phase = if shown.is_final() {
+                    Phase::Final
+                } else if self.moving {
+                    Phase::Moving
+                } else {
+                    Phase::Refining
+                };
+                self.shown = Some(shown);
+                self.failed = None;
+                self.render_error = None;
+                if self.log.len() < LOG_CAP {
+                    self.log.push(FrameRecord {
+                        t_ms: end.duration_since(self.started).as_secs_f64() * 1e3,
+                        ui_frame: shown.ui_frame,
+                        render_ms,
+                        interval_ms: self.interval_ms,
+                        rung,
+                        index,
+                        rungs: ladder.rungs.len(),
+                        phase,
+                        dragging,
+                    });
+                }
             }
-            Err(e) => self.error = Some(e.to_string()),
+            Err(e) => {
+                self.shown = None;
+                self.failed = Some(key);
+                self.render_error = Some(e.to_string());
+            }
+        }
+    }
+
+    /// What is on screen, e.g. `64² · 12+12 (moving)` or `128² · 48+48 (final)`.
+    fn quality_label(&self) -> String {
+        match &self.shown {
+            None => "nothing rendered yet".into(),
+            Some(s) if s.is_final() => format!("{} (final)", s.rung.label()),
+            Some(s) if self.moving => format!("{} (moving)", s.rung.label()),
+            Some(s) => format!("{} (refining, step {} of {})", s.rung.label(), s.index + 1, s.top + 1),
         }
     }
 
@@ -276,11 +497,32 @@ impl ViewerApp {
             }
         }
         ui.separator();
-        ui.label("Rendering");
-        ui.add(egui::Slider::new(&mut self.settings.resolution, 16..=512).text("resolution"));
-        ui.add(egui::Slider::new(&mut self.settings.depth_resolution, 4..=192).text("coarse samples"));
+        ui.label("Final quality");
+        // `Edits`: a command-line value outside a slider's range stays until the slider is moved.
+        let edits = egui::SliderClamping::Edits;
+        ui.add(egui::Slider::new(&mut self.settings.resolution, 16..=512).clamping(edits).text("resolution"));
         ui.add(
-            egui::Slider::new(&mut self.settings.depth_resolution_importance, 0..=192).text("fine samples"),
+            egui::Slider::new(&mut self.settings.depth_resolution, 4..=192)
+                .clamping(edits)
+                .text("coarse samples"),
+        );
+        ui.add(
+            egui::Slider::new(&mut self.settings.depth_resolution_importance, 0..=192)
+                .clamping(edits)
+                .text("fine samples"),
+        );
+        // The importance pass needs at least 2 fine samples (0 turns it off).
+        if self.settings.depth_resolution_importance == 1 {
+            self.settings.depth_resolution_importance = 2;
+        }
+        ui.add(
+            egui::Slider::new(&mut self.frame_budget_ms, 10.0..=2000.0)
+                .logarithmic(true)
+                .clamping(edits)
+                .text("budget (ms)"),
+        )
+        .on_hover_text(
+            "While the view changes, render at the quality predicted to take at most this per frame",
         );
         ui.separator();
         ui.label("Show");
@@ -312,26 +554,33 @@ impl ViewerApp {
                     path,
                     exit_after: false,
                     frames_before: 0,
-                    requested: false,
+                    requested: None,
                     result: Arc::new(Mutex::new(None)),
-                    view: None,
                 });
             }
         });
         ui.separator();
-        ui.label(format!("render {:.1} ms  ·  {:.0} FPS", self.render_ms, self.fps));
+        ui.label(egui::RichText::new(format!("on screen: {}", self.quality_label())).strong());
+        match &self.shown {
+            Some(s) => {
+                // Render time of the image on screen (GPU work included), and the rate it allows.
+                ui.label(format!("render {:.1} ms  ·  {:.1} FPS", s.render_ms, 1e3 / s.render_ms.max(1e-3)));
+            }
+            None => {
+                ui.label("render –");
+            }
+        }
+        ui.label(egui::RichText::new("raw volume render (no super-resolution)").small());
         ui.label(egui::RichText::new(self.renderer_name()).small());
         if let Some(s) = &self.status {
             ui.label(s);
         }
-        if let Some(e) = &self.error {
+        for e in [&self.error, &self.render_error].into_iter().flatten() {
             ui.colored_label(egui::Color32::from_rgb(255, 110, 110), e);
         }
         ui.add_space(8.0);
-        ui.label(
-            egui::RichText::new("drag: orbit · right/shift-drag: pan · scroll: zoom · double-click: reset")
-                .small(),
-        );
+        ui.label(egui::RichText::new("drag: orbit · right/shift-drag: pan").small());
+        ui.label(egui::RichText::new("scroll: zoom · double-click: reset").small());
     }
 
     fn renderer_name(&self) -> String {
@@ -340,19 +589,20 @@ impl ViewerApp {
     }
 
     fn view(&mut self, ui: &mut egui::Ui) {
-        let Some(target) = &self.target else {
+        if self.loaded.is_none() {
             ui.centered_and_justified(|ui| ui.label("no triplane loaded"));
             return;
-        };
-        // Integer magnification in physical pixels, so one ray is an exact block of pixels.
+        }
         let ppp = ui.ctx().pixels_per_point();
-        let avail = ui.available_size() * ppp;
-        let scale = ((avail.x.min(avail.y) / target.size as f32).floor() as u32).max(1);
-        let size = egui::vec2((target.size * scale) as f32, (target.size * scale) as f32) / ppp;
-        let image = egui::Image::new((target.id, size)).sense(egui::Sense::click_and_drag());
-        let response = ui.add(image);
+        let (area, response) = ui.allocate_exact_size(ui.available_size(), egui::Sense::click_and_drag());
+        // The render scaled to fit (bilinear), centred, its corner on a whole pixel.
+        let side_px = (area.width().min(area.height()) * ppp).floor().max(1.0);
+        let corner = (area.center().to_vec2() * ppp - egui::Vec2::splat(side_px / 2.0)).round() / ppp;
+        let rect = egui::Rect::from_min_size(corner.to_pos2(), egui::Vec2::splat(side_px / ppp));
+        self.view_rect = Some(rect);
+
         let shift = ui.input(|i| i.modifiers.shift);
-        let delta = response.drag_delta() / size.x;
+        let delta = response.drag_delta() / rect.width();
         if response.dragged_by(egui::PointerButton::Secondary) || (shift && response.dragged()) {
             self.orbit.pan_by(-delta.x as f64, -delta.y as f64);
         } else if response.dragged_by(egui::PointerButton::Primary) {
@@ -367,35 +617,200 @@ impl ViewerApp {
                 self.orbit.zoom_by(scroll as f64);
             }
         }
-        let r = response.rect;
-        if let Some(job) = &mut self.screenshot {
-            job.view = Some(ViewRect {
-                x: (r.min.x * ppp).round() as u32,
-                y: (r.min.y * ppp).round() as u32,
-                size: target.size * scale,
-                scale,
-                resolution: target.size,
-                yaw: self.orbit.yaw,
-                pitch: self.orbit.pitch,
-            });
+        let pointer_down = ui.input(|i| i.pointer.any_down());
+        self.step(ui.ctx(), pointer_down);
+
+        let shown =
+            self.shown.and_then(|s| Some((s, self.targets.iter().find(|t| t.size == s.rung.resolution)?)));
+        match shown {
+            Some((_, target)) => {
+                egui::Image::new((target.id, rect.size())).paint_at(ui, rect);
+            }
+            None => {
+                ui.painter().text(
+                    rect.center(),
+                    egui::Align2::CENTER_CENTER,
+                    "no image",
+                    egui::FontId::proportional(14.0),
+                    ui.visuals().text_color(),
+                );
+            }
+        }
+    }
+
+    /// Reads the texture on screen back (for the screenshot's render image).
+    fn read_shown(&self) -> Result<RenderImage, String> {
+        let s = self.shown.ok_or("nothing rendered")?;
+        let target =
+            self.targets.iter().find(|t| t.size == s.rung.resolution).ok_or("the render texture is gone")?;
+        let device = &self.render_state.device;
+        let size = target.size;
+        let row = size * 4;
+        let padded = row.div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
+        let buffer = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("lp3d-view render readback"),
+            size: padded as u64 * size as u64,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut encoder = device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("lp3d-view readback") });
+        encoder.copy_texture_to_buffer(
+            wgpu::TexelCopyTextureInfo {
+                texture: &target.texture,
+                mip_level: 0,
+                origin: wgpu::Origin3d::ZERO,
+                aspect: wgpu::TextureAspect::All,
+            },
+            wgpu::TexelCopyBufferInfo {
+                buffer: &buffer,
+                layout: wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(padded),
+                    rows_per_image: Some(size),
+                },
+            },
+            wgpu::Extent3d { width: size, height: size, depth_or_array_layers: 1 },
+        );
+        self.render_state.queue.submit([encoder.finish()]);
+        let slice = buffer.slice(..);
+        let mapped = Arc::new(Mutex::new(None));
+        let slot = mapped.clone();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            if let Ok(mut s) = slot.lock() {
+                *s = Some(r);
+            }
+        });
+        device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| e.to_string())?;
+        match mapped.lock().ok().and_then(|mut s| s.take()) {
+            Some(Ok(())) => {}
+            Some(Err(e)) => return Err(format!("reading the render back failed: {e}")),
+            None => return Err("reading the render back did not finish".into()),
+        }
+        let data = slice.get_mapped_range().map_err(|e| format!("reading the render back failed: {e}"))?;
+        let mut rgba = Vec::with_capacity((row * size) as usize);
+        for y in 0..size as usize {
+            let offset = y * padded as usize;
+            rgba.extend_from_slice(&data[offset..offset + row as usize]);
+        }
+        drop(data);
+        buffer.unmap();
+        Ok(RenderImage { size, rgba })
+    }
+
+    /// The JSON members the screenshot's sidecar gets besides the view: settings, quality, the
+    /// frame log and the drag's summary.
+    fn report(&self, quality: &str) -> String {
+        let s = &self.settings;
+        let drag = match &self.drag {
+            Some(d) => format!(
+                "{{\"frames\": {}, \"points\": [{}, {}], \"release_to_final_ms\": {}}}",
+                d.frames,
+                json_number(d.delta.x as f64),
+                json_number(d.delta.y as f64),
+                d.release_to_final_ms.map_or("null".into(), json_number)
+            ),
+            None => "null".into(),
+        };
+        let frames: Vec<String> = self.log.iter().map(|r| format!("    {}", r.json())).collect();
+        format!(
+            "\"settings\": {{\"resolution\": {}, \"depth_resolution\": {}, \"depth_resolution_importance\": {}}},\n  \
+             \"quality\": {},\n  \"frame_budget_ms\": {},\n  \"adapter\": {},\n  \"drag\": {},\n  \"frames\": [\n{}\n  ]",
+            s.resolution,
+            s.depth_resolution,
+            s.depth_resolution_importance,
+            json_string(quality),
+            json_number(self.frame_budget_ms),
+            json_string(&self.renderer_name()),
+            drag,
+            frames.join(",\n")
+        )
+    }
+
+    /// Advances the scripted drag (`--drag-frames`) by one UI frame.
+    fn drive_drag(&mut self, raw: &mut egui::RawInput) {
+        let settled = self.settled_final();
+        let Some(rect) = self.view_rect else { return };
+        let Some(d) = &mut self.drag else { return };
+        let button = |pos, pressed| egui::Event::PointerButton {
+            pos,
+            button: egui::PointerButton::Primary,
+            pressed,
+            modifiers: egui::Modifiers::NONE,
+        };
+        if d.step == 0 {
+            if !settled {
+                return;
+            }
+            // A quarter of the view's width to the right and a tenth down, centred on the view.
+            d.delta = egui::vec2(rect.width() / 4.0, rect.width() / 10.0);
+            d.start = rect.center() - d.delta / 2.0;
+            raw.events.push(egui::Event::PointerMoved(d.start));
+            raw.events.push(button(d.start, true));
+            d.step = 1;
+        } else if d.step <= d.frames {
+            let pos = d.start + d.delta * (d.step as f32 / d.frames as f32);
+            raw.events.push(egui::Event::PointerMoved(pos));
+            d.step += 1;
+        } else if d.released.is_none() {
+            raw.events.push(button(d.start + d.delta, false));
+            d.released = Some(Instant::now());
         }
     }
 
     fn drive_screenshot(&mut self, ctx: &egui::Context) {
-        let Some(job) = &mut self.screenshot else { return };
-        if !job.requested {
-            // `frames_before` UI frames, at least one of them with a finished render.
-            let frames = ctx.cumulative_frame_nr();
-            if self.frames_rendered >= 1 && frames >= job.frames_before as u64 && job.view.is_some() {
-                let slot = job.result.clone();
-                ctx.send_viewport_cmd(egui::ViewportCommand::Screenshot(egui::ScreenshotCallback::new(
-                    move |image| {
-                        if let Ok(mut s) = slot.lock() {
-                            *s = Some(image);
-                        }
-                    },
-                )));
-                job.requested = true;
+        if let (Some(d), Some(s)) = (&mut self.drag, &self.shown) {
+            if let (Some(released), None) = (d.released, d.release_to_final_ms) {
+                if s.is_final() && s.at > released && !self.moving {
+                    d.release_to_final_ms = Some(s.at.duration_since(released).as_secs_f64() * 1e3);
+                }
+            }
+        }
+        let drag_done = self.drag.as_ref().is_none_or(|d| d.release_to_final_ms.is_some());
+        let frame = ctx.cumulative_frame_nr();
+        // The final image was rendered in an earlier UI frame, so the panel shows its numbers.
+        let ready = self.settled_final() && self.shown.is_some_and(|s| s.ui_frame < frame) && drag_done;
+        let Some(job) = &self.screenshot else {
+            if self.drag.is_some() {
+                ctx.request_repaint();
+            }
+            return;
+        };
+        if job.requested.is_none() {
+            let (Some(rect), Some(shown)) = (self.view_rect, self.shown) else {
+                ctx.request_repaint();
+                return;
+            };
+            if !(ready && frame >= job.frames_before as u64) {
+                ctx.request_repaint();
+                return;
+            }
+            let ppp = ctx.pixels_per_point();
+            let size = (rect.width() * ppp).round() as u32;
+            let view = ViewRect {
+                x: (rect.min.x * ppp).round() as u32,
+                y: (rect.min.y * ppp).round() as u32,
+                size,
+                scale: size as f64 / shown.rung.resolution as f64,
+                resolution: shown.rung.resolution,
+                yaw: shown.key.orbit.yaw,
+                pitch: shown.key.orbit.pitch,
+            };
+            let quality = self.quality_label();
+            let render = match self.read_shown() {
+                Ok(r) => r,
+                Err(e) => return self.finish_screenshot(ctx, Err(e)),
+            };
+            let slot = job.result.clone();
+            ctx.send_viewport_cmd(egui::ViewportCommand::Screenshot(egui::ScreenshotCallback::new(
+                move |image| {
+                    if let Ok(mut s) = slot.lock() {
+                        *s = Some(image);
+                    }
+                },
+            )));
+            if let Some(job) = &mut self.screenshot {
+                job.requested = Some(Captured { view, render, quality });
             }
             ctx.request_repaint();
             return;
@@ -405,14 +820,19 @@ impl ViewerApp {
             ctx.request_repaint();
             return;
         };
-        let result = save_screenshot(&job.path, &image, job.view.as_ref().expect("view rect"));
-        let exit = job.exit_after;
+        let captured = job.requested.as_ref().expect("requested");
+        let report = self.report(&captured.quality);
+        let result = save_screenshot(&job.path, &image, &captured.view, &captured.render, &report);
+        self.finish_screenshot(ctx, result);
+    }
+
+    fn finish_screenshot(&mut self, ctx: &egui::Context, result: Result<PathBuf, String>) {
+        let Some(job) = self.screenshot.take() else { return };
         match &result {
             Ok(p) => self.status = Some(format!("saved {}", p.display())),
             Err(e) => self.error = Some(e.clone()),
         }
-        self.screenshot = None;
-        if exit {
+        if job.exit_after {
             if let Ok(mut slot) = self.outcome.lock() {
                 *slot = Some(result);
             }
@@ -422,24 +842,24 @@ impl ViewerApp {
 }
 
 impl eframe::App for ViewerApp {
+    fn raw_input_hook(&mut self, _ctx: &egui::Context, raw_input: &mut egui::RawInput) {
+        self.drive_drag(raw_input);
+    }
+
     fn logic(&mut self, ctx: &egui::Context, _frame: &mut eframe::Frame) {
         let dropped: Vec<PathBuf> =
             ctx.input(|i| i.raw.dropped_files.iter().map(|f| f.path().to_path_buf()).collect());
         if let Some(path) = dropped.first() {
             self.open(path);
         }
-        let now = Instant::now();
-        let dt = now.duration_since(self.last_frame).as_secs_f64();
-        self.last_frame = now;
-        if dt > 0.0 {
-            self.fps = 0.9 * self.fps + 0.1 / dt;
-        }
-        self.render_if_needed();
-        self.drive_screenshot(ctx);
     }
 
     fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
+        let now = Instant::now();
+        self.interval_ms = now.duration_since(self.last_ui).as_secs_f64() * 1e3;
+        self.last_ui = now;
         egui::Panel::left("controls").resizable(false).exact_size(260.0).show(ui, |ui| self.controls(ui));
         egui::CentralPanel::default().show(ui, |ui| self.view(ui));
+        self.drive_screenshot(ui.ctx());
     }
 }

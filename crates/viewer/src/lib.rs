@@ -5,6 +5,7 @@
 mod app;
 mod options;
 mod orbit;
+mod quality;
 mod screenshot;
 
 use std::sync::{Arc, Mutex};
@@ -14,8 +15,9 @@ pub use orbit::Orbit;
 
 use lp3d_renderer::Triplane;
 
-/// Opens the viewer window and blocks until it is closed. In `--screenshot` mode, renders a
-/// few frames, saves the PNG (plus a JSON sidecar) and returns. Must run on the main thread.
+/// Opens the viewer window and blocks until it is closed. In `--screenshot` mode, renders until
+/// the final quality is on screen (after the scripted drag of `--drag-frames`, if any), saves the
+/// window PNG, the render PNG and a JSON sidecar, and returns. Must run on the main thread.
 pub fn run(options: ViewerOptions) -> Result<(), String> {
     options.validate()?;
     // Load before opening a window, so a bad file is a clear error and a non-zero exit.

@@ -2,7 +2,9 @@
 
 use std::path::{Path, PathBuf};
 
-use crate::screenshot::sidecar_path;
+use lp3d_renderer::RenderSettings;
+
+use crate::screenshot::{render_path, sidecar_path};
 
 pub const USAGE: &str = "\
 usage: lp3d-view [options] [triplane.npz]
@@ -12,13 +14,23 @@ Drag to orbit, right-drag or shift-drag to pan, scroll to zoom, double-click to 
 Drop a .npz file on the window to open it.
 
 options:
-  --screenshot PATH   render a few frames, save a PNG of the window to PATH (.png), and exit
-                      (PATH with .json records where the 3D view is in the image; neither
-                      may be the triplane file)
+  --screenshot PATH   once the final quality is on screen, save a PNG of the window to PATH
+                      (.png), the render itself to PATH with .render.png (one pixel per ray) and
+                      a JSON sidecar, PATH with .json (where the 3D view is in the window, the
+                      camera, each rendered frame's time and quality), and exit; none of them
+                      may be the triplane file
   --yaw DEG           initial yaw in degrees (camera toward +x for > 0) [0]
   --pitch DEG         initial pitch in degrees (camera above for > 0) [0]
-  --resolution R      rays per image side [128]
-  --frames N          frames to render before a screenshot [3]
+  --resolution R      rays per image side of the final image [128]
+  --samples C+F       coarse + fine samples per ray of the final image (EG3D's depth_resolution
+                      + depth_resolution_importance; C alone skips the importance pass) [48+48]
+  --frame-budget-ms MS  while the camera moves, render at the quality predicted to take at most
+                      MS per frame; when it stops, refine to the final quality [100]
+  --frames N          UI frames before a screenshot; it waits for the final quality too [3]
+  --drag-frames N     with --screenshot: once the final image is up, drag the view to orbit
+                      (synthetic pointer events, a quarter of the view's width to the right and a
+                      tenth down) over N UI frames, release, wait for the refined image, then
+                      save; the JSON sidecar records every frame's render time and quality [0]
   -h, --help          show this help";
 
 #[derive(Debug, Clone, PartialEq)]
@@ -28,7 +40,11 @@ pub struct ViewerOptions {
     pub yaw: f64,
     pub pitch: f64,
     pub resolution: u32,
+    pub depth_resolution: u32,
+    pub depth_resolution_importance: u32,
+    pub frame_budget_ms: f64,
     pub frames: u32,
+    pub drag_frames: u32,
     pub help: bool,
 }
 
@@ -40,7 +56,11 @@ impl Default for ViewerOptions {
             yaw: 0.0,
             pitch: 0.0,
             resolution: 128,
+            depth_resolution: 48,
+            depth_resolution_importance: 48,
+            frame_budget_ms: 100.0,
             frames: 3,
+            drag_frames: 0,
             help: false,
         }
     }
@@ -58,7 +78,14 @@ impl ViewerOptions {
                 "--yaw" => o.yaw = number(&value("--yaw")?, "--yaw")?,
                 "--pitch" => o.pitch = number(&value("--pitch")?, "--pitch")?,
                 "--resolution" => o.resolution = integer(&value("--resolution")?, "--resolution")?,
+                "--samples" => {
+                    (o.depth_resolution, o.depth_resolution_importance) = samples(&value("--samples")?)?
+                }
+                "--frame-budget-ms" => {
+                    o.frame_budget_ms = number(&value("--frame-budget-ms")?, "--frame-budget-ms")?
+                }
                 "--frames" => o.frames = integer(&value("--frames")?, "--frames")?,
+                "--drag-frames" => o.drag_frames = integer(&value("--drag-frames")?, "--drag-frames")?,
                 flag if flag.starts_with('-') => return Err(format!("unknown option {flag}")),
                 path => {
                     if o.path.is_some() {
@@ -79,8 +106,24 @@ impl ViewerOptions {
         if !(16..=1024).contains(&self.resolution) {
             return Err(format!("--resolution must be in [16, 1024], got {}", self.resolution));
         }
+        let settings = self.settings();
+        if let Err(e) = settings.validate() {
+            return Err(format!(
+                "--samples {}+{}: {e}",
+                self.depth_resolution, self.depth_resolution_importance
+            ));
+        }
+        if !(self.frame_budget_ms.is_finite() && (1.0..=60_000.0).contains(&self.frame_budget_ms)) {
+            return Err(format!("--frame-budget-ms must be in [1, 60000], got {}", self.frame_budget_ms));
+        }
         if self.frames == 0 {
             return Err("--frames must be at least 1".into());
+        }
+        if self.drag_frames > 10_000 {
+            return Err(format!("--drag-frames must be at most 10000, got {}", self.drag_frames));
+        }
+        if self.drag_frames > 0 && self.screenshot.is_none() {
+            return Err("--drag-frames needs --screenshot (it drives a scripted drag, then saves)".into());
         }
         if self.screenshot.is_some() && self.path.is_none() {
             return Err("--screenshot needs a triplane file".into());
@@ -90,14 +133,27 @@ impl ViewerOptions {
         }
         Ok(())
     }
+
+    /// The final-quality render settings these options choose.
+    pub fn settings(&self) -> RenderSettings {
+        RenderSettings {
+            resolution: self.resolution,
+            depth_resolution: self.depth_resolution,
+            depth_resolution_importance: self.depth_resolution_importance,
+            ..Default::default()
+        }
+    }
 }
 
-/// A screenshot writes a PNG and its JSON sidecar. Refused here, before any window opens: either
-/// of them being the triplane file or each other (by name, link or relative path), a name that is
-/// not `.png`, a folder in their place, a missing folder.
+/// A screenshot writes a PNG of the window, its JSON sidecar and the render itself as a PNG.
+/// Refused here, before any window opens: any of them being the triplane file or another of them
+/// (by name, link or relative path), a name that is not `.png`, a folder in their place, a
+/// missing folder.
 fn check_screenshot_paths(input: &Path, shot: &Path) -> Result<(), String> {
     let sidecar = sidecar_path(shot);
-    let (input_id, shot_id, sidecar_id) = (file_id(input), file_id(shot), file_id(&sidecar));
+    let render = render_path(shot);
+    let (input_id, shot_id, sidecar_id, render_id) =
+        (file_id(input), file_id(shot), file_id(&sidecar), file_id(&render));
     let s = shot.display();
     if shot_id == input_id {
         return Err(format!(
@@ -105,24 +161,28 @@ fn check_screenshot_paths(input: &Path, shot: &Path) -> Result<(), String> {
             input.display()
         ));
     }
-    if sidecar_id == input_id {
-        return Err(format!(
-            "--screenshot {s}: its JSON sidecar {} is the triplane file {}: it would be replaced",
-            sidecar.display(),
-            input.display()
-        ));
+    for (what, p, id) in [("JSON sidecar", &sidecar, &sidecar_id), ("render image", &render, &render_id)] {
+        if *id == input_id {
+            return Err(format!(
+                "--screenshot {s}: its {what} {} is the triplane file {}: it would be replaced",
+                p.display(),
+                input.display()
+            ));
+        }
     }
-    if sidecar_id == shot_id {
+    if sidecar_id == shot_id || render_id == shot_id || render_id == sidecar_id {
         return Err(format!(
-            "--screenshot {s}: its JSON sidecar {} would replace the screenshot itself; give a .png file name",
-            sidecar.display()
+            "--screenshot {s}: its JSON sidecar {} or render image {} would replace the screenshot \
+             or each other; give a .png file name",
+            sidecar.display(),
+            render.display()
         ));
     }
     let is_png = shot.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("png"));
     if !is_png {
         return Err(format!("--screenshot {s}: the screenshot is a PNG image; give a .png file name"));
     }
-    for p in [shot, sidecar.as_path()] {
+    for p in [shot, sidecar.as_path(), render.as_path()] {
         if p.is_dir() {
             return Err(format!("--screenshot {s}: {} is a folder", p.display()));
         }
@@ -173,6 +233,18 @@ fn number(s: &str, name: &str) -> Result<f64, String> {
         .ok_or_else(|| format!("{name} must be a finite number, got '{s}'"))
 }
 
+/// `48+48` -> (48, 48); `64` -> (64, 0), no importance pass (as `lp3d render --samples`).
+fn samples(s: &str) -> Result<(u32, u32), String> {
+    let bad = || format!("--samples must be COARSE+FINE such as 48+48, or COARSE alone, got '{s}'");
+    let parts: Vec<&str> = s.split('+').collect();
+    let parse = |p: &str| p.trim().parse::<u32>().map_err(|_| bad());
+    match parts.as_slice() {
+        [c] => Ok((parse(c)?, 0)),
+        [c, f] => Ok((parse(c)?, parse(f)?)),
+        _ => Err(bad()),
+    }
+}
+
 fn integer(s: &str, name: &str) -> Result<u32, String> {
     s.parse::<u32>().map_err(|_| format!("{name} must be a non-negative integer, got '{s}'"))
 }
@@ -196,6 +268,28 @@ mod tests {
         assert!(parse(&["--bogus"]).unwrap_err().contains("unknown option"));
         assert!(parse(&["--screenshot", "s.png"]).unwrap_err().contains("needs a triplane"));
         assert!(parse(&["a.npz", "b.npz"]).unwrap_err().contains("at most one"));
+    }
+
+    #[test]
+    fn quality_and_drag_options() {
+        let o = parse(&["--samples", "24+12", "--frame-budget-ms", "50", "t.npz"]).unwrap();
+        assert_eq!((o.depth_resolution, o.depth_resolution_importance, o.frame_budget_ms), (24, 12, 50.0));
+        assert_eq!(parse(&["--samples", "64", "t.npz"]).unwrap().depth_resolution_importance, 0);
+        let d = ViewerOptions::default();
+        assert_eq!((d.depth_resolution, d.depth_resolution_importance, d.frame_budget_ms), (48, 48, 100.0));
+        for bad in ["48+", "a+b", "1+2+3", ""] {
+            assert!(parse(&["--samples", bad, "t.npz"]).unwrap_err().contains("--samples"), "{bad}");
+        }
+        // The renderer's own limits, named after the option.
+        assert!(parse(&["--samples", "3+8", "t.npz"]).unwrap_err().contains("depth_resolution"));
+        assert!(parse(&["--samples", "48+1", "t.npz"]).unwrap_err().contains("--samples 48+1"));
+        for bad in ["0", "-5", "nan", "inf", "1e9"] {
+            assert!(parse(&["--frame-budget-ms", bad, "t.npz"]).unwrap_err().contains("--frame-budget-ms"));
+        }
+        assert!(parse(&["--drag-frames", "5", "t.npz"]).unwrap_err().contains("needs --screenshot"));
+        assert!(parse(&["--drag-frames", "x"]).unwrap_err().contains("--drag-frames"));
+        let o = parse(&["--drag-frames", "5", "--screenshot", "s.png", "t.npz"]).unwrap();
+        assert_eq!(o.drag_frames, 5);
     }
 
     #[test]
@@ -223,6 +317,11 @@ mod tests {
         std::fs::write(dir.join("v.json"), b"a triplane").unwrap();
         assert!(err(&p("v.png"), &p("v.json")).contains("sidecar"));
         assert!(err(&p("out.json"), &input_s).contains("sidecar"));
+        // The render image of v.png is v.render.png: a triplane of that name would be replaced.
+        std::fs::write(dir.join("w.render.png"), b"a triplane").unwrap();
+        assert!(err(&p("w.png"), &p("w.render.png")).contains("render image"));
+        std::fs::create_dir_all(dir.join("r.render.png")).unwrap();
+        assert!(err(&p("r.png"), &input_s).contains("is a folder"));
         assert!(err(&p("out.jpg"), &input_s).contains(".png"));
         assert!(err(&p("folder.png"), &input_s).contains("is a folder"));
         assert!(err(&p("missing/s.png"), &input_s).contains("does not exist"));

@@ -1,5 +1,6 @@
-//! Saving the window as PNG, with a JSON sidecar that says where the 3D view is, so tests and
-//! scripts can crop it and compare it with `lp3d_render.render` of the same camera.
+//! Saving the window as PNG, with a JSON sidecar that says where the 3D view is and how each frame
+//! was rendered, plus the render itself (read back from its texture, one pixel per ray), so tests
+//! and scripts can compare it with `lp3d_render.render` of the same camera and settings.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -12,36 +13,70 @@ use lp3d_renderer::atomic;
 pub struct ViewRect {
     pub x: u32,
     pub y: u32,
-    /// Side of the view in pixels: `resolution * scale`.
+    /// Side of the view in pixels (the render is scaled to fit, bilinear).
     pub size: u32,
-    /// Pixels per ray (nearest-neighbour magnification).
-    pub scale: u32,
+    /// Pixels per ray: `size / resolution`.
+    pub scale: f64,
+    /// Rays per side of the image on screen.
     pub resolution: u32,
     pub yaw: f64,
     pub pitch: f64,
 }
 
-pub fn save_screenshot(path: &Path, image: &egui::ColorImage, view: &ViewRect) -> Result<PathBuf, String> {
-    let [w, h] = image.size;
-    let rgba: Vec<u8> = image.pixels.iter().flat_map(|p| p.to_array()).collect();
+/// The render on screen, as its texture holds it: `size`² RGBA texels, rows top to bottom.
+pub struct RenderImage {
+    pub size: u32,
+    pub rgba: Vec<u8>,
+}
+
+fn encode_png(width: u32, height: u32, rgba: &[u8]) -> Result<Vec<u8>, String> {
     let mut png_bytes = Vec::new();
     {
-        let mut encoder = png::Encoder::new(&mut png_bytes, w as u32, h as u32);
+        let mut encoder = png::Encoder::new(&mut png_bytes, width, height);
         encoder.set_color(png::ColorType::Rgba);
         encoder.set_depth(png::BitDepth::Eight);
         let mut writer = encoder.write_header().map_err(|e| e.to_string())?;
-        writer.write_image_data(&rgba).map_err(|e| e.to_string())?;
+        writer.write_image_data(rgba).map_err(|e| e.to_string())?;
     }
+    Ok(png_bytes)
+}
+
+/// Writes the window PNG at `path`, the render PNG at `render_path(path)` and the JSON sidecar
+/// (the view's rectangle and camera, the render's file name, then `report`'s fields: a JSON
+/// object's members, without braces) at `sidecar_path(path)`; all three or none.
+pub fn save_screenshot(
+    path: &Path,
+    image: &egui::ColorImage,
+    view: &ViewRect,
+    render: &RenderImage,
+    report: &str,
+) -> Result<PathBuf, String> {
+    let [w, h] = image.size;
+    let rgba: Vec<u8> = image.pixels.iter().flat_map(|p| p.to_array()).collect();
+    let window_png = encode_png(w as u32, h as u32, &rgba)?;
+    let render_png = encode_png(render.size, render.size, &render.rgba)?;
+    let render_file = render_path(path);
+    let render_name = render_file.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     let sidecar = format!(
-        "{{\n  \"window\": [{w}, {h}],\n  \"view\": {{\"x\": {}, \"y\": {}, \"size\": {}, \"scale\": {}, \"resolution\": {}}},\n  \"yaw\": {},\n  \"pitch\": {}\n}}\n",
-        view.x, view.y, view.size, view.scale, view.resolution, view.yaw, view.pitch
+        "{{\n  \"window\": [{w}, {h}],\n  \"view\": {{\"x\": {}, \"y\": {}, \"size\": {}, \"scale\": {}, \"resolution\": {}}},\n  \"yaw\": {},\n  \"pitch\": {},\n  \"render\": {}{}{}\n}}\n",
+        view.x,
+        view.y,
+        view.size,
+        view.scale,
+        view.resolution,
+        view.yaw,
+        view.pitch,
+        json_string(&render_name),
+        if report.is_empty() { "" } else { ",\n  " },
+        report
     );
-    // Both files are written and synced before either is renamed into place, sidecar first: if a
-    // rename fails, `publish_all` removes what it already renamed, so a failure leaves neither.
+    // All files are written and synced before any is renamed into place, sidecar first: if a
+    // rename fails, `publish_all` removes what it already renamed, so a failure leaves none.
     let stage = |p: &Path, bytes: &[u8]| atomic::stage(p, |f| f.write_all(bytes)).map_err(|e| e.to_string());
-    let png = stage(path, &png_bytes)?;
+    let png = stage(path, &window_png)?;
+    let raw = stage(&render_file, &render_png)?;
     let json = stage(&sidecar_path(path), sidecar.as_bytes())?;
-    atomic::publish_all(vec![json, png]).map_err(|e| e.to_string())?;
+    atomic::publish_all(vec![json, raw, png]).map_err(|e| e.to_string())?;
     Ok(path.to_path_buf())
 }
 
@@ -50,12 +85,53 @@ pub fn sidecar_path(path: &Path) -> PathBuf {
     path.with_extension("json")
 }
 
+/// The render written next to a screenshot, one pixel per ray: `shot.png` -> `shot.render.png`.
+pub fn render_path(path: &Path) -> PathBuf {
+    path.with_extension("render.png")
+}
+
+/// `s` as a JSON string literal.
+pub fn json_string(s: &str) -> String {
+    let mut out = String::with_capacity(s.len() + 2);
+    out.push('"');
+    for c in s.chars() {
+        match c {
+            '"' => out.push_str("\\\""),
+            '\\' => out.push_str("\\\\"),
+            c if (c as u32) < 0x20 => out.push_str(&format!("\\u{:04x}", c as u32)),
+            c => out.push(c),
+        }
+    }
+    out.push('"');
+    out
+}
+
+/// `v` as a JSON number (`null` when not finite, which JSON cannot hold).
+pub fn json_number(v: f64) -> String {
+    if v.is_finite() {
+        format!("{v}")
+    } else {
+        "null".into()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     fn view() -> ViewRect {
-        ViewRect { x: 0, y: 0, size: 2, scale: 1, resolution: 2, yaw: 0.0, pitch: 0.0 }
+        ViewRect { x: 0, y: 0, size: 2, scale: 1.0, resolution: 2, yaw: 0.0, pitch: 0.0 }
+    }
+
+    fn render() -> RenderImage {
+        RenderImage { size: 1, rgba: vec![1, 2, 3, 255] }
+    }
+
+    #[test]
+    fn json_helpers_escape() {
+        assert_eq!(json_string("a\"b\\c\n"), "\"a\\\"b\\\\c\\u000a\"");
+        assert_eq!(json_number(1.5), "1.5");
+        assert_eq!(json_number(f64::NAN), "null");
     }
 
     #[test]
@@ -72,13 +148,15 @@ mod tests {
             v.sort();
             v
         };
-        save_screenshot(&dir.join("ok.png"), &image, &view()).unwrap();
-        assert_eq!(names(), ["ok.json", "ok.png"]);
-        assert!(std::fs::read_to_string(dir.join("ok.json")).unwrap().contains("\"resolution\": 2"));
+        save_screenshot(&dir.join("ok.png"), &image, &view(), &render(), "\"extra\": 1").unwrap();
+        assert_eq!(names(), ["ok.json", "ok.png", "ok.render.png"]);
+        let sidecar = std::fs::read_to_string(dir.join("ok.json")).unwrap();
+        assert!(sidecar.contains("\"resolution\": 2"), "{sidecar}");
+        assert!(sidecar.contains("\"render\": \"ok.render.png\",\n  \"extra\": 1\n}"), "{sidecar}");
         // The sidecar's place is taken by a folder: the write fails and leaves no PNG behind.
         std::fs::create_dir_all(dir.join("bad.json").join("inside")).unwrap();
-        assert!(save_screenshot(&dir.join("bad.png"), &image, &view()).is_err());
-        assert_eq!(names(), ["bad.json", "ok.json", "ok.png"]);
+        assert!(save_screenshot(&dir.join("bad.png"), &image, &view(), &render(), "").is_err());
+        assert_eq!(names(), ["bad.json", "ok.json", "ok.png", "ok.render.png"]);
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -1,0 +1,177 @@
+"""Viewer frame times while dragging: ``lp3d-view`` in a real window under Xvfb, at its default
+final quality (128², 48+48) and frame budget (100 ms), drives a scripted drag (``--drag-frames``,
+synthetic pointer events through egui, the same path as a mouse), then refines to the final image.
+
+    python bench/viewer_frames.py --out /tmp/viewer_frames.md
+    python bench/viewer_frames.py --runs 3 --drag-frames 40 --budgets 100,50 --out /tmp/v.md
+
+Everything comes from the screenshot's JSON sidecar, which logs every rendered frame: its render
+time (``render_ms``: from the start of the render call to the GPU finishing it), the time since the
+previous UI frame began (``interval_ms``: what the user sees as the frame time, UI work included),
+its rung of the quality ladder and whether a pointer button was down. Reported per run: the rungs
+drawn while dragging, median and 90th percentile of both times over the drag's frames, the time
+from releasing the pointer to the final image on screen (``release → final``, the 200 ms settle
+included) and the final frame's render time. A second table compares, for each rung, its first
+render in the process with the median of its later ones: a rung that needed a pipeline compile
+would show a first render seconds slower.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+XVFB = ["xvfb-run", "-a", "-s", "-screen 0 1024x768x24"]
+
+
+def _percentile(values: list[float], q: float) -> float:
+    return float(np.percentile(np.asarray(values, dtype=float), q))
+
+
+def _rung(f: dict) -> str:
+    fine = f["depth_resolution_importance"]
+    samples = f"{f['depth_resolution']}+{fine}" if fine else f"{f['depth_resolution']}"
+    return f"{f['resolution']}² · {samples}"
+
+
+def run_once(scene: Path, work: Path, budget: float, drag_frames: int, timeout: float) -> dict:
+    shot = work / f"shot-{budget:g}-{time.monotonic_ns()}.png"
+    cmd = [
+        *XVFB,
+        sys.executable,
+        "-m",
+        "lp3d.view",
+        *("--screenshot", str(shot), "--drag-frames", str(drag_frames)),
+        *("--frame-budget-ms", str(budget), str(scene)),
+    ]
+    env = {**os.environ, "OMP_WAIT_POLICY": "PASSIVE"}
+    load = os.getloadavg()[0]
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=timeout)
+    if proc.returncode != 0:
+        raise RuntimeError(f"lp3d-view failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
+    meta = json.loads(shot.with_suffix(".json").read_text())
+    frames = meta["frames"]
+    drag = [f for f in frames if f["dragging"]]
+    if not drag:
+        raise RuntimeError("no frame was rendered during the drag")
+    rungs: dict[str, int] = {}
+    for f in drag:
+        rungs[_rung(f)] = rungs.get(_rung(f), 0) + 1
+    render = [f["render_ms"] for f in drag]
+    # The first drag frame's interval includes the wait before the drag started.
+    interval = [f["interval_ms"] for f in drag[1:]] or [drag[0]["interval_ms"]]
+    return {
+        "budget": budget,
+        "load": load,
+        "quality": meta["quality"],
+        "adapter": meta["adapter"],
+        "rungs": rungs,
+        "render_median": statistics.median(render),
+        "render_p90": _percentile(render, 90),
+        "interval_median": statistics.median(interval),
+        "interval_p90": _percentile(interval, 90),
+        "release_to_final": meta["drag"]["release_to_final_ms"],
+        "final_ms": frames[-1]["render_ms"],
+        "frames": frames,
+    }
+
+
+def first_vs_later(frames: list[dict]) -> list[tuple[str, float, float | None, int]]:
+    """(rung, first render ms, median of later renders or None, number of later renders)."""
+    by_rung: dict[str, list[float]] = {}
+    for f in frames:
+        by_rung.setdefault(_rung(f), []).append(f["render_ms"])
+    return [
+        (rung, times[0], statistics.median(times[1:]) if len(times) > 1 else None, len(times) - 1)
+        for rung, times in by_rung.items()
+    ]
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--out", type=Path, required=True, help="markdown tables to write")
+    p.add_argument("--runs", type=int, default=3, help="runs per budget (default 3)")
+    p.add_argument("--drag-frames", type=int, default=30, help="UI frames the drag lasts (default 30)")
+    p.add_argument("--budgets", default="100", help="comma list of frame budgets in ms (default 100)")
+    p.add_argument("--seed", type=int, default=0, help="procedural teacher head to show (default 0)")
+    p.add_argument("--timeout", type=float, default=1800.0, help="seconds per run before giving up")
+    args = p.parse_args(argv)
+    try:
+        budgets = [float(b) for b in args.budgets.split(",") if b.strip()]
+    except ValueError:
+        p.error(f"--budgets: a comma list of numbers, got {args.budgets!r}")
+    if not budgets or args.runs < 1 or args.drag_frames < 1:
+        p.error("--budgets, --runs and --drag-frames need at least one")
+    if shutil.which("xvfb-run") is None:
+        p.error("xvfb-run is missing: run scripts/install-system-deps.sh")
+
+    from lp3d.teachers.procedural import ProceduralTeacher
+    from lp3d.triplane_io import save_triplane
+
+    results = []
+    with tempfile.TemporaryDirectory(prefix="lp3d-viewer-frames-") as tmp:
+        work = Path(tmp)
+        scene = work / "head.npz"
+        save_triplane(scene, ProceduralTeacher().sample(args.seed))
+        run_once(scene, work, budgets[0], 2, args.timeout)  # warm the shader cache (untimed)
+        for budget in budgets:
+            for _ in range(args.runs):
+                r = run_once(scene, work, budget, args.drag_frames, args.timeout)
+                results.append(r)
+                print(
+                    f"budget {budget:g} ms: drag render {r['render_median']:.1f}/{r['render_p90']:.1f} ms, "
+                    f"interval {r['interval_median']:.1f}/{r['interval_p90']:.1f} ms, "
+                    f"release → final {r['release_to_final']:.0f} ms, load {r['load']:.1f}",
+                    flush=True,
+                )
+
+    command = (
+        f"python bench/viewer_frames.py --runs {args.runs} --drag-frames {args.drag_frames} "
+        f"--budgets {args.budgets} --out {args.out}"
+    )
+    lines = [
+        f"Command: `{command}`  ",
+        f"{platform.machine()}, {os.cpu_count()} CPUs, {time.strftime('%Y-%m-%d')}; "
+        f"{results[0]['adapter']}; final quality {results[0]['quality'].removesuffix(' (final)')}; "
+        f"procedural teacher head, seed {args.seed}; LP3D_KERNEL={os.environ.get('LP3D_KERNEL', '(unset)')}",
+        "",
+        "| budget ms | rungs drawn while dragging (frames) | render ms median / p90 | frame interval ms "
+        "median / p90 | release → final ms | final render ms | load (1 min) |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in results:
+        rungs = ", ".join(f"{k} ({n})" for k, n in r["rungs"].items())
+        lines.append(
+            f"| {r['budget']:g} | {rungs} | {r['render_median']:.1f} / {r['render_p90']:.1f} | "
+            f"{r['interval_median']:.1f} / {r['interval_p90']:.1f} | {r['release_to_final']:.0f} | "
+            f"{r['final_ms']:.0f} | {r['load']:.1f} |"
+        )
+    lines += [
+        "",
+        "First render of each rung in a process against its later renders (first run above):",
+        "",
+        "| rung | first render ms | median of later renders ms (count) |",
+        "|---|---|---|",
+    ]
+    for rung, first, later, n in first_vs_later(results[0]["frames"]):
+        later_s = f"{later:.1f} ({n})" if later is not None else "– (0)"
+        lines.append(f"| {rung} | {first:.1f} | {later_s} |")
+    lines.append("")
+    args.out.write_text("\n".join(lines))
+    print(args.out)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
