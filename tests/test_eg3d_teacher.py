@@ -194,26 +194,44 @@ def test_truncation_is_applied() -> None:
     torch.testing.assert_close(ws_cut[:, 2:], w[:, 2:], rtol=0, atol=0)
 
 
-def test_mapping_is_conditioned_on_the_frontal_camera_at_the_pivot() -> None:
+#: gen_videos.py's LookAtPoseSampler.sample(3.14/2, 3.14/2, ...) as look_at_camera angles: yaw is
+#: h - pi/2 and pitch asin(1 - 2v/pi) (lp3d.camera.eg3d_angles), so 3.14 for pi puts the camera
+#: 0.0456° toward -x and 0.0290° up.
+GEN_VIDEOS_YAW_DEG = float(np.degrees((3.14 - np.pi) / 2))
+GEN_VIDEOS_PITCH_DEG = float(np.degrees(np.arcsin(1.0 - 3.14 / np.pi)))
+
+
+def test_mapping_is_conditioned_on_gen_videos_camera_at_the_pivot() -> None:
+    assert GEN_VIDEOS_YAW_DEG == pytest.approx(-0.04563, abs=1e-5)
+    assert GEN_VIDEOS_PITCH_DEG == pytest.approx(0.02905, abs=1e-5)
     gen = StandInGenerator()
     make_teacher(gen).sample(0)
-    c = gen.backbone.mapping.calls[-1]["c"]
-    frontal = look_at_camera()  # radius 2.7, looking at (0, 0, 0.2), focal 4.2647
-    assert np.array_equal(c.numpy(), frontal[None].astype(np.float32))
-    assert np.allclose(frontal[[3, 7, 11]], [0.0, 0.0, 2.7])
+    c = gen.backbone.mapping.calls[-1]["c"].numpy()
+    # radius 2.7, looking at (0, 0, 0.2), focal 4.2647, from gen_videos.py's angles
+    expected = look_at_camera(yaw_deg=GEN_VIDEOS_YAW_DEG, pitch_deg=GEN_VIDEOS_PITCH_DEG)
+    np.testing.assert_allclose(c, expected[None].astype(np.float32), rtol=0, atol=1e-6)
+    # The centre: 2.7 from the origin, a little toward -x and up; not the exactly frontal camera.
+    centre = expected[[3, 7, 11]]
+    assert np.linalg.norm(centre) == pytest.approx(2.7, abs=1e-12)
+    assert centre[0] < -1e-3 and centre[1] > 1e-3
+    assert np.abs(c - look_at_camera()[None]).max() > 1e-4
     # AFHQ-style pivot from rendering_kwargs; an explicit pose wins over both.
     gen = StandInGenerator(rendering_kwargs=dict(avg_camera_pivot=[0, 0, -0.06]))
     make_teacher(gen).sample(0)
-    expected = look_at_camera(lookat=(0.0, 0.0, -0.06))
-    assert np.array_equal(gen.backbone.mapping.calls[-1]["c"].numpy(), expected[None].astype(np.float32))
+    expected = look_at_camera(
+        yaw_deg=GEN_VIDEOS_YAW_DEG, pitch_deg=GEN_VIDEOS_PITCH_DEG, lookat=(0.0, 0.0, -0.06)
+    )
+    np.testing.assert_allclose(
+        gen.backbone.mapping.calls[-1]["c"].numpy(), expected[None].astype(np.float32), rtol=0, atol=1e-6
+    )
     pose = look_at_camera(yaw_deg=20.0)
     make_teacher(gen, conditioning_pose=pose).sample(0)
     assert np.array_equal(gen.backbone.mapping.calls[-1]["c"].numpy(), pose[None].astype(np.float32))
 
 
-def test_conditioning_focal_follows_the_chosen_eg3d_script() -> None:
+def test_conditioning_camera_follows_the_chosen_eg3d_script() -> None:
     """gen_videos.py conditions with focal 4.2647; gen_samples.py derives 4.26339 from its 18.837° field
-    of view with EG3D's rounded constants."""
+    of view with EG3D's rounded constants, and uses the exactly frontal camera."""
     from lp3d.teachers.eg3d import CONDITIONING_FOCALS
 
     assert CONDITIONING_FOCALS["gen_videos"] == 4.2647
@@ -223,6 +241,11 @@ def test_conditioning_focal_follows_the_chosen_eg3d_script() -> None:
         make_teacher(gen, conditioning=script).sample(0)
         c = gen.backbone.mapping.calls[-1]["c"].numpy()[0]
         assert c[16] == c[20] == np.float32(focal)  # fx, fy of the normalised intrinsics
+    # gen_samples.py conditions on the exactly frontal camera (np.pi/2, not 3.14/2).
+    gen = StandInGenerator()
+    make_teacher(gen, conditioning="gen_samples").sample(0)
+    frontal = look_at_camera(focal=CONDITIONING_FOCALS["gen_samples"])
+    assert np.array_equal(gen.backbone.mapping.calls[-1]["c"].numpy(), frontal[None].astype(np.float32))
     with pytest.raises(ValueError, match="conditioning must be one of"):
         make_teacher(StandInGenerator(), conditioning="gen_images")
 

@@ -7,7 +7,8 @@ once and reuses them across steps, runs and resumes. Per identity ``i`` (teacher
 ``first_seed + i``):
 
 * ``planes``: the teacher triplane at the student's plane resolution, float16 (3, 32, T, T): the
-  target of the triplane-regression loss;
+  target of the triplane-regression loss (a teacher whose planes differ, EG3D's 256², is resampled
+  with :func:`resize_planes`, as the paper recipe resamples its L_tri target);
 * ``ref_camera`` and ``ref_image``: a camera from the reference distribution and the teacher's render
   from it at the encoder's image size (the encoder's input, float16 (3, S, S) in [-1, 1]).
 
@@ -38,6 +39,8 @@ from typing import Any
 
 import numpy as np
 import torch
+import torch.nn.functional as F
+from torch import Tensor
 
 from lp3d.camera_sampling import CameraDistribution, sample_cameras
 
@@ -47,6 +50,7 @@ __all__ = [
     "StaleDatasetError",
     "SyntheticDataset",
     "default_cache_root",
+    "resize_planes",
     "teacher_fingerprint",
 ]
 
@@ -64,6 +68,23 @@ def default_cache_root() -> Path:
     if os.environ.get("LP3D_CACHE"):
         return Path(os.environ["LP3D_CACHE"]) / "datasets"
     return Path.home() / ".cache" / "lp3d" / "datasets"
+
+
+def resize_planes(planes: Tensor, resolution: int) -> Tensor:
+    """Triplanes (B, 3, C, H, W) resampled to (B, 3, C, T, T), T = ``resolution``: the student's plane
+    size. Returned unchanged when already that size; otherwise bilinear with antialiasing, so a larger
+    teacher plane (EG3D's 256² for a 64² student) is averaged down rather than aliased."""
+    if planes.ndim != 5 or planes.shape[1] != 3:
+        raise ValueError(f"planes must have shape (B, 3, C, H, W), got {tuple(planes.shape)}")
+    if isinstance(resolution, bool) or not isinstance(resolution, int) or resolution < 1:
+        raise ValueError(f"resolution must be an int >= 1, got {resolution!r}")
+    b, p, c, h, w = planes.shape
+    if h == w == resolution:
+        return planes
+    flat = F.interpolate(
+        planes.reshape(b, p * c, h, w), size=(resolution, resolution), mode="bilinear", antialias=True
+    )
+    return flat.reshape(b, p, c, resolution, resolution)
 
 
 def teacher_fingerprint(teacher: Any, probe_seed: int) -> str:
@@ -222,8 +243,10 @@ class SyntheticDataset:
                 tris = teacher.sample_batch(seeds)
                 planes = torch.from_numpy(np.stack([t.planes.astype(np.float32) for t in tris]))
                 ref = np.stack([_camera(ref_dist, key.camera_seed, 0, s) for s in seeds])
+                # The encoder's input is the teacher's own render (its planes at their resolution);
+                # the stored L_tri target is at the student's.
                 ref_image = render(planes, torch.from_numpy(ref))
-                out["planes"][lo:hi] = planes.numpy()
+                out["planes"][lo:hi] = resize_planes(planes, key.triplane_resolution).numpy()
                 out["ref_camera"][lo:hi] = ref
                 out["ref_image"][lo:hi] = ref_image.numpy()
                 if bar is not None:

@@ -157,7 +157,7 @@ from lp3d.run_dir import (
     set_aside_checkpoints_after,
 )
 from lp3d.superres import SUPERRES_CONFIGS, SuperresConfig, SuperResolution
-from lp3d.synthetic_data import DatasetKey, SyntheticDataset, teacher_fingerprint
+from lp3d.synthetic_data import DatasetKey, SyntheticDataset, resize_planes, teacher_fingerprint
 from lp3d.teachers import Teacher
 from lp3d.tensorboard_log import TensorBoardLog
 from lp3d.triplane import TriplaneData, mirror_planes
@@ -571,7 +571,7 @@ def build_teacher(
 ) -> Teacher:
     """The teacher ``name``: ``procedural`` (built at the encoder's triplane resolution, so L_tri needs
     no resampling) or ``eg3d`` (``lp3d.teachers.eg3d.EG3DTeacher.from_pickle``, imported only when asked
-    for: loading a pickle executes its code; ``conditioning``: whose conditioning focal, see there)."""
+    for: loading a pickle executes its code; ``conditioning``: whose conditioning camera, see there)."""
     if name == "procedural":
         from lp3d.teachers import ProceduralTeacher
 
@@ -1522,12 +1522,7 @@ class Trainer:
 
     def _teacher_target_planes(self, planes: Tensor) -> Tensor:
         """Teacher planes at the student's triplane resolution (for L_tri)."""
-        t = self.config.triplane_resolution
-        if planes.shape[-1] == t and planes.shape[-2] == t:
-            return planes
-        b, p, c, h, w = planes.shape
-        flat = F.interpolate(planes.reshape(b, p * c, h, w), size=(t, t), mode="bilinear", antialias=True)
-        return flat.reshape(b, p, c, t, t)
+        return resize_planes(planes, self.config.triplane_resolution)
 
     # -- one step ----------------------------------------------------------------------------------
     def train_step(self, batch: Batch | None = None) -> dict[str, Any]:
@@ -1974,8 +1969,8 @@ def _parser() -> argparse.ArgumentParser:
         "--eg3d-conditioning",
         choices=("gen_videos", "gen_samples"),
         default=None,
-        help="whose conditioning camera focal the EG3D mapping gets: gen_videos.py's 4.2647 (default) "
-        "or gen_samples.py's 4.26339",
+        help="whose conditioning camera the EG3D mapping gets: gen_videos.py's (LookAtPoseSampler(3.14/2, "
+        "3.14/2), focal 4.2647; default) or gen_samples.py's (exactly frontal, focal 4.26339)",
     )
     p.add_argument("--out", default=None, help="run directory (default runs/<config>)")
     p.add_argument("--max-steps", type=int, default=None, help="stop at this global step (default: config)")

@@ -19,18 +19,24 @@ What the adapter uses of the generator (``training/triplane.py`` in NVlabs/eg3d)
 Choices (``shared/design/eg3d-rendering.md`` §4, §5, §10, §11):
 
 * **z**: ``np.random.RandomState(seed).randn(1, z_dim)``, exactly as EG3D's ``gen_samples.py`` and
-  ``gen_videos.py`` draw it. ``sample(17)`` is the identity those scripts call seed 17 when the
-  conditioning pose, truncation and noise match too; the two scripts condition on slightly different
-  focal lengths (below), which moves ws by about 4e-4.
-* **Pose conditioning** (mapping only): the frontal camera looking at ``avg_camera_pivot`` from
-  ``avg_camera_radius`` (FFHQ: (0, 0, 0.2) and 2.7; read from ``rendering_kwargs`` when present) with
-  the focal length of one of EG3D's scripts, ``conditioning="gen_videos"`` (4.2647, the default) or
-  ``"gen_samples"`` (its 18.837° field of view, 4.26339; :data:`CONDITIONING_FOCALS`).
-  ``G.mapping`` itself applies ``c_gen_conditioning_zero`` and ``c_scale``.
+  ``gen_videos.py`` draw it.
+* **Pose conditioning** (mapping only): a camera looking at ``avg_camera_pivot`` from
+  ``avg_camera_radius`` (FFHQ: (0, 0, 0.2) and 2.7; read from ``rendering_kwargs`` when present),
+  built as one of EG3D's scripts builds it (:func:`default_conditioning_pose`):
+  ``conditioning="gen_videos"`` (the default) is ``gen_videos.py``'s
+  ``LookAtPoseSampler.sample(3.14/2, 3.14/2, ...)`` with focal 4.2647; as 3.14 is not pi, that camera
+  is 0.04563° of yaw toward -x and 0.02905° of pitch above the frontal one. ``"gen_samples"`` is
+  ``gen_samples.py``'s exactly frontal ``sample(np.pi/2, np.pi/2, ...)`` with the focal of its
+  18.837° field of view, 4.26339 (:data:`CONDITIONING_CAMERAS`). The 0.05° alone moves a full-size
+  generator's ws by about 1e-3. ``G.mapping`` itself applies ``c_gen_conditioning_zero`` and
+  ``c_scale``. With the same truncation, ``sample(17)`` is the head ``gen_videos.py --seeds 17``
+  renders (same ws, same const noise); with ``conditioning="gen_samples"`` its ws are those of
+  ``gen_samples.py --seeds 17``, whose noise differs (below).
 * **Truncation**: ``truncation_psi = 0.7``, ``truncation_cutoff = 14`` (all 14 ws of the 256² backbone)
   by default, the value of EG3D's README examples. The paper does not state one.
 * **Backbone noise**: ``noise_mode = "const"`` (the stored ``noise_const`` buffers) so a seed gives the
-  same planes on every call. EG3D's scripts leave StyleGAN2's default ``"random"``.
+  same planes on every call, as ``gen_videos.py`` renders; ``gen_samples.py`` leaves StyleGAN2's
+  default ``"random"``, so its images of a seed vary from run to run.
 * **Super-resolution w**: the supplement replaces "the latent code W injected to the StyleGAN2-based
   super-resolution layer with a constant 1", i.e. ``w = (1, 1, ..., 1)`` (w_dim ones) for every sample,
   and fine-tunes the whole EG3D model that way for 6.8M images. That is the default (``sr_w="ones"``), as
@@ -60,11 +66,20 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from lp3d.camera import FFHQ_FOCAL, FFHQ_PIVOT, FFHQ_RADIUS, look_at_camera, validate_camera
+from lp3d.camera import (
+    FFHQ_FOCAL,
+    FFHQ_PIVOT,
+    FFHQ_RADIUS,
+    intrinsics,
+    lookat_pose,
+    pack_label,
+    validate_camera,
+)
 from lp3d.settings import RenderSettings
 from lp3d.triplane import TriplaneData, effective_decoder_weights
 
 __all__ = [
+    "CONDITIONING_CAMERAS",
     "CONDITIONING_FOCALS",
     "EG3D_HINT",
     "EG3D_SOURCE_PACKAGES",
@@ -88,12 +103,18 @@ def _eg3d_fov_to_focal(fov_degrees: float) -> float:
     return 1.0 / (math.tan(fov_degrees * 3.14159 / 360.0) * 1.414)
 
 
-#: Focal length of the conditioning camera in EG3D's two generation scripts: ``gen_videos.py``
-#: writes 4.2647; ``gen_samples.py`` derives it from its default ``--fov-deg 18.837``.
-CONDITIONING_FOCALS: dict[str, float] = {
-    "gen_videos": FFHQ_FOCAL,
-    "gen_samples": _eg3d_fov_to_focal(18.837),
+#: The conditioning camera of EG3D's two generation scripts as ``(h, v, focal)``: the angles its
+#: ``LookAtPoseSampler.sample(h, v, pivot, radius=...)`` is given (radians) and the normalised focal
+#: length. ``gen_videos.py`` writes ``3.14/2`` for both angles, not pi/2, so its camera is slightly off
+#: frontal (yaw -0.04563°, pitch +0.02905° in :func:`lp3d.camera.look_at_camera`'s terms); kept on
+#: purpose, since the mapping's ws depend on it (about 1e-3). Its focal is written as 4.2647;
+#: ``gen_samples.py`` uses ``np.pi/2`` and derives the focal from its default ``--fov-deg 18.837``.
+CONDITIONING_CAMERAS: dict[str, tuple[float, float, float]] = {
+    "gen_videos": (3.14 / 2, 3.14 / 2, FFHQ_FOCAL),
+    "gen_samples": (math.pi / 2, math.pi / 2, _eg3d_fov_to_focal(18.837)),
 }
+#: The focal length alone of each script's conditioning camera (:data:`CONDITIONING_CAMERAS`).
+CONDITIONING_FOCALS: dict[str, float] = {name: cam[2] for name, cam in CONDITIONING_CAMERAS.items()}
 Conditioning = Literal["gen_videos", "gen_samples"]
 #: Top-level packages of EG3D's source tree that its pickles import while being unpickled.
 EG3D_SOURCE_PACKAGES = ("torch_utils", "dnnlib", "training")
@@ -232,18 +253,20 @@ def load_eg3d_generator(
 def default_conditioning_pose(
     rendering_kwargs: dict[str, Any] | None = None, conditioning: Conditioning = "gen_videos"
 ) -> np.ndarray:
-    """The frontal camera (25,) float64 that EG3D's scripts condition the mapping on.
+    """The camera (25,) float64 that the EG3D script ``conditioning`` names conditions the mapping on.
 
     Looks at ``avg_camera_pivot`` from ``avg_camera_radius`` (from ``rendering_kwargs``; FFHQ defaults
-    (0, 0, 0.2) and 2.7) with the focal length of the script ``conditioning`` names
-    (:data:`CONDITIONING_FOCALS`).
+    (0, 0, 0.2) and 2.7), from that script's angles and with its focal length
+    (:data:`CONDITIONING_CAMERAS`: ``gen_videos.py``'s is 0.05° off frontal, ``gen_samples.py``'s
+    frontal).
     """
-    if conditioning not in CONDITIONING_FOCALS:
-        raise ValueError(f"conditioning must be one of {sorted(CONDITIONING_FOCALS)}, got {conditioning!r}")
+    if conditioning not in CONDITIONING_CAMERAS:
+        raise ValueError(f"conditioning must be one of {sorted(CONDITIONING_CAMERAS)}, got {conditioning!r}")
     rk = rendering_kwargs or {}
     pivot = tuple(float(v) for v in rk.get("avg_camera_pivot", FFHQ_PIVOT))
     radius = float(rk.get("avg_camera_radius", FFHQ_RADIUS))
-    return look_at_camera(radius=radius, lookat=pivot, focal=CONDITIONING_FOCALS[conditioning])
+    h, v, focal = CONDITIONING_CAMERAS[conditioning]
+    return pack_label(lookat_pose(h, v, radius=radius, lookat=pivot), intrinsics(focal))
 
 
 def _get(obj: Any, dotted: str) -> Any:
@@ -332,7 +355,8 @@ class EG3DTeacher:
     ``torch.nn.Module`` it is moved to ``device``, put in eval mode and frozen, in place.
     ``truncation_psi``/``truncation_cutoff``: passed to ``G.mapping`` (``cutoff=None``: all ws).
     ``conditioning_pose``: (25,) camera label for the mapping; None: :func:`default_conditioning_pose`
-    with ``conditioning`` ("gen_videos" or "gen_samples": whose focal length, see the module docstring).
+    with ``conditioning`` ("gen_videos" or "gen_samples": whose conditioning camera, see the module
+    docstring).
     ``noise_mode``: the backbone's StyleGAN2 noise ("const" keeps seeds deterministic).
     ``sr_w``: the super-resolution w, "ones" (the paper's constant 1), "mean" (``w_avg``) or a (w_dim,)
     vector. ``sr_noise_mode``: noise of the super-resolution network ("none", EG3D's FFHQ setting).
@@ -499,7 +523,8 @@ class EG3DTeacher:
         seeds = [_check_seed(s) for s in seeds]
         if not seeds:
             raise ValueError("latents needs at least one seed")
-        # z drawn as EG3D's gen_samples.py does, on the CPU, so seeds mean the same on every device.
+        # z drawn as EG3D's gen_samples.py and gen_videos.py do, on the CPU, so seeds mean the same
+        # on every device.
         z_np = np.concatenate([np.random.RandomState(s).randn(1, self.z_dim) for s in seeds])
         z = torch.from_numpy(z_np).to(self.device, torch.float32)
         c = torch.from_numpy(self.conditioning_pose[: self.c_dim]).to(self.device, torch.float32)
