@@ -1,0 +1,157 @@
+"""Where the shipped encoder's novel-view error comes from: a budget on training and held-out heads.
+
+    python bench/error_budget.py --n-identities 16            # about 23 min on a loaded 2-core CPU
+
+For each identity (teacher seeds ``0 ..`` = training identities, ``eval_seed_start ..`` = held-out
+ones, inputs rendered as ``python -m lp3d.eval`` renders them) it renders the same novel views as the
+evaluation (128², scored against the teacher at its native 256² planes) from:
+
+* ``ceiling``: the teacher's own head at the student's 64² plane resolution;
+* ``basis oracle``: the teacher's 64² planes projected (least squares) onto the shipped encoder's
+  mean triplane plus its plane basis: the best any coefficient predictor could do with that basis;
+* ``ceiling + noise``: the ceiling's planes plus independent Gaussian noise whose per-channel RMS is
+  the student's per-channel plane error: what an error of the student's size costs when it has no
+  structure (how steep the decoder makes the render in the planes);
+* ``student``: the shipped model (``python/lp3d/models/small.pt``, torch backend);
+* ``mean head``: the encoder's mean triplane alone.
+
+and reports novel-view PSNR and the channel-normalised plane L1 (the CPU recipe's L_tri, channels
+divided by their spread over these identities) for each, split by training and held-out identities.
+Equal numbers on the two splits say the student is not short of data but of fit.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from lp3d.eval import (
+    EvalSettings,
+    _render_truth,
+    _views,
+    input_camera,
+    input_yaws,
+    psnr,
+    reference_teachers,
+)
+from lp3d.inference import load_encoder
+from lp3d.train import TRAIN_CONFIGS, SceneBounds, build_teacher
+
+METHODS = ("ceiling", "basis oracle", "ceiling + noise", "student", "mean head")
+MODEL = Path(__file__).resolve().parents[1] / "python" / "lp3d" / "models" / "small.pt"
+
+
+def basis_planes(state: dict[str, torch.Tensor], resolution: int) -> torch.Tensor:
+    """The encoder's basis components at the plane resolution, flattened: (K, 3·32·T·T)."""
+    comps = state["basis.components"].float()
+    if comps.shape[-1] != resolution:
+        comps = F.interpolate(comps, size=(resolution, resolution), mode="bilinear", align_corners=False)
+    return comps.reshape(comps.shape[0], -1)
+
+
+def project(target: torch.Tensor, offset: torch.Tensor, basis: torch.Tensor) -> torch.Tensor:
+    """``offset + Σ c_k basis_k`` closest (least squares) to ``target``; all (1, 3, 32, T, T)."""
+    residual = (target - offset).reshape(-1, 1)
+    coeffs = torch.linalg.lstsq(basis.T.double(), residual.double()).solution.float()
+    return offset + (basis.T @ coeffs).reshape(target.shape)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--n-identities", type=int, default=16, help="identities per split (default 16)")
+    p.add_argument("--model", type=Path, default=MODEL, help="torch weights of the encoder")
+    p.add_argument("--seed", type=int, default=0, help="noise seed")
+    args = p.parse_args(argv)
+    if args.n_identities < 2:
+        p.error("--n-identities must be >= 2 (the plane scales are spreads over identities)")
+
+    torch.manual_seed(args.seed)
+    enc = load_encoder(args.model, "torch")
+    ckpt = torch.load(args.model, map_location="cpu", weights_only=True)
+    offset = ckpt["plane_offset"].float().unsqueeze(0)
+    cfg = TRAIN_CONFIGS[ckpt["config"]["name"]]
+    t_res = cfg.triplane_resolution
+    basis = basis_planes(ckpt["encoder"], t_res)
+    teacher = build_teacher("procedural", triplane_resolution=t_res)
+    truth_teacher, ceiling_teacher = reference_teachers(teacher, cfg)
+    assert ceiling_teacher is not None
+    scene = SceneBounds.of(teacher.sample(0))
+    dec = [torch.as_tensor(a) for a in teacher.decoder()]
+    truth_dec = [torch.as_tensor(a) for a in truth_teacher.decoder()]
+    views = _views(EvalSettings(), torch.device("cpu"))
+    n = args.n_identities
+    yaws = input_yaws(n)
+    splits = {
+        "training": [cfg.train_seeds[0] + i for i in range(n)],
+        "held-out": [cfg.eval_seed_start + i for i in range(n)],
+    }
+
+    # Pass 1: every identity's truth, input image, ceiling planes and student planes.
+    items: list[dict] = []
+    t0 = time.perf_counter()
+    for split, seeds in splits.items():
+        for k, seed in enumerate(seeds):
+            planes_t = torch.from_numpy(truth_teacher.sample(seed).planes.astype(np.float32)).unsqueeze(0)
+            label, _ = input_camera(cfg, seed, float(yaws[k]))
+            cam = torch.from_numpy(label).float().unsqueeze(0)
+            image = _render_truth(truth_teacher, planes_t, truth_dec, cam, cfg, scene)["high"]
+            truth = _render_truth(truth_teacher, planes_t, truth_dec, views, cfg, scene)["high"]
+            ceiling = torch.from_numpy(ceiling_teacher.sample(seed).planes.astype(np.float32)).unsqueeze(0)
+            student = torch.from_numpy(enc.run(image.numpy()))
+            items.append(
+                {"split": split, "seed": seed, "truth": truth, "ceiling": ceiling, "student": student}
+            )
+            print(
+                f"\r  encoded {len(items)}/{2 * n} ({time.perf_counter() - t0:.0f} s)",
+                end="",
+                file=sys.stderr,
+            )
+    print(file=sys.stderr)
+    stack = torch.cat([it["ceiling"] for it in items])
+    scale = stack.transpose(0, 2).reshape(stack.shape[2], -1).std(dim=1).clamp_min(1e-3)
+    err_rms = (torch.cat([it["student"] for it in items]) - stack).transpose(0, 2)
+    err_rms = err_rms.reshape(stack.shape[2], -1).square().mean(dim=1).sqrt()
+
+    # Pass 2: render every method's planes and score them.
+    scores: dict[str, dict[str, list[tuple[float, float]]]] = {s: {m: [] for m in METHODS} for s in splits}
+    for j, it in enumerate(items):
+        ceiling = it["ceiling"]
+        planes = {
+            "ceiling": ceiling,
+            "basis oracle": project(ceiling, offset, basis),
+            "ceiling + noise": ceiling + torch.randn_like(ceiling) * err_rms.reshape(1, 1, -1, 1, 1),
+            "student": it["student"],
+            "mean head": offset,
+        }
+        for m, pl in planes.items():
+            high = _render_truth(teacher, pl, dec, views, cfg, scene)["high"]
+            l_tri = float(((pl - ceiling).abs() / scale.reshape(1, 1, -1, 1, 1)).mean())
+            scores[it["split"]][m].append((float(psnr(high, it["truth"]).mean()), l_tri))
+        print(
+            f"\r  rendered {j + 1}/{len(items)} ({time.perf_counter() - t0:.0f} s)", end="", file=sys.stderr
+        )
+    print(file=sys.stderr)
+
+    print(
+        f"\nmodel {args.model.name} ({cfg.name}, {basis.shape[0]} basis planes), {n} identities per split, "
+        f"novel views at {cfg.image_size}², torch {torch.__version__}\n"
+    )
+    print("| planes | training: PSNR | training: L_tri | held-out: PSNR | held-out: L_tri |")
+    print("|---|---|---|---|---|")
+    for m in METHODS:
+        cells = []
+        for s in splits:
+            ps, ls = zip(*scores[s][m], strict=True)
+            cells += [f"{np.mean(ps):.2f} dB", f"{np.mean(ls):.3f}"]
+        print(f"| {m} | " + " | ".join(cells) + " |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
