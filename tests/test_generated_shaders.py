@@ -1,4 +1,4 @@
-"""shaders/decoder.wgsl is generated (fully unrolled MLP); it must match its generator."""
+"""crates/renderer/shaders/decoder.wgsl is generated (fully unrolled MLP); it must match its generator."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+DECODER = Path("crates/renderer/shaders/decoder.wgsl")
 
 
 def test_decoder_wgsl_is_current() -> None:
@@ -16,5 +17,5 @@ def test_decoder_wgsl_is_current() -> None:
         text=True,
         check=True,
     ).stdout
-    committed = (ROOT / "shaders" / "decoder.wgsl").read_text()
-    assert generated == committed, "run: python scripts/gen_decoder_wgsl.py > shaders/decoder.wgsl"
+    committed = (ROOT / DECODER).read_text()
+    assert generated == committed, f"run: python scripts/gen_decoder_wgsl.py > {DECODER}"

@@ -1,5 +1,12 @@
-// Rays from EG3D 25-float cameras (RaySampler): pixel centres, OpenCV camera axes,
-// unit directions, depth measured along the direction.
+// Stage: camera (lp3d.reference.rays_from_cameras). Rays from EG3D 25-float cameras
+// (RaySampler): pixel centres, OpenCV camera axes, unit directions, depth measured along the
+// direction.
+// needs: params, cameras
+// provides: CAMERA_FLOATS, Ray, cam_at, camera_ray
+
+// Floats per camera in EG3D's label: cam2world 4x4 row-major (16), then the 3x3 normalised
+// intrinsics (9).
+const CAMERA_FLOATS: u32 = 25u;
 
 struct Ray {
     origin: vec3<f32>,
@@ -7,7 +14,7 @@ struct Ray {
 }
 
 fn cam_at(cam: u32, i: u32) -> f32 {
-    return cameras[cam * 25u + i];
+    return cameras[cam * CAMERA_FLOATS + i];
 }
 
 fn camera_ray(cam: u32, pixel: u32) -> Ray {

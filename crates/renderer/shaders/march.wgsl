@@ -1,8 +1,16 @@
-// MipRayMarcher2: one interval between consecutive sorted samples.
-// Raw densities are averaged first, then softplus(x - 1); K samples give K - 1 intervals.
+// Stage: march, the compositing (lp3d.reference.march, EG3D's MipRayMarcher2): one interval
+// between consecutive sorted samples. Raw densities are averaged first, then
+// softplus(x - DENSITY_SHIFT); K samples give K - 1 intervals.
+// needs: softplus
+// provides: DENSITY_SHIFT, TRANSMITTANCE_EPS, interval_alpha, one_minus_exp_neg, transmit
+
+// EG3D's MipRayMarcher2 density activation: sigma = softplus(sigma_raw - 1).
+const DENSITY_SHIFT: f32 = 1.0;
+// EG3D's MipRayMarcher2: the transmittance is the exclusive cumprod of (1 - alpha) + 1e-10.
+const TRANSMITTANCE_EPS: f32 = 1e-10;
 
 fn interval_alpha(sigma_raw_a: f32, sigma_raw_b: f32, delta: f32) -> f32 {
-    let sigma = softplus((sigma_raw_a + sigma_raw_b) * 0.5 - 1.0);
+    let sigma = softplus((sigma_raw_a + sigma_raw_b) * 0.5 - DENSITY_SHIFT);
     return one_minus_exp_neg(sigma * delta);
 }
 
@@ -17,7 +25,7 @@ fn one_minus_exp_neg(x: f32) -> f32 {
     return 1.0 - exp(-x);
 }
 
-// Exclusive-cumprod step of the transmittance, with EG3D's + 1e-10.
+// Exclusive-cumprod step of the transmittance, with EG3D's + TRANSMITTANCE_EPS.
 fn transmit(t: f32, alpha: f32) -> f32 {
-    return t * ((1.0 - alpha) + 1e-10);
+    return t * ((1.0 - alpha) + TRANSMITTANCE_EPS);
 }

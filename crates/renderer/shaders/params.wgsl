@@ -1,5 +1,9 @@
-// Bindings and uniforms shared by every kernel of the renderer.
+// Stage: bindings and uniforms shared by every kernel of the renderer. First in every module.
 // The Rust mirror is `crates/renderer/src/gpu_types.rs`; a test checks the sizes match.
+// needs: nothing
+// provides: MAX_SAMPLES, N_CHANNELS, HIDDEN, FLAG_JITTER, FLAG_WHITE_BACK, FLAG_HALF_PLANES,
+// provides: FLAG_OCCUPANCY_COARSE, Params, Decoder, params, cameras, planes, decoder,
+// provides: out_features, out_depth, out_weights_sum, depth_bounds, occupancy_bits
 
 // Largest coarse or fine sample count per ray (per-invocation scratch arrays).
 const MAX_SAMPLES: u32 = 256u;

@@ -1,5 +1,9 @@
-// Display: maps one render output of camera 0 to an RGBA8 storage texture (the viewer shows it
-// directly, no readback). Group 1 holds the target and what to show.
+// Stage: present (lp3d.images for the same mappings on the CPU). Maps one render output of
+// camera 0 to an RGBA8 storage texture (the viewer shows it directly, no readback). Group 1
+// holds the target and what to show.
+// needs: params, out_features, out_depth, out_weights_sum
+// provides: DISPLAY_RGB, DISPLAY_DEPTH, DISPLAY_WEIGHTS, DISPLAY_CHANNEL, Display, display_target,
+// provides: display, to_unit, present
 
 const DISPLAY_RGB: u32 = 0u;
 const DISPLAY_DEPTH: u32 = 1u;

@@ -1,11 +1,11 @@
-// Triplane lookup: EG3D's plane projection (with its axis quirk) and
-// grid_sample(bilinear, zeros padding per tap, align_corners=False), averaged over planes.
+// Stage: triplane fetch (lp3d.reference.sample_triplane). EG3D's plane projection (with its
+// axis quirk) and grid_sample(bilinear, zeros padding per tap, align_corners=False), averaged
+// over planes.
+// needs: params, planes, FLAG_HALF_PLANES
+// provides: halves_to_f32, add_tap, add_plane, plane_coords, sample_triplane
 //
 // PLANE_AXES = (x,y), (x,z), (z,x): plane 2 is the transpose of plane 1, not YZ.
-// Kept on purpose so EG3D checkpoints render unchanged (eg3d-rendering.md section 2).
-
-// The aggregated 32-channel feature of the current sample.
-var<private> feat: array<vec4<f32>, 8>;
+// Kept on purpose so EG3D checkpoints render unchanged (docs/triplane-format.md).
 
 // Two float16 (low, high half of `v`) to float32, exactly. By hand rather than
 // unpack2x16float, which naga gates behind a capability (SHADER_FLOAT16_IN_FLOAT32) that not
@@ -21,7 +21,7 @@ fn halves_to_f32(v: u32) -> vec2<f32> {
     return bitcast<vec2<f32>>(bitcast<vec2<u32>>(mag) | ((h & vec2<u32>(0x8000u)) << vec2<u32>(16u)));
 }
 
-fn add_tap(p: u32, x: i32, y: i32, w: f32) {
+fn add_tap(p: u32, x: i32, y: i32, w: f32, feat: ptr<function, array<vec4<f32>, 8>>) {
     let h = i32(params.plane_h);
     let wd = i32(params.plane_w);
     if (x < 0 || y < 0 || x >= wd || y >= h) {
@@ -33,13 +33,13 @@ fn add_tap(p: u32, x: i32, y: i32, w: f32) {
         let base = texel * 4u;
         for (var q = 0u; q < 4u; q++) {
             let h = planes[base + q];
-            feat[2u * q] += w * vec4<f32>(halves_to_f32(h.x), halves_to_f32(h.y));
-            feat[2u * q + 1u] += w * vec4<f32>(halves_to_f32(h.z), halves_to_f32(h.w));
+            (*feat)[2u * q] += w * vec4<f32>(halves_to_f32(h.x), halves_to_f32(h.y));
+            (*feat)[2u * q + 1u] += w * vec4<f32>(halves_to_f32(h.z), halves_to_f32(h.w));
         }
     } else {
         let base = texel * 8u;
         for (var q = 0u; q < 8u; q++) {
-            feat[q] += w * bitcast<vec4<f32>>(planes[base + q]);
+            (*feat)[q] += w * bitcast<vec4<f32>>(planes[base + q]);
         }
     }
 }
@@ -47,7 +47,7 @@ fn add_tap(p: u32, x: i32, y: i32, w: f32) {
 // Bilinear taps of grid_sample at normalised (u, v) in [-1, 1] for plane p, added to `feat`.
 // The four taps are a loop (corner c: x + (c & 1), y + (c >> 1)), not four copies: lavapipe
 // inlines every call, and each copy of add_tap costs compile time (bench/RESULTS.md).
-fn add_plane(p: u32, u: f32, v: f32) {
+fn add_plane(p: u32, u: f32, v: f32, feat: ptr<function, array<vec4<f32>, 8>>) {
     let ix = ((u + 1.0) * f32(params.plane_w) - 1.0) * 0.5;
     let iy = ((v + 1.0) * f32(params.plane_h) - 1.0) * 0.5;
     // All four taps outside: nothing to add (also keeps i32 conversions in range).
@@ -64,7 +64,7 @@ fn add_plane(p: u32, u: f32, v: f32) {
         let dx = c & 1u;
         let dy = c >> 1u;
         let w = select(1.0 - fx, fx, dx == 1u) * select(1.0 - fy, fy, dy == 1u);
-        add_tap(p, xi + i32(dx), yi + i32(dy), w);
+        add_tap(p, xi + i32(dx), yi + i32(dy), w, feat);
     }
 }
 
@@ -73,32 +73,19 @@ fn plane_coords(pos: vec3<f32>) -> vec3<f32> {
     return pos * (2.0 / params.box_warp);
 }
 
-// Whether `pos` lies in a cell of the occupancy grid that may hold density (always, when the
-// skip is off). Outside the box the index clamps to the edge cells, which the bake extends to
-// infinity (crates/renderer/src/occupancy.rs).
-fn occupied(pos: vec3<f32>) -> bool {
-    let g = params.occupancy_resolution;
-    if (g == 0u) {
-        return true;
-    }
-    let gf = f32(g);
-    let cell = vec3<u32>(clamp(floor((plane_coords(pos) + 1.0) * (0.5 * gf)), vec3<f32>(0.0), vec3<f32>(gf - 1.0)));
-    let idx = (cell.x * g + cell.y) * g + cell.z;
-    return ((occupancy_bits[idx >> 5u] >> (idx & 31u)) & 1u) != 0u;
-}
-
-// Mean of the three plane features at world point `pos` into `feat`.
-fn sample_triplane(pos: vec3<f32>) {
+// Mean of the three plane features at world point `pos`, the 32-channel decoder input, into
+// `feat`.
+fn sample_triplane(pos: vec3<f32>, feat: ptr<function, array<vec4<f32>, 8>>) {
     let q = plane_coords(pos);
     for (var i = 0u; i < 8u; i++) {
-        feat[i] = vec4<f32>(0.0);
+        (*feat)[i] = vec4<f32>(0.0);
     }
     for (var p = 0u; p < 3u; p++) {
         // PLANE_AXES: (x, y), (x, z), (z, x).
         let uv = select(select(q.zx, q.xz, p == 1u), q.xy, p == 0u);
-        add_plane(p, uv.x, uv.y);
+        add_plane(p, uv.x, uv.y, feat);
     }
     for (var i = 0u; i < 8u; i++) {
-        feat[i] = feat[i] / 3.0;
+        (*feat)[i] = (*feat)[i] / 3.0;
     }
 }

@@ -1,5 +1,6 @@
 //! Plain-old-data mirrors of the WGSL uniforms in `shaders/params.wgsl`. Field order and
-//! sizes must match the WGSL structs; `tests/shader_layout.rs` checks them with naga.
+//! sizes must match the WGSL structs; `tests/shaders.rs` (`uniform_layouts_match_wgsl`) checks
+//! them with naga.
 
 use bytemuck::{Pod, Zeroable};
 

@@ -1,4 +1,4 @@
-//! The two compiled forms of the render kernel (shaders/decoder.wgsl's unrolled and rolled
+//! The two compiled forms of the render kernel (`shaders/decoder.wgsl`'s unrolled and rolled
 //! decoders) give bit-identical outputs, and a renderer that starts with the quick kernel and
 //! switches to the fast one after its background compile changes no bit either.
 

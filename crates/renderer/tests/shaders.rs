@@ -1,5 +1,5 @@
-//! Every WGSL file is listed in `shaders.rs`, the composed module validates with naga, and
-//! the Rust uniform mirrors have the sizes the WGSL layout gives.
+//! Every WGSL file is listed in `shaders.rs`, each entry point's module and the composed render
+//! module validate with naga, and the Rust uniform mirrors have the sizes the WGSL layout gives.
 
 use lp3d_renderer::gpu_types::{DecoderUniform, DisplayUniform, Params};
 use lp3d_renderer::settings::MAX_SAMPLES;
@@ -11,26 +11,43 @@ fn parse() -> naga::Module {
 
 #[test]
 fn every_wgsl_file_is_listed() {
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shaders");
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("shaders");
     let mut on_disk: Vec<String> = std::fs::read_dir(dir)
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
         .filter(|n| n.ends_with(".wgsl"))
         .collect();
     on_disk.sort();
-    let mut listed: Vec<String> = shaders::SOURCES.iter().map(|(n, _)| n.to_string()).collect();
+    let mut listed: Vec<String> = shaders::STAGES.iter().map(|s| s.file.to_string()).collect();
     listed.sort();
-    assert_eq!(on_disk, listed, "shaders/ and shaders.rs::SOURCES disagree");
+    assert_eq!(on_disk, listed, "shaders/ and shaders.rs::STAGES disagree");
+}
+
+fn validate(module: &naga::Module) {
+    naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::default())
+        .validate(module)
+        .expect("WGSL validates");
 }
 
 #[test]
 fn render_module_validates() {
     let module = parse();
-    naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::default())
-        .validate(&module)
-        .expect("WGSL validates");
+    validate(&module);
     for entry in [shaders::RENDER_ENTRY, shaders::DEPTH_BOUNDS_ENTRY, shaders::PRESENT_ENTRY] {
         assert!(module.entry_points.iter().any(|e| e.name == entry), "missing entry point {entry}");
+    }
+}
+
+/// Each entry point's stage list is a module on its own: nothing it needs comes from a file
+/// that only another entry point lists.
+#[test]
+fn each_entry_module_validates() {
+    for entry in shaders::ENTRY_POINTS {
+        let source = shaders::module_source(entry.stages);
+        let module = naga::front::wgsl::parse_str(&source).unwrap_or_else(|e| panic!("{}: {e}", entry.name));
+        validate(&module);
+        let names: Vec<&str> = module.entry_points.iter().map(|e| e.name.as_str()).collect();
+        assert_eq!(names, [entry.name]);
     }
 }
 
