@@ -33,7 +33,7 @@ import numpy as np, lp3d_render
 from lp3d.camera import look_at_camera
 from lp3d.sample_scenes import coloured_sphere
 t = coloured_sphere(size=64)
-tri = lp3d_render.Triplane(t.planes, t.w0, t.b0, t.w1, t.b1)
+tri = t.to_native()
 out = lp3d_render.render(tri, look_at_camera(yaw_deg=20.0))
 assert np.isfinite(out["rgb"]).all()
 """

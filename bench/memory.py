@@ -25,7 +25,7 @@ from lp3d.camera import look_at_camera
 from lp3d.teachers import ProceduralTeacher
 r, s, n = (int(a) for a in sys.argv[1:4])
 t = ProceduralTeacher().sample(0)
-tri = lp3d_render.Triplane(t.planes, t.w0, t.b0, t.w1, t.b1, t.box_warp, t.ray_start, t.ray_end)
+tri = t.to_native()
 cam = look_at_camera(yaw_deg=20.0)
 lp3d_render.render(tri, cam, resolution=8, depth_resolution=4, depth_resolution_importance=4)  # compile
 before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss

@@ -458,11 +458,8 @@ def _lp3d_compare(cfg: dict[str, Any]) -> dict[str, Any]:
         return text, max(errs.values())
 
     def wgsl_row() -> tuple[str, float]:
-        handle = lp3d_render.Triplane(
-            tri.planes, tri.w0, tri.b0, tri.w1, tri.b1, tri.box_warp, tri.ray_start, tri.ray_end
-        )
         out = lp3d_render.render(
-            handle,
+            tri.to_native(),
             camera,
             resolution=resolution,
             depth_resolution=settings.depth_resolution,

@@ -57,8 +57,6 @@ def make_scene(
     scene; rough fog and hard edges are covered by the stress tests with a conditioning-aware
     tolerance.
     """
-    import lp3d_render
-
     rng = np.random.default_rng(seed)
     h, w = size
     if decoder == "strong":
@@ -79,8 +77,7 @@ def make_scene(
     data = TriplaneData(
         planes=planes, w0=w0, b0=b0, w1=w1, b1=b1, box_warp=box_warp, ray_start=ray_start, ray_end=ray_end
     )
-    native = lp3d_render.Triplane(planes, w0, b0, w1, b1, box_warp, ray_start, ray_end)
-    return Scene(data=data, native=native)
+    return Scene(data=data, native=data.to_native())
 
 
 def upsample_bilinear(x: np.ndarray, h: int, w: int) -> np.ndarray:

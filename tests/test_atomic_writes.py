@@ -11,8 +11,7 @@ from pathlib import Path
 
 import pytest
 
-import lp3d_render
-from lp3d.atomic import atomic_path, create_temp
+from lp3d.atomic import StagedFiles, atomic_path, create_temp
 from lp3d.cli import CLIError, Staged
 from lp3d.model_package import save_model_package
 from lp3d.sample_scenes import coloured_sphere
@@ -55,8 +54,7 @@ def test_every_writer_gives_the_usual_permissions(
     save_triplane(written["triplane_io.save_triplane"], tri)
 
     written["lp3d_render.Triplane.save"] = tmp_path / "rust.npz"
-    native = lp3d_render.Triplane(tri.planes, tri.w0, tri.b0, tri.w1, tri.b1)
-    native.save(written["lp3d_render.Triplane.save"])
+    tri.to_native().save(written["lp3d_render.Triplane.save"])
 
     written["atomic_path"] = tmp_path / "a.json"
     with atomic_path(written["atomic_path"]) as tmp:
@@ -68,10 +66,11 @@ def test_every_writer_gives_the_usual_permissions(
         tmp_path / "m.onnx", (tri.w0, tri.b0, tri.w1, tri.b1), config, bounds
     )
 
-    written["cli.Staged"] = tmp_path / "out.png"
-    with Staged() as staged:
-        staged.temp(written["cli.Staged"]).write_bytes(b"png")
-        staged.commit()
+    for name, group in (("atomic.StagedFiles", StagedFiles), ("cli.Staged", Staged)):
+        written[name] = tmp_path / f"{name}.png"
+        with group() as staged:
+            staged.temp(written[name]).write_bytes(b"png")
+            staged.commit()
 
     modes = {name: oct(mode(path)) for name, path in written.items()}
     assert modes == {name: oct(expected) for name in written}
@@ -86,13 +85,18 @@ def test_temporary_files_are_new_and_distinct(umask: int, tmp_path: Path) -> Non
         assert tmp.stat().st_size == 0 and mode(tmp) == 0o666 & ~umask
 
 
-def test_staged_outputs_are_published_all_or_none(tmp_path: Path) -> None:
+@pytest.mark.parametrize(
+    ("group", "error"), [(StagedFiles, OSError), (Staged, CLIError)], ids=["StagedFiles", "cli.Staged"]
+)
+def test_staged_outputs_are_published_all_or_none(tmp_path: Path, group: type, error: type) -> None:
     (tmp_path / "second.png" / "inside").mkdir(parents=True)  # a folder where a file should go
-    with pytest.raises(CLIError, match="second.png"), Staged() as staged:
-        staged.temp(tmp_path / "first.png").write_bytes(b"first")
+    with pytest.raises(error, match="second.png"), group() as staged:
+        staged.mkdir(tmp_path / "new")
+        staged.temp(tmp_path / "new" / "first.png").write_bytes(b"first")
         staged.temp(tmp_path / "second.png").write_bytes(b"second")
         staged.commit()
-    # first.png was renamed into place before second.png failed: it is removed again.
+    # first.png was renamed into place before second.png failed: it is removed again, and so is the
+    # folder made for it.
     assert sorted(p.name for p in tmp_path.iterdir()) == ["second.png"]
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import stat
 import struct
 import zlib
 from pathlib import Path
@@ -394,6 +395,32 @@ def test_encode_onnx_single_photo(capsys, model, photos, tmp_path) -> None:
     crop = np.asarray(Image.open(tmp_path / "head.crop.png"))
     assert crop.shape == (128, 128, 3)
     assert listing(tmp_path) == {"head.npz", "head.crop.png"}
+
+
+def test_encode_and_the_python_api_write_the_same_permissions(capsys, model, photos, tmp_path) -> None:
+    """``lp3d encode`` and ``save_triplane`` publish through one writer (lp3d.atomic): the outputs get
+    the mode of any new file, ``0666 & ~umask``. The umask 027 is unusual on purpose: its 0640 is
+    neither mkstemp's 0600 nor the common 0644."""
+    old = os.umask(0o027)
+    try:
+        out = tmp_path / "cli.npz"
+        code, _, err = run(
+            capsys,
+            "encode",
+            photos["face_crop"],
+            "-o",
+            out,
+            "--model",
+            model["onnx"],
+            "--no-detect",
+            "--save-crop",
+        )
+        assert code == 0, err
+        save_triplane(tmp_path / "api.npz", load_triplane(out))
+    finally:
+        os.umask(old)
+    modes = {p.name: oct(stat.S_IMODE(p.stat().st_mode)) for p in tmp_path.iterdir()}
+    assert modes == {name: oct(0o640) for name in ("cli.npz", "cli.crop.png", "api.npz")}
 
 
 def test_encode_folder_batch_and_torch_backends(capsys, model, photos, tmp_path) -> None:

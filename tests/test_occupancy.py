@@ -4,6 +4,7 @@ checksum. Small configs (32² rays, 12+12 samples) keep lavapipe fast."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -22,7 +23,7 @@ SAMPLES = {"resolution": R, "depth_resolution": S, "depth_resolution_importance"
 
 
 def native(t: TriplaneData, **kw) -> lp3d_render.Triplane:
-    return lp3d_render.Triplane(t.planes, t.w0, t.b0, t.w1, t.b1, t.box_warp, t.ray_start, t.ray_end, **kw)
+    return dataclasses.replace(t, **kw).to_native()
 
 
 @pytest.fixture(scope="module")

@@ -3,6 +3,7 @@ file round trips across languages, and the conventions shared with the Python pa
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 import threading
 import time
@@ -112,50 +113,33 @@ def test_file_round_trips_across_languages(gpu, tmp_path: Path) -> None:
         py_file = tmp_path / f"py-{np.dtype(dtype).name}.npz"
         cam = pycam.look_at_camera(yaw_deg=12.0)
         occ = np.linspace(0, 1, 4 * 4 * 4, dtype=np.float32).reshape(4, 4, 4)
-        save_triplane(
-            py_file,
-            scene.data.__class__(
-                planes=scene.data.planes,
-                w0=scene.data.w0,
-                b0=scene.data.b0,
-                w1=scene.data.w1,
-                b1=scene.data.b1,
-                box_warp=1.2,
-                ray_start=2.0,
-                ray_end=3.5,
-                camera=cam,
-                occupancy=occ,
-                source="unit test",
-            ),
+        written = dataclasses.replace(
+            scene.data,
+            box_warp=1.2,
+            ray_start=2.0,
+            ray_end=3.5,
+            camera=cam,
+            occupancy=occ,
+            source="unit test",
         )
-        tri = lp3d_render.Triplane.load(py_file)
-        np.testing.assert_array_equal(tri.planes, scene.data.planes)
-        assert tri.planes.dtype == dtype
-        assert (tri.box_warp, tri.ray_start, tri.ray_end) == (
-            np.float32(1.2),
-            np.float32(2.0),
-            np.float32(3.5),
-        )
-        np.testing.assert_allclose(tri.camera, cam, atol=1e-7)
-        np.testing.assert_array_equal(tri.occupancy, occ)
-        assert tri.source == "unit test"
+        save_triplane(py_file, written)
+        loaded = lp3d_render.Triplane.load(py_file)
+        # TriplaneData.to_native hands the renderer the same triplane without a file.
+        for tri in (loaded, written.to_native()):
+            np.testing.assert_array_equal(tri.planes, scene.data.planes)
+            assert tri.planes.dtype == dtype
+            assert (tri.box_warp, tri.ray_start, tri.ray_end) == (
+                np.float32(1.2),
+                np.float32(2.0),
+                np.float32(3.5),
+            )
+            np.testing.assert_allclose(tri.camera, cam, atol=1e-7)
+            np.testing.assert_array_equal(tri.occupancy, occ)
+            assert tri.source == "unit test"
         # And the Rust-loaded triplane renders exactly like the in-memory one.
         np.testing.assert_array_equal(
-            lp3d_render.render(tri, cam, **KW)["rgb"],
-            lp3d_render.render(
-                lp3d_render.Triplane(
-                    scene.data.planes,
-                    scene.data.w0,
-                    scene.data.b0,
-                    scene.data.w1,
-                    scene.data.b1,
-                    1.2,
-                    2.0,
-                    3.5,
-                ),
-                cam,
-                **KW,
-            )["rgb"],
+            lp3d_render.render(loaded, cam, **KW)["rgb"],
+            lp3d_render.render(written.to_native(), cam, **KW)["rgb"],
         )
 
 
@@ -177,10 +161,22 @@ def test_settings_agree_across_languages() -> None:
     assert lp3d_render.MAX_RESOLUTION == settings.MAX_RESOLUTION
     assert lp3d_render.MAX_SAMPLES == settings.MAX_SAMPLES
     assert [tuple(a) for a in lp3d_render.PLANE_AXES] == [tuple(a) for a in PLANE_AXES]
+    # EG3D's FFHQ conventions: one name per language (Rust's module constants, Python's lp3d.camera
+    # and lp3d.settings), and the native signatures' defaults spell those constants.
+    scene = {
+        name: getattr(settings, name) for name in ("DEFAULT_BOX_WARP", "DEFAULT_RAY_START", "DEFAULT_RAY_END")
+    }
+    ffhq = {"FFHQ_FOCAL": pycam.FFHQ_FOCAL, "FFHQ_RADIUS": pycam.FFHQ_RADIUS, "FFHQ_PIVOT": pycam.FFHQ_PIVOT}
+    for name, value in {**scene, **ffhq}.items():
+        assert getattr(lp3d_render, name) == value, name
     tri_sig = inspect.signature(lp3d_render.Triplane)
-    assert tri_sig.parameters["box_warp"].default == settings.DEFAULT_BOX_WARP
-    assert tri_sig.parameters["ray_start"].default == settings.DEFAULT_RAY_START
-    assert tri_sig.parameters["ray_end"].default == settings.DEFAULT_RAY_END
+    assert tri_sig.parameters["box_warp"].default == lp3d_render.DEFAULT_BOX_WARP
+    assert tri_sig.parameters["ray_start"].default == lp3d_render.DEFAULT_RAY_START
+    assert tri_sig.parameters["ray_end"].default == lp3d_render.DEFAULT_RAY_END
+    cam_sig = inspect.signature(lp3d_render.look_at_camera)
+    assert cam_sig.parameters["radius"].default == lp3d_render.FFHQ_RADIUS
+    assert cam_sig.parameters["focal"].default == lp3d_render.FFHQ_FOCAL
+    assert cam_sig.parameters["lookat"].default == lp3d_render.FFHQ_PIVOT
 
 
 @pytest.mark.parametrize(

@@ -141,10 +141,7 @@ def make_decoder(rng: np.random.Generator) -> dict[str, np.ndarray]:
 
 def build(planes: np.ndarray, dec: dict, *, ray_start=2.25, ray_end=3.3, box_warp=1.0) -> Scene:
     data = TriplaneData(planes=planes, **dec, box_warp=box_warp, ray_start=ray_start, ray_end=ray_end)
-    native = lp3d_render.Triplane(
-        data.planes, data.w0, data.b0, data.w1, data.b1, data.box_warp, data.ray_start, data.ray_end
-    )
-    return Scene(data=data, native=native)
+    return Scene(data=data, native=data.to_native())
 
 
 def decoder_at_samples(data: TriplaneData, cameras: np.ndarray, kw: dict, *, float32: bool = False):

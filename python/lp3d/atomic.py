@@ -1,7 +1,8 @@
 """Atomic file writes: a finished file appears whole under its name, or not at all.
 
-Every writer in lp3d goes through here (``lp3d.triplane_io.save_triplane``, the model package, the
-CLI's ``Staged`` outputs, checkpoints, figures), so they share three promises:
+Every writer in lp3d goes through here, one file with :func:`atomic_path` (``save_triplane``, the
+model package, checkpoints, figures) or a set with :class:`StagedFiles` (the CLI's outputs), so they
+share three promises:
 
 * **Unique temporary names.** Each write gets its own new file beside the destination (same folder,
   so the rename is atomic), created with ``O_EXCL``: threads and processes writing the same path at
@@ -21,8 +22,9 @@ import itertools
 import os
 from collections.abc import Iterator, Sequence
 from pathlib import Path
+from typing import TypeVar
 
-__all__ = ["atomic_path", "create_temp", "discard", "publish", "publish_all"]
+__all__ = ["StagedFiles", "atomic_path", "create_temp", "discard", "publish", "publish_all"]
 
 #: Process-wide sequence number for temporary names (``next`` on a count is atomic).
 _sequence = itertools.count()
@@ -112,3 +114,75 @@ def atomic_path(path: str | os.PathLike[str], *, parents: bool = True) -> Iterat
         discard(tmp)
         raise
     publish(tmp, path)
+
+
+_Staged = TypeVar("_Staged", bound="StagedFiles")
+
+
+class StagedFiles:
+    """The multi-file :func:`atomic_path`: files written to temporaries beside their destinations and
+    published together by :meth:`commit` (all or none, :func:`publish_all`).
+
+    Leaving the ``with`` block without committing (an error, Ctrl-C) deletes every temporary file and
+    every folder this object created, so a failed job leaves nothing behind::
+
+        with StagedFiles() as staged:
+            image.save(staged.temp(out / "a.png"))
+            np.save(staged.temp(out / "b.npy"), array)
+            staged.commit()
+    """
+
+    def __init__(self) -> None:
+        self._files: list[tuple[Path, Path]] = []
+        self._dirs: list[Path] = []
+
+    def __enter__(self: _Staged) -> _Staged:
+        return self
+
+    def __exit__(self, exc_type: object, exc: BaseException | None, tb: object) -> None:
+        self.discard()
+
+    def destination(self, path: str | os.PathLike[str] | None) -> Path | None:
+        """The destination whose temporary file (or which itself) is ``path``, else None: to name
+        the output in an error about one of ours (``path`` as in ``OSError.filename``)."""
+        if path is None:
+            return None
+        return next((final for tmp, final in self._files if str(path) in (str(tmp), str(final))), None)
+
+    @property
+    def destinations(self) -> list[Path]:
+        """The destinations staged so far, in order."""
+        return [final for _, final in self._files]
+
+    def mkdir(self, folder: Path) -> None:
+        """Create ``folder`` (its parent must exist); it is removed again on failure if still empty."""
+        if not folder.exists():
+            folder.mkdir()
+            self._dirs.append(folder)
+
+    def temp(self, final: str | os.PathLike[str]) -> Path:
+        """A new temporary file for ``final`` (:func:`create_temp`: same folder, so the rename is
+        atomic; unique to this call; the usual permissions; ``final``'s suffix kept, which writers
+        such as imageio/ffmpeg read the format from)."""
+        final = Path(final)
+        tmp = create_temp(final)
+        self._files.append((tmp, final))
+        return tmp
+
+    def commit(self) -> list[Path]:
+        """Sync every temporary file, then rename each onto its destination; returns the destinations.
+        If a rename fails, the destinations already renamed are removed again (all or none) and the
+        error is re-raised."""
+        files = list(self._files)
+        publish_all(files)
+        self._files, self._dirs = [], []
+        return [final for _, final in files]
+
+    def discard(self) -> None:
+        """Delete every temporary file not yet published and the folders created for them."""
+        for tmp, _ in self._files:
+            discard(tmp)
+        for folder in reversed(self._dirs):
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+        self._files, self._dirs = [], []

@@ -37,12 +37,15 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from lp3d.atomic import create_temp, publish_all
-from lp3d.atomic import discard as discard_temp
+from lp3d.atomic import StagedFiles
+from lp3d.camera import FFHQ_FOCAL, FFHQ_RADIUS
+
+if TYPE_CHECKING:
+    from lp3d.triplane import TriplaneData
 
 PROG = "lp3d"
 
@@ -79,63 +82,30 @@ def _human_bytes(n: int) -> str:
     return f"{size:.1f} GiB"
 
 
-class Staged:
-    """Outputs written to temporary files beside their destinations, published together by :meth:`commit`.
-
-    Leaving the ``with`` block without committing (an error, Ctrl-C) deletes every temporary file and
-    every folder this object created, so a failed command leaves nothing behind.
-    """
-
-    def __init__(self) -> None:
-        self._files: list[tuple[Path, Path]] = []
-        self._dirs: list[Path] = []
-
-    def __enter__(self) -> Staged:
-        return self
+class Staged(StagedFiles):
+    """The CLI's outputs: :class:`lp3d.atomic.StagedFiles` (temporary files beside their
+    destinations, published together by :meth:`commit`, all deleted on failure) whose write errors
+    are one-line :class:`CLIError` messages naming the destination, never a temporary file."""
 
     def __exit__(self, exc_type: object, exc: BaseException | None, tb: object) -> None:
-        finals = {str(tmp): final for tmp, final in self._files}
-        self.discard()
-        if isinstance(exc, OSError) and str(exc.filename) in finals:
-            # Name the destination, not our temporary file.
-            raise CLIError(f"cannot write {finals[str(exc.filename)]}: {exc.strerror or exc}") from exc
+        final = self.destination(exc.filename) if isinstance(exc, OSError) else None
+        super().__exit__(exc_type, exc, tb)
+        if final is not None and isinstance(exc, OSError):
+            raise CLIError(f"cannot write {final}: {exc.strerror or exc}") from exc
 
-    def mkdir(self, folder: Path) -> None:
-        """Create ``folder`` (its parent must exist); it is removed again on failure if still empty."""
-        if not folder.exists():
-            folder.mkdir()
-            self._dirs.append(folder)
-
-    def temp(self, final: Path) -> Path:
-        """A new temporary file for ``final`` in the same folder (so the rename is atomic), unique to
-        this call and with the usual permissions (:func:`lp3d.atomic.create_temp`); it keeps
-        ``final``'s suffix, which imageio/ffmpeg read the format from."""
+    def temp(self, final: str | os.PathLike[str]) -> Path:
         try:
-            tmp = create_temp(final)
+            return super().temp(final)
         except OSError as e:
             raise CLIError(f"cannot write {final}: {e.strerror or e}") from None
-        self._files.append((tmp, final))
-        return tmp
 
     def commit(self) -> list[Path]:
-        """Sync every temporary file, then rename each onto its destination; returns the destinations.
-        If a rename fails, the destinations already renamed are removed again (all or none)."""
-        files, self._files = self._files, []
         try:
-            publish_all(files)
+            return super().commit()
         except OSError as e:
-            failed = next((final for tmp, final in files if str(e.filename) in (str(tmp), str(final))), None)
-            raise CLIError(f"cannot write {failed or files[-1][1]}: {e.strerror or e}") from None
-        self._dirs = []
-        return [final for _, final in files]
-
-    def discard(self) -> None:
-        for tmp, _ in self._files:
-            discard_temp(tmp)
-        for folder in reversed(self._dirs):
-            with contextlib.suppress(OSError):
-                folder.rmdir()
-        self._files, self._dirs = [], []
+            failed = self.destination(e.filename) or self.destinations[-1]
+            self.discard()
+            raise CLIError(f"cannot write {failed}: {e.strerror or e}") from None
 
 
 def check_output(path: Path, suffixes: Sequence[str], what: str = "output") -> Path:
@@ -224,11 +194,11 @@ def render_triplane_file(path: Path) -> Any:
     return tri, renderer().Triplane.load(str(path))
 
 
-def render_triplane(tri: Any) -> Any:
-    """An ``lp3d_render.Triplane`` from a TriplaneData (planes, decoder and bounds)."""
-    return renderer().Triplane(
-        tri.planes, tri.w0, tri.b0, tri.w1, tri.b1, tri.box_warp, tri.ray_start, tri.ray_end
-    )
+def render_triplane(tri: TriplaneData) -> Any:
+    """The ``lp3d_render.Triplane`` of a TriplaneData (:meth:`TriplaneData.to_native`), with a CLI
+    error naming the fix when the renderer is not installed."""
+    renderer()
+    return tri.to_native()
 
 
 def parse_samples(text: str) -> tuple[int, int]:
@@ -324,14 +294,14 @@ def _camera_args(p: argparse.ArgumentParser, *, yaw: float | None = 0.0, pitch: 
     p.add_argument(
         "--radius",
         type=_float_in(0.1, 100.0),
-        default=2.7,
-        help="camera distance from the origin (default: EG3D's 2.7)",
+        default=FFHQ_RADIUS,
+        help="camera distance from the origin (default: EG3D's FFHQ %(default)s)",
     )
     p.add_argument(
         "--focal",
         type=_float_in(0.1, 100.0),
-        default=4.2647,
-        help="normalised focal length (default: EG3D's FFHQ 4.2647)",
+        default=FFHQ_FOCAL,
+        help="normalised focal length (default: EG3D's FFHQ %(default)s)",
     )
 
 

@@ -16,7 +16,14 @@ import numpy as np
 
 from lp3d.camera import validate_camera
 from lp3d.sampling_rng import coarse_jitter, sorted_importance_u
-from lp3d.settings import RenderSettings
+from lp3d.settings import (
+    DENSITY_SHIFT,
+    PDF_EPS,
+    PDF_WEIGHT_FLOOR,
+    SIGMOID_MARGIN,
+    TRANSMITTANCE_EPS,
+    RenderSettings,
+)
 from lp3d.triplane import PLANE_AXES, TriplaneData
 
 #: Rays per chunk in render_reference: bounds the (rays, samples, 32) temporaries to a few tens of MB.
@@ -78,7 +85,7 @@ def sample_stratified(
     return t
 
 
-def sample_pdf(bins: np.ndarray, weights: np.ndarray, u: np.ndarray, *, eps: float = 1e-5) -> np.ndarray:
+def sample_pdf(bins: np.ndarray, weights: np.ndarray, u: np.ndarray, *, eps: float = PDF_EPS) -> np.ndarray:
     """Inverse-CDF samples (..., N) from bin edges (..., nb) and weights (..., nw), nw <= nb - 1 (§9.4).
 
     EG3D's ``sample_pdf``: ``pdf = (w + eps) / sum``, ``cdf = [0, cumsum(pdf)]`` (nw + 1 entries),
@@ -124,7 +131,7 @@ def sample_importance(
         raise ValueError(f"need S >= 4 coarse depths and S-1 weights, got {t.shape} and {w.shape}")
     # max_pool1d(kernel 2, stride 1, padding 1) with -inf padding: m_j = max(w_{j-1}, w_j), S values.
     m = np.concatenate([w[..., :1], np.maximum(w[..., :-1], w[..., 1:]), w[..., -1:]], axis=-1)
-    a = 0.5 * (m[..., :-1] + m[..., 1:]) + 0.01  # avg_pool1d(kernel 2, stride 1): S-1 values
+    a = 0.5 * (m[..., :-1] + m[..., 1:]) + PDF_WEIGHT_FLOOR  # avg_pool1d(kernel 2, stride 1): S-1 values
     mids = 0.5 * (t[..., :-1] + t[..., 1:])
     if u is None:
         u = np.broadcast_to(np.linspace(0.0, 1.0, int(n_importance)), (*t.shape[:-1], int(n_importance)))
@@ -206,7 +213,7 @@ def decode(
     f = np.asarray(features, dtype=np.float64)
     h = softplus(f @ np.asarray(w0, np.float64).T + np.asarray(b0, np.float64))
     o = h @ np.asarray(w1, np.float64).T + np.asarray(b1, np.float64)
-    return o[..., 0], sigmoid(o[..., 1:]) * (1.0 + 2 * 0.001) - 0.001
+    return o[..., 0], sigmoid(o[..., 1:]) * (1.0 + 2 * SIGMOID_MARGIN) - SIGMOID_MARGIN
 
 
 # ---------------------------------------------------------------------------------------------- march
@@ -236,9 +243,9 @@ def march(t: np.ndarray, sigma_raw: np.ndarray, feat: np.ndarray, *, white_back:
     delta = t[..., 1:] - t[..., :-1]
     c_mid = 0.5 * (c[..., :-1, :] + c[..., 1:, :])
     t_mid = 0.5 * (t[..., :-1] + t[..., 1:])
-    sigma = softplus(0.5 * (s[..., :-1] + s[..., 1:]) - 1.0)
+    sigma = softplus(0.5 * (s[..., :-1] + s[..., 1:]) - DENSITY_SHIFT)
     alpha = -np.expm1(-sigma * delta)  # exact for tiny sigma*delta, where 1 - exp(-x) rounds to 0
-    shifted = np.concatenate([np.ones_like(alpha[..., :1]), (1.0 - alpha) + 1e-10], axis=-1)
+    shifted = np.concatenate([np.ones_like(alpha[..., :1]), (1.0 - alpha) + TRANSMITTANCE_EPS], axis=-1)
     T = np.cumprod(shifted, axis=-1)[..., :-1]
     weights = alpha * T
     W = weights.sum(axis=-1)

@@ -49,9 +49,14 @@ from lp3d.settings import (
     DEFAULT_BOX_WARP,
     DEFAULT_RAY_END,
     DEFAULT_RAY_START,
+    DENSITY_SHIFT,
     HIDDEN,
     N_CHANNELS,
     N_OUT,
+    PDF_EPS,
+    PDF_WEIGHT_FLOOR,
+    SIGMOID_MARGIN,
+    TRANSMITTANCE_EPS,
     RenderSettings,
 )
 from lp3d.triplane import PLANE_AXES, TriplaneData
@@ -79,15 +84,6 @@ __all__ = [
 #: about 2 GB without autograd; gradients keep every chunk's graph alive, so chunking bounds memory
 #: only for inference renders (e.g. 512² previews), never for training steps.
 DEFAULT_RAY_CHUNK = 32768
-
-#: Added to the transmittance factor (1 - alpha), as EG3D's MipRayMarcher2 does.
-_TRANSMITTANCE_EPS = 1e-10
-#: Added to the smoothed coarse weights before sampling the PDF.
-_PDF_WEIGHT_FLOOR = 0.01
-#: MipNeRF's sigmoid clamp: features lie in (-_SIGMOID_MARGIN, 1 + _SIGMOID_MARGIN).
-_SIGMOID_MARGIN = 0.001
-#: Activation bias of the density: sigma = softplus(raw - 1).
-_DENSITY_SHIFT = 1.0
 
 
 class TriplaneLike(Protocol):
@@ -184,7 +180,7 @@ def sample_stratified(
     return t
 
 
-def sample_pdf(bins: Tensor, weights: Tensor, u: Tensor, *, eps: float = 1e-5) -> Tensor:
+def sample_pdf(bins: Tensor, weights: Tensor, u: Tensor, *, eps: float = PDF_EPS) -> Tensor:
     """Inverse-CDF samples (n, N) from bin edges (n, nb) and weights (n, nw), nw <= nb - 1 (§9.4).
 
     EG3D's ``sample_pdf``: ``pdf = (w + eps) / sum``, ``cdf = [0, cumsum(pdf)]`` (nw + 1 entries),
@@ -240,7 +236,7 @@ def sample_importance(
         t = t_coarse.reshape(-1, n_coarse)
         w = coarse_weights.reshape(-1, 1, n_coarse - 1)
         w = F.max_pool1d(w, 2, 1, padding=1)
-        w = F.avg_pool1d(w, 2, 1).squeeze(1) + _PDF_WEIGHT_FLOOR
+        w = F.avg_pool1d(w, 2, 1).squeeze(1) + PDF_WEIGHT_FLOOR
         mids = 0.5 * (t[:, :-1] + t[:, 1:])
         if u is None:
             flat_u = torch.linspace(0, 1, n_importance, dtype=t.dtype).to(t.device).expand(t.shape[0], -1)
@@ -293,7 +289,7 @@ def decode(features: Tensor, w0: Tensor, b0: Tensor, w1: Tensor, b1: Tensor) -> 
     """
     hidden = F.softplus(F.linear(features, w0, b0))  # beta 1, threshold 20: torch.nn.Softplus defaults
     out = F.linear(hidden, w1, b1)
-    feat = torch.sigmoid(out[..., 1:]) * (1 + 2 * _SIGMOID_MARGIN) - _SIGMOID_MARGIN
+    feat = torch.sigmoid(out[..., 1:]) * (1 + 2 * SIGMOID_MARGIN) - SIGMOID_MARGIN
     return out[..., 0], feat
 
 
@@ -319,11 +315,11 @@ def march(t: Tensor, sigma_raw: Tensor, feat: Tensor, *, white_back: bool = Fals
     delta = t[..., 1:] - t[..., :-1]
     feat_mid = (feat[..., :-1, :] + feat[..., 1:, :]) / 2
     t_mid = (t[..., :-1] + t[..., 1:]) / 2
-    sigma = F.softplus((sigma_raw[..., :-1] + sigma_raw[..., 1:]) / 2 - _DENSITY_SHIFT)
+    sigma = F.softplus((sigma_raw[..., :-1] + sigma_raw[..., 1:]) / 2 - DENSITY_SHIFT)
     # 1 - exp(-x), written as -expm1(-x): the same function, but accurate in float32 for the tiny x of
     # near-empty space, where 1 - exp(-x) loses most digits (and with them the depth of faint rays).
     alpha = -torch.expm1(-sigma * delta)
-    shifted = torch.cat([torch.ones_like(alpha[..., :1]), 1 - alpha + _TRANSMITTANCE_EPS], dim=-1)
+    shifted = torch.cat([torch.ones_like(alpha[..., :1]), 1 - alpha + TRANSMITTANCE_EPS], dim=-1)
     weights = alpha * torch.cumprod(shifted, dim=-1)[..., :-1]
 
     weights_sum = weights.sum(dim=-1)

@@ -73,7 +73,20 @@ class RenderSettings:
             raise ValueError(f"seed must be an int in [0, 2**32), got {self.seed!r}")
 
 
-#: EG3D FFHQ scene defaults (stored per triplane file).
+#: EG3D FFHQ scene defaults (stored per triplane file; ``lp3d_render.DEFAULT_*`` agree, a test checks).
 DEFAULT_BOX_WARP = 1.0
 DEFAULT_RAY_START = 2.25
 DEFAULT_RAY_END = 3.3
+
+# EG3D's fixed numerics, one name each for the float64 reference and the torch twin (the WGSL
+# kernels spell the same names; docs/numerics.md).
+#: MipNeRF's sigmoid clamp in EG3D's OSGDecoder: ``feat = sigmoid(o) * (1 + 2 m) - m``.
+SIGMOID_MARGIN = 0.001
+#: Activation bias of the density in MipRayMarcher2: ``sigma = softplus(sigma_raw - 1)``.
+DENSITY_SHIFT = 1.0
+#: Added to the transmittance factor ``1 - alpha`` (MipRayMarcher2's exclusive cumprod).
+TRANSMITTANCE_EPS = 1e-10
+#: Added to the smoothed coarse weights before they become the importance pdf.
+PDF_WEIGHT_FLOOR = 0.01
+#: EG3D ``sample_pdf``'s eps: added to each weight, and the smallest cdf step divided by.
+PDF_EPS = 1e-5

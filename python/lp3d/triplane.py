@@ -11,12 +11,15 @@ from __future__ import annotations
 import math
 import zlib
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from lp3d.camera import validate_camera
 from lp3d.settings import DEFAULT_BOX_WARP, DEFAULT_RAY_END, DEFAULT_RAY_START, HIDDEN, N_CHANNELS, N_OUT
+
+if TYPE_CHECKING:
+    import lp3d_render
 
 #: World axes (u, v) each plane samples, in EG3D's plane order: plane 0 reads (x, y), plane 1 (x, z)
 #: and plane 2 (z, x). ``u`` indexes W (columns), ``v`` indexes H (rows).
@@ -127,6 +130,27 @@ class TriplaneData:
                 occ = occ.astype(np.float32, copy=False)
             set_(self, "occupancy", occ)
         self.validate()
+
+    def to_native(self) -> lp3d_render.Triplane:
+        """This triplane as an ``lp3d_render.Triplane``, the GPU renderer's handle: planes (dtype
+        kept), decoder, bounds and the optional camera, source and occupancy grid, so the handle
+        renders and saves exactly what this value holds. Raises ImportError without ``lp3d_render``
+        (imported here: this module works without the renderer, which creates the GPU device)."""
+        import lp3d_render
+
+        return lp3d_render.Triplane(
+            self.planes,
+            self.w0,
+            self.b0,
+            self.w1,
+            self.b1,
+            self.box_warp,
+            self.ray_start,
+            self.ray_end,
+            camera=self.camera,
+            source=self.source,
+            occupancy=self.occupancy,
+        )
 
     @property
     def resolution(self) -> tuple[int, int]:

@@ -12,6 +12,12 @@ See ``docs/triplane-format.md`` for the file format and ``lp3d.camera`` for came
 """
 
 from lp3d_render._lp3d_render import (
+    DEFAULT_BOX_WARP,
+    DEFAULT_RAY_END,
+    DEFAULT_RAY_START,
+    FFHQ_FOCAL,
+    FFHQ_PIVOT,
+    FFHQ_RADIUS,
     FILE_LIMITS,
     FORMAT_VERSION,
     MAX_RESOLUTION,
@@ -27,6 +33,12 @@ from lp3d_render._lp3d_render import (
 )
 
 __all__ = [
+    "DEFAULT_BOX_WARP",
+    "DEFAULT_RAY_END",
+    "DEFAULT_RAY_START",
+    "FFHQ_FOCAL",
+    "FFHQ_PIVOT",
+    "FFHQ_RADIUS",
     "FILE_LIMITS",
     "FORMAT_VERSION",
     "MAX_RESOLUTION",

@@ -1,4 +1,4 @@
-"""Type stubs for the native module; tests/test_stubs.py checks them against the runtime."""
+"""Type stubs for the native module; tests/test_stubs_and_packaging.py checks them against the runtime."""
 
 from collections.abc import Iterable
 from os import PathLike
@@ -9,6 +9,13 @@ import numpy.typing as npt
 MAX_RESOLUTION: int
 MAX_SAMPLES: int
 PLANE_AXES: list[tuple[int, int]]
+#: EG3D FFHQ conventions, the defaults of Triplane and look_at_camera (lp3d.camera, lp3d.settings agree).
+FFHQ_FOCAL: float
+FFHQ_RADIUS: float
+FFHQ_PIVOT: tuple[float, float, float]
+DEFAULT_BOX_WARP: float
+DEFAULT_RAY_START: float
+DEFAULT_RAY_END: float
 FORMAT_VERSION: int
 #: The triplane file's caps (docs/triplane-format.md, "Caps"), by name.
 FILE_LIMITS: dict[str, int]

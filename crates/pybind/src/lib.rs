@@ -9,6 +9,7 @@ use std::hash::BuildHasher;
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex, OnceLock};
 
+use lp3d_renderer::camera::{FFHQ_FOCAL, FFHQ_PIVOT, FFHQ_RADIUS};
 use lp3d_renderer::settings::{MAX_RESOLUTION, MAX_SAMPLES};
 use lp3d_renderer::triplane::{HIDDEN, N_CHANNELS, N_OUT};
 use lp3d_renderer::{
@@ -25,6 +26,13 @@ use convert::{
     Arg,
 };
 use error::{invalid, to_py};
+
+/// EG3D FFHQ's scene bounds (``rendering_kwargs``): the defaults of ``Triplane(...)``. Exposed as
+/// module constants; ``lp3d.settings.DEFAULT_*`` must agree (tests/test_render_api.py checks, and
+/// that the text signatures below spell the same values).
+const DEFAULT_BOX_WARP: f64 = 1.0;
+const DEFAULT_RAY_START: f64 = 2.25;
+const DEFAULT_RAY_END: f64 = 3.3;
 
 struct Gpu {
     info: lp3d_renderer::device::GpuContext,
@@ -101,8 +109,9 @@ fn f32_array<'py>(py: Python<'py>, data: &[f32], shape: &[usize]) -> PyResult<Bo
 impl Triplane {
     #[new]
     #[pyo3(
-        signature = (planes, w0, b0, w1, b1, box_warp=Arg::Default(1.0), ray_start=Arg::Default(2.25),
-                     ray_end=Arg::Default(3.3), *, camera=None, source=None, occupancy=None),
+        signature = (planes, w0, b0, w1, b1, box_warp=Arg::Default(DEFAULT_BOX_WARP),
+                     ray_start=Arg::Default(DEFAULT_RAY_START), ray_end=Arg::Default(DEFAULT_RAY_END), *,
+                     camera=None, source=None, occupancy=None),
         text_signature = "(planes, w0, b0, w1, b1, box_warp=1.0, ray_start=2.25, ray_end=3.3, *, camera=None, source=None, occupancy=None)"
     )]
     #[allow(clippy::too_many_arguments)]
@@ -408,7 +417,8 @@ fn render<'py>(
 #[pyfunction]
 #[pyo3(
     signature = (*, yaw_deg=Arg::Default(0.0), pitch_deg=Arg::Default(0.0), roll_deg=Arg::Default(0.0),
-                 radius=Arg::Default(2.7), lookat=(0.0, 0.0, 0.2), focal=Arg::Default(4.2647)),
+                 radius=Arg::Default(FFHQ_RADIUS), lookat=(FFHQ_PIVOT[0], FFHQ_PIVOT[1], FFHQ_PIVOT[2]),
+                 focal=Arg::Default(FFHQ_FOCAL)),
     text_signature = "(*, yaw_deg=0.0, pitch_deg=0.0, roll_deg=0.0, radius=2.7, lookat=(0.0, 0.0, 0.2), focal=4.2647)"
 )]
 fn look_at_camera<'py>(
@@ -523,6 +533,12 @@ fn _lp3d_render(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(view, m)?)?;
     m.add("MAX_RESOLUTION", MAX_RESOLUTION)?;
     m.add("MAX_SAMPLES", MAX_SAMPLES)?;
+    m.add("FFHQ_FOCAL", FFHQ_FOCAL)?;
+    m.add("FFHQ_RADIUS", FFHQ_RADIUS)?;
+    m.add("FFHQ_PIVOT", (FFHQ_PIVOT[0], FFHQ_PIVOT[1], FFHQ_PIVOT[2]))?;
+    m.add("DEFAULT_BOX_WARP", DEFAULT_BOX_WARP)?;
+    m.add("DEFAULT_RAY_START", DEFAULT_RAY_START)?;
+    m.add("DEFAULT_RAY_END", DEFAULT_RAY_END)?;
     m.add("PLANE_AXES", lp3d_renderer::triplane::PLANE_AXES.map(|a| (a[0], a[1])).to_vec())?;
     m.add("FORMAT_VERSION", lp3d_renderer::triplane::FORMAT_VERSION)?;
     // The triplane file's caps by name; lp3d.triplane_io.FILE_LIMITS must agree (a test checks).

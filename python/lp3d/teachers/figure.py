@@ -41,11 +41,8 @@ def render_sheet(
     images = []
     for seed in seeds:
         tri = teacher.sample(int(seed))
-        native = lp3d_render.Triplane(
-            tri.planes, tri.w0, tri.b0, tri.w1, tri.b1, tri.box_warp, tri.ray_start, tri.ray_end
-        )
         out = lp3d_render.render(
-            native,
+            tri.to_native(),
             cams,
             resolution=resolution,
             depth_resolution=depth_resolution,
