@@ -39,6 +39,10 @@ from lp3d.camera import look_at_camera
 from lp3d.teachers import ProceduralTeacher
 from render_bench import scene as random_scene  # bench/ is on sys.path when run as a script
 
+# Time the steady state: the fast kernel, not the quick one the renderer draws with while the fast
+# one compiles in the background on a machine whose shader cache lacks it (README, "first render").
+os.environ.setdefault("LP3D_KERNEL", "fast")
+
 
 def median_s(fn: Callable[[], object], repeats: int) -> float:
     times = []
@@ -149,7 +153,7 @@ def main(argv: list[str] | None = None) -> int:
             features, depth, _ = renderer(planes, decoder, origins, directions, options)
         return features, depth
 
-    tri = lp3d_render.Triplane(head.planes, w0, b0, w1, b1, head.box_warp, head.ray_start, head.ray_end)
+    tri = head.to_native()
 
     def lp3d() -> dict[str, np.ndarray]:
         return lp3d_render.render(

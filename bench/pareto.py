@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import statistics
 import sys
 import time
@@ -27,6 +28,10 @@ from lp3d.camera import look_at_camera
 from lp3d.teachers import ProceduralTeacher
 from lp3d.triplane import TriplaneData
 from lp3d.triplane_io import load_triplane
+
+# Time the steady state: the fast kernel, not the quick one the renderer draws with while the fast
+# one compiles in the background on a machine whose shader cache lacks it (README, "first render").
+os.environ.setdefault("LP3D_KERNEL", "fast")
 
 
 @dataclass(frozen=True)
@@ -86,7 +91,7 @@ def fog(seed: int = 0, size: int = 64) -> TriplaneData:
 
 
 def native(t: TriplaneData):
-    return lp3d_render.Triplane(t.planes, t.w0, t.b0, t.w1, t.b1, t.box_warp, t.ray_start, t.ray_end)
+    return t.to_native()
 
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
