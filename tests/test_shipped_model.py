@@ -17,7 +17,8 @@ MAX_BYTES = 25_000_000
 
 
 def test_the_shipped_files_exist_and_fit_the_budget() -> None:
-    for name in ("small.onnx", "small.json", "small.pt", "small.eval.json", "README.md"):
+    shipped = ("small.onnx", "small.json", "small.pt", "small.superres.onnx", "small.eval.json", "README.md")
+    for name in shipped:
         assert (MODELS / name).is_file(), f"{MODELS / name} is missing from the installed package"
     for name in ("small.onnx", "small.pt"):
         size = (MODELS / name).stat().st_size
@@ -47,3 +48,36 @@ def test_onnx_and_float16_torch_weights_agree() -> None:
     assert np.isfinite(a).all()
     # float16 weights against the float32 graph: ~1e-3 of the range (tests/test_export.py measures it).
     assert np.abs(a - b).max() <= 5e-3 * np.abs(a).max()
+
+
+def test_the_shipped_super_resolution_matches_its_torch_form() -> None:
+    """small.superres.onnx against the same network built from small.pt's float16 state (export's
+    parity bound, 1e-3)."""
+    pytest.importorskip("torch")
+    from lp3d.inference import load_superres
+
+    onnx_sr, torch_sr = load_superres(DEFAULT_MODEL), load_superres(MODELS / "small.pt")
+    assert onnx_sr is not None and torch_sr is not None, "the shipped package has no super-resolution"
+    features = np.random.default_rng(1).normal(0, 1, (1, 32, 64, 64)).astype(np.float32)
+    a, b = onnx_sr(features), torch_sr(features)
+    assert a.shape == (1, 3, 256, 256) and np.isfinite(a).all()
+    assert np.abs(a - b).max() <= 1e-3
+
+
+def test_orbit_of_a_shipped_model_head_writes_super_resolved_frames(tmp_path, capsys) -> None:
+    """Issue 10: ``lp3d orbit`` on a head the shipped model made writes its SR's 256² frames."""
+    from PIL import Image
+
+    from lp3d.cli import main
+    from lp3d.triplane_io import save_triplane
+
+    encoder = load_encoder(DEFAULT_MODEL)
+    image = np.random.default_rng(2).uniform(-1, 1, (1, 3, 128, 128)).astype(np.float32)
+    save_triplane(tmp_path / "head.npz", encoder.package.triplane(encoder.run(image)[0]))
+    code = main(["orbit", str(tmp_path / "head.npz"), "-o", str(tmp_path / "o.gif"), "--frames", "3",
+                 "--samples", "8+8"])  # fmt: skip
+    out = capsys.readouterr().out
+    assert code == 0
+    assert "super-resolved by the shipped model's small.superres.onnx" in out
+    gif = Image.open(tmp_path / "o.gif")
+    assert gif.n_frames == 3 and gif.size == (256, 256)
