@@ -147,10 +147,116 @@ def bad_npz(tmp_path: Path, sphere: Path) -> dict[str, Path]:
 def test_help_for_every_command(capsys) -> None:
     code, out, _ = run(capsys, "--help")
     assert code == 0
-    for cmd in ("encode", "render", "orbit", "mesh", "info", "video", "demo"):
+    commands = (
+        "encode",
+        "render",
+        "orbit",
+        "mesh",
+        "info",
+        "video",
+        "view",
+        "demo",
+        "train",
+        "eval",
+        "export",
+    )
+    for cmd in commands:
         assert cmd in out
         code, out_cmd, _ = run(capsys, cmd, "--help")
         assert code == 0 and out_cmd.startswith(f"usage: lp3d {cmd}"), cmd
+
+
+def test_train_eval_export_are_the_module_commands() -> None:
+    """``lp3d train|eval|export`` take ``python -m lp3d.train|eval|export``'s options (one definition)."""
+    import argparse
+
+    import lp3d.eval
+    import lp3d.export
+    import lp3d.train
+    from lp3d.cli import build_parser
+
+    def options(parser: argparse.ArgumentParser) -> list[tuple[object, ...]]:
+        return [(a.dest, tuple(a.option_strings), a.default, a.nargs, a.choices) for a in parser._actions]
+
+    for name, module in (("train", lp3d.train), ("eval", lp3d.eval), ("export", lp3d.export)):
+        (sub,) = [a for a in build_parser(name)._actions if isinstance(a, argparse._SubParsersAction)]
+        ours, theirs = sub.choices[name], module.build_parser()
+        assert len(options(theirs)) > 3 and options(ours) == options(theirs), name
+        assert ours.description == theirs.description and ours.prog == f"lp3d {name}"
+
+
+def test_one_exit_code_policy_for_every_entry_point(capsys, tmp_path) -> None:
+    """0 ok, 1 a runtime error (one line, no traceback), 2 a usage error: in ``lp3d`` and in the
+    ``python -m lp3d.train|eval|export`` aliases alike."""
+    from lp3d.eval import main as eval_main
+    from lp3d.export import main as export_main
+    from lp3d.train import main as train_main
+
+    missing = tmp_path / "missing.pt"
+    for argv in (["export", missing, "-o", tmp_path / "y.onnx"], ["eval", missing, "--baseline-steps", "0"]):
+        code, _, err = run(capsys, *argv)
+        assert code == 1 and "no such file" in err and len(err.strip().splitlines()) == 1, (argv, err)
+    assert export_main([str(missing), "-o", str(tmp_path / "y.onnx")]) == 1
+    assert eval_main([str(missing)]) == 1
+    assert train_main(["--dist-timeout", "-1"]) == 1
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "--dist-timeout must be a positive number" in err
+    # Usage errors, found by argparse or after it (flags that exclude each other).
+    usage = (
+        ["export"],  # neither a checkpoint nor --package
+        ["export", missing],  # no -o
+        ["export", missing, "-o", "x.onnx", "--superres", "a.pt", "--no-superres"],
+        ["eval", missing, "--n-identities", "0"],
+        ["train", "--config", "no-such-config"],
+    )
+    for argv in usage:
+        code, _, err = run(capsys, *argv)
+        assert code == 2 and err.startswith("usage: lp3d ") and f"lp3d {argv[0]}: error:" in err, (argv, err)
+    assert export_main([]) == 2 and eval_main(["x.pt", "--n-identities", "0"]) == 2
+    assert train_main(["--config", "no-such-config"]) == 2
+    assert not list(tmp_path.iterdir())
+
+
+def test_python_m_lp3d_cli_and_the_import_graph(tmp_path) -> None:
+    """``python -m lp3d.cli`` is ``lp3d``; importing the command line loads no torch (train, eval and
+    export import it only when named); and no library module imports the command line."""
+    import ast
+    import os
+    import subprocess
+    import sys
+
+    import lp3d
+
+    code = "import sys, lp3d.cli; assert 'torch' not in sys.modules; sys.exit(lp3d.cli.main(sys.argv[1:]))"
+    done = subprocess.run(
+        [sys.executable, "-c", code, "info", str(tmp_path / "no.npz")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 1 and done.stderr == f"lp3d info: error: {tmp_path / 'no.npz'}: no such file\n"
+    done = subprocess.run(
+        [sys.executable, "-m", "lp3d.cli", "--version"], capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0 and done.stdout.startswith("lp3d "), done.stderr
+
+    root = Path(lp3d.__file__).parent
+    entry_points = {root / "demo.py", root / "view.py"}  # aliases of lp3d demo and lp3d view
+    offenders = []
+    for path in root.rglob("*.py"):
+        if root / "cli" in path.parents or path in entry_points:
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = (
+                [a.name for a in node.names]
+                if isinstance(node, ast.Import)
+                else [f"{node.module}.{a.name}" for a in node.names]
+                if isinstance(node, ast.ImportFrom) and node.module
+                else []
+            )
+            if any(n == "lp3d.cli" or n.startswith("lp3d.cli.") for n in names):
+                offenders.append(os.path.relpath(path, root))
+    assert not offenders, f"library modules importing lp3d.cli: {offenders}"
 
 
 def test_usage_errors_exit_2(capsys, sphere) -> None:

@@ -459,7 +459,7 @@ def test_an_eg3d_run_resumes_and_evaluates_without_being_told_the_teacher_again(
     ckpt = load_checkpoint(run)
     assert ckpt["step"] == 2 and json.loads(ckpt["teacher_args"]) == recorded
     # A resumed run keeps its teacher: another conditioning is refused.
-    assert train_main(["--resume", str(run), "--eg3d-conditioning", "gen_videos", "--no-progress"]) == 2
+    assert train_main(["--resume", str(run), "--eg3d-conditioning", "gen_videos", "--no-progress"]) == 1
     settings = EvalSettings(n_identities=2, baseline_steps=0, timing_repeats=1)
     report_path, _, _ = eval_run(run, out=tmp_path / "eval", settings=settings)
     assert report_path.is_file()

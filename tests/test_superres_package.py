@@ -569,19 +569,19 @@ def test_export_guards_on_fits(package, tmp_path, capsys) -> None:
     worse = dict(ckpt, report=json.dumps({**json.loads(ckpt["report"]), "gain_db": -0.5}))
     torch.save(worse, tmp_path / "worse.pt")
     code, err = export(tmp_path / "worse.pt")
-    assert code == 2 and "does not beat bilinear upsampling" in err
+    assert code == 1 and "does not beat bilinear upsampling" in err
     torch.save(dict(ckpt, step=2), tmp_path / "unfinished.pt")
     code, err = export(tmp_path / "unfinished.pt")
-    assert code == 2 and "stopped at step 2 of 4" in err
+    assert code == 1 and "stopped at step 2 of 4" in err
     torch.save(
         dict(ckpt, model=json.dumps({**json.loads(ckpt["model"]), "decoder_sha256": "0" * 64})),
         tmp_path / "other.pt",
     )
     code, err = export(tmp_path / "other.pt")
-    assert code == 2 and "another decoder" in err
+    assert code == 1 and "another decoder" in err
     (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
     code, err = export(tmp_path / "junk.pt")
-    assert code == 2 and "junk.pt" in err
+    assert code == 1 and "junk.pt" in err
     assert load_model_package(target / "tiny.onnx").superres is None  # nothing was added
     assert not superres_path(target / "tiny.onnx").exists()
 

@@ -1,250 +1,40 @@
-"""``lp3d demo``: photo in, 3D out, with the shipped model.
-
-Two portraits are lifted to triplanes by the encoder (onnxruntime) and rendered by ``lp3d_render``:
-
-* **a teacher portrait**: a held-out identity of the built-in procedural teacher (a seed the model
-  never trained on), rendered frontally at the encoder's input size, the framing it was trained on.
-  Its own triplane is rendered beside the student's, so the two can be compared view by view;
-* **a real photo**: scikit-image's astronaut (Eileen Collins, NASA, public domain), with the face
-  detected and cropped exactly as ``lp3d encode`` does. The shipped model was distilled from the
-  *procedural* teacher, so it lifts stylised heads; on a real photo it shows how far that domain
-  reaches (a model distilled from EG3D is what lifts real portraits; see the README).
-
-Outputs (in ``--out``, written atomically): ``<name>.npz`` triplanes, ``<name>.crop.png`` encoder
-inputs, ``side_by_side.png`` (input | views from yaw -35° to 35°; the teacher's own views under its
-row) and ``orbit.gif`` (both heads turning). When the model package has a super-resolution network,
-the lifted heads' views are its images (at its output size unless ``--resolution`` says otherwise);
-``--raw`` shows the plain volume renders. The teacher's own views are always its volume renders.
-
-    lp3d demo --out demo_out          (also: python -m lp3d.demo)
-"""
+"""``python -m lp3d.demo``: an alias of ``lp3d demo`` (photo in, 3D out, with the shipped model). The
+demo itself is :mod:`lp3d.cli.demo`; its names stay importable from here."""
 
 from __future__ import annotations
 
-import argparse
 import sys
-import time
-from dataclasses import dataclass
-from pathlib import Path
-from typing import Any
 
-import numpy as np
+from lp3d.cli import demo as _command
+from lp3d.cli import standalone_parser
+from lp3d.cli.demo import (
+    ORBIT_BATCH,
+    TEACHER_SEED,
+    VIEW_YAWS,
+    Portrait,
+    add_arguments,
+    astronaut_portrait,
+    run,
+    teacher_portrait,
+)
+from lp3d.errors import run_command
 
-#: The teacher portrait: the first held-out evaluation identity (``TrainConfig.eval_seed_start``).
-TEACHER_SEED = 1_000_000
-#: Yaws of the side-by-side views, degrees.
-VIEW_YAWS = (-35.0, -15.0, 0.0, 15.0, 35.0)
-#: Orbit frames per render call (a batch keeps the progress bar moving and the memory small).
-ORBIT_BATCH = 6
-
-
-@dataclass
-class Portrait:
-    """One demo input: its name, the encoder input crop (S, S, 3) uint8, how it was made, and (for the
-    teacher portrait) the teacher's own triplane."""
-
-    name: str
-    crop: np.ndarray
-    description: str
-    truth: Any = None  # lp3d.triplane.TriplaneData
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The demo's options (``lp3d demo`` and ``python -m lp3d.demo``)."""
-    from lp3d.cli import _int_in, _resolution, parse_samples
-
-    p.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder (default: %(default)s)")
-    p.add_argument(
-        "--model",
-        type=Path,
-        default=None,
-        help="MODEL.onnx (with MODEL.json) or a training CHECKPOINT.pt (default: the shipped model)",
-    )
-    p.add_argument(
-        "--resolution",
-        type=_resolution,
-        default=None,
-        help="pixels per image side (default: the super-resolution network's output size, else 128)",
-    )
-    p.add_argument(
-        "--raw", action="store_true", help="show raw volume renders, not the super-resolved images"
-    )
-    p.add_argument(
-        "--samples",
-        type=parse_samples,
-        default=(24, 24),
-        help="coarse+fine samples per ray, e.g. 48+48 (default: 24+24, quick on a CPU)",
-    )
-    p.add_argument("--frames", type=_int_in(2, 720), default=24, help="orbit frames (default: 24)")
-
-
-def teacher_portrait(size: int, samples: tuple[int, int]) -> Portrait:
-    """The procedural teacher's held-out identity, rendered frontally at ``size``² by lp3d_render."""
-    import lp3d_render
-    from lp3d.camera import look_at_camera
-    from lp3d.cli import render_triplane
-    from lp3d.images import rgb_to_uint8
-    from lp3d.teachers.procedural import ProceduralTeacher
-
-    truth = ProceduralTeacher().sample(TEACHER_SEED)
-    out = lp3d_render.render(
-        render_triplane(truth),
-        look_at_camera(),
-        resolution=size,
-        depth_resolution=samples[0],
-        depth_resolution_importance=samples[1],
-        outputs=["rgb"],
-    )
-    crop = rgb_to_uint8(out["rgb"])
-    return Portrait("teacher_portrait", crop, f"procedural teacher, held-out seed {TEACHER_SEED}", truth)
-
-
-def astronaut_portrait(size: int) -> Portrait:
-    """scikit-image's astronaut, face detected, levelled and cropped as ``lp3d encode`` does."""
-    from skimage import data
-
-    from lp3d.cli import prepare_photo
-
-    crop, desc = prepare_photo(data.astronaut(), size, detect=True, name="skimage astronaut")
-    return Portrait("astronaut", crop, f"scikit-image astronaut: {desc}")
-
-
-def _views(tri: Any, cams: np.ndarray, resolution: int, samples: tuple[int, int]) -> list[np.ndarray]:
-    """RGB (R, R, 3) uint8 of an ``lp3d_render.Triplane`` from cameras (B, 25), in one batched render."""
-    import lp3d_render
-    from lp3d.images import rgb_to_uint8
-
-    out = lp3d_render.render(
-        tri,
-        cams,
-        resolution=resolution,
-        depth_resolution=samples[0],
-        depth_resolution_importance=samples[1],
-        outputs=["rgb"],
-    )
-    return [rgb_to_uint8(rgb) for rgb in out["rgb"]]
-
-
-def _fit(image: np.ndarray, size: int) -> np.ndarray:
-    from PIL import Image
-
-    return np.asarray(Image.fromarray(image).resize((size, size), Image.Resampling.BICUBIC))
-
-
-def _label(image: np.ndarray, text: str) -> np.ndarray:
-    """``image`` with a caption strip above it (PIL's built-in font, no font files needed)."""
-    from PIL import Image, ImageDraw
-
-    h, w = image.shape[:2]
-    canvas = Image.new("RGB", (w, h + 14), (255, 255, 255))
-    canvas.paste(Image.fromarray(image), (0, 14))
-    ImageDraw.Draw(canvas).text((3, 1), text, fill=(0, 0, 0))
-    return np.asarray(canvas)
-
-
-def run(args: argparse.Namespace) -> int:
-    """The demo; raises :class:`lp3d.cli.CLIError` (or a ValueError) with a clear message."""
-    from lp3d.camera import look_at_camera
-    from lp3d.cli import (
-        Staged,
-        VideoWriter,
-        _describe_size,
-        _model_path,
-        final_images,
-        orbit_angles,
-        progress,
-        render_triplane,
-        renderer,
-    )
-    from lp3d.images import save_png, tile
-    from lp3d.inference import load_encoder
-    from lp3d.photo import to_encoder_input
-    from lp3d.triplane_io import save_triplane
-
-    model = _model_path(args.model)
-    t0 = time.perf_counter()
-    encoder = load_encoder(model, superres=not args.raw)
-    pkg, sr = encoder.package, encoder.superres
-    info = renderer().adapter_info()
-    print(f"renderer: {info['name']} ({info['backend']}, {info['device_type']})")
-    print(
-        f"model: {encoder.description}, config {pkg.config_name!r}, {pkg.image_size}² -> "
-        f"{pkg.triplane_resolution}² triplane, loaded in {time.perf_counter() - t0:.2f} s"
-    )
-    r, samples = args.resolution or (sr.output_resolution if sr is not None else 128), args.samples
-    if args.raw:
-        how = "raw volume renders (--raw)"
-    elif sr is not None:
-        how = f"super-resolved by {sr.description}"
-    else:
-        how = "raw volume renders (the model has no super-resolution network)"
-    print(f"views: {_describe_size(sr, r)}; {how}")
-    print("preparing the inputs (the first render compiles the shader: up to a few minutes on a CPU)")
-    portraits = [teacher_portrait(pkg.image_size, samples), astronaut_portrait(pkg.image_size)]
-    for p in portraits:
-        print(f"  {p.name}: {p.description}")
-
-    t0 = time.perf_counter()
-    planes = encoder.run(to_encoder_input(np.stack([p.crop for p in portraits])))
-    ms = (time.perf_counter() - t0) * 1e3 / len(portraits)
-    print(f"encoded {len(portraits)} portraits: {ms:.0f} ms per image ({encoder.backend})")
-    lifted = [
-        pkg.triplane(plane, source=f"lp3d demo: {p.description} (model {pkg.config_name})")
-        for p, plane in zip(portraits, planes, strict=True)
-    ]
-
-    # Side by side: input | student views; the teacher's own views under the teacher portrait's row.
-    cams = np.stack([look_at_camera(yaw_deg=y) for y in VIEW_YAWS])
-    t0 = time.perf_counter()
-    native = [render_triplane(tri) for tri in lifted]  # uploaded once, rendered many times
-    rows: list[np.ndarray] = []
-    for p, tri in zip(portraits, native, strict=True):
-        views = final_images(tri, cams, args, sr, r)[0]
-        rows += [_label(_fit(p.crop, r), "input")]
-        rows += [_label(v, f"lp3d {y:+.0f}°") for v, y in zip(views, VIEW_YAWS, strict=True)]
-        if p.truth is not None:
-            rows += [_label(np.full((r, r, 3), 255, np.uint8), "teacher's own")]
-            truth = _views(render_triplane(p.truth), cams, r, samples)
-            rows += [_label(v, f"teacher {y:+.0f}°") for v, y in zip(truth, VIEW_YAWS, strict=True)]
-    sheet = tile(rows, columns=1 + len(VIEW_YAWS))
-    print(
-        f"rendered the views in {time.perf_counter() - t0:.1f} s ({_describe_size(sr, r)}, "
-        f"{samples[0]}+{samples[1]} samples)"
-    )
-
-    args.out.mkdir(parents=True, exist_ok=True)
-    with Staged() as staged:
-        for p, tri in zip(portraits, lifted, strict=True):
-            save_triplane(staged.temp(args.out / f"{p.name}.npz"), tri)
-            save_png(staged.temp(args.out / f"{p.name}.crop.png"), p.crop)
-        save_png(staged.temp(args.out / "side_by_side.png"), sheet)
-        gif = args.out / "orbit.gif"
-        writer = VideoWriter(staged.temp(gif), ".gif", fps=12)
-        bar = progress(args.frames, "orbit")
-        orbit = np.stack(
-            [look_at_camera(yaw_deg=y, pitch_deg=p) for y, p in orbit_angles(args.frames, 35.0, 10.0)]
-        )
-        try:
-            for i in range(0, len(orbit), ORBIT_BATCH):
-                heads = [final_images(tri, orbit[i : i + ORBIT_BATCH], args, sr, r)[0] for tri in native]
-                for frame in zip(*heads, strict=True):
-                    writer.add(np.concatenate(frame, axis=1))  # both heads side by side
-                bar.update(len(heads[0]))
-            writer.close()
-        finally:
-            bar.close()
-        written = staged.commit()
-    for path in written:
-        print(f"wrote {path}")
-    print(f"open {args.out / 'side_by_side.png'} and {gif}; look around with: lp3d-view {written[0]}")
-    return 0
+__all__ = [
+    "ORBIT_BATCH",
+    "TEACHER_SEED",
+    "VIEW_YAWS",
+    "Portrait",
+    "add_arguments",
+    "astronaut_portrait",
+    "main",
+    "run",
+    "teacher_portrait",
+]
 
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m lp3d.demo`` is ``lp3d demo``."""
-    from lp3d.cli import main as cli_main
-
-    return cli_main(["demo", *(sys.argv[1:] if argv is None else argv)])
+    return run_command(standalone_parser(_command, "python -m lp3d.demo"), argv)
 
 
 if __name__ == "__main__":

@@ -79,6 +79,7 @@ from torch import Tensor, nn
 from lp3d.atomic import atomic_path
 from lp3d.camera import FFHQ_FOCAL, look_at_camera
 from lp3d.camera_sampling import sample_cameras
+from lp3d.errors import EXIT_ERROR, UsageError, run_command
 from lp3d.images import rgb_to_uint8, save_png, tile
 from lp3d.losses import LPIPSLoss, LPIPSWeightsNotFound, build_perceptual, l1, ssim
 from lp3d.teachers import ProceduralTeacher, Teacher
@@ -890,10 +891,12 @@ CLI_DESCRIPTION = (
     "short table. Every metric is against the teacher at its native plane resolution, on identities "
     "outside the training range."
 )
+#: The name every command module uses (``lp3d.cli.common.module_command``).
+DESCRIPTION = CLI_DESCRIPTION
 
 
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m lp3d.eval", description=CLI_DESCRIPTION)
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The evaluation options, shared by ``python -m lp3d.eval`` and ``lp3d eval``."""
     p.add_argument("checkpoint", help="training checkpoint (.pt) or run directory (its latest checkpoint)")
     default = EvalSettings()
     p.add_argument(
@@ -927,11 +930,28 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument("--device", default="cpu", help="cpu or cuda")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    args = p.parse_args(argv)
+
+
+def build_parser(prog: str = "python -m lp3d.eval") -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=prog, description=CLI_DESCRIPTION)
+    add_arguments(p)
+    p.set_defaults(func=run_cli)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m lp3d.eval`` (an alias of ``lp3d eval``); exit status 0, 1 (an error, one line) or 2
+    (usage), as :mod:`lp3d.errors` says."""
+    return run_command(build_parser(), argv)
+
+
+def run_cli(args: argparse.Namespace) -> int:
+    """Evaluate with parsed :func:`add_arguments` options; returns the exit status. (:func:`run` is the
+    Python API.)"""
     if args.n_identities < 1:
-        p.error("--n-identities must be >= 1")
+        raise UsageError("--n-identities must be >= 1")
     if args.baseline_steps < 0:
-        p.error("--baseline-steps must be >= 0")
+        raise UsageError("--baseline-steps must be >= 0")
     settings = EvalSettings(
         n_identities=args.n_identities, baseline_steps=args.baseline_steps, progress=not args.no_progress
     )
@@ -948,7 +968,7 @@ def main(argv: list[str] | None = None) -> int:
         )
     except (ValueError, RuntimeError, FileNotFoundError) as e:
         print(f"error: {e}", file=sys.stderr)
-        return 2
+        return EXIT_ERROR
     print(summary_table(report))
     s = report["student"]
     print(f"student  : encode {s['encode_ms']:.1f} ms, render {s['render_ms']:.1f} ms per view")

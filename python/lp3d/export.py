@@ -44,6 +44,7 @@ from torch import Tensor, nn
 
 from lp3d.atomic import atomic_path
 from lp3d.encoder import LP3DEncoder
+from lp3d.errors import EXIT_ERROR, UsageError, run_command
 from lp3d.model_package import (
     ModelPackageError,
     decoder_digest,
@@ -480,7 +481,7 @@ def _add_superres_main(args: argparse.Namespace) -> int:
         weights = add_superres_to_weights(args.weights, sr, digest) if args.weights else None
     except (ModelPackageError, ExportError, ValueError) as e:
         print(f"error: {e}", file=sys.stderr)
-        return 1 if isinstance(e, ParityError) else 2
+        return EXIT_ERROR
     _print_superres(entry, err, args.tolerance)
     print(f"updated {sidecar} (its 'superres' entry)")
     if weights is not None:
@@ -502,8 +503,12 @@ def _print_superres(entry: dict[str, Any], err: float, tolerance: float) -> None
         )
 
 
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m lp3d.export", description=__doc__.splitlines()[0])
+#: ``--help``'s description (``python -m lp3d.export`` and ``lp3d export``).
+DESCRIPTION = __doc__.splitlines()[0]
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The export options, shared by ``python -m lp3d.export`` and ``lp3d export``."""
     p.add_argument(
         "checkpoint",
         nargs="?",
@@ -554,22 +559,40 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="export a fitted SR even if it does not beat bilinear upsampling on its held-out pairs",
     )
-    args = p.parse_args(argv)
+
+
+def build_parser(prog: str = "python -m lp3d.export") -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=prog, description=DESCRIPTION)
+    add_arguments(p)
+    p.set_defaults(func=run_cli)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m lp3d.export`` (an alias of ``lp3d export``); exit status 0, 1 (an error, one line,
+    including a failed parity check) or 2 (usage), as :mod:`lp3d.errors` says."""
+    return run_command(build_parser(), argv)
+
+
+def run_cli(args: argparse.Namespace) -> int:
+    """Export with parsed :func:`add_arguments` options; returns the exit status."""
     if args.checkpoint is None:
         if args.package is None or args.superres is None:
-            p.error("give a CHECKPOINT and -o MODEL.onnx, or --superres FIT.pt --package MODEL.onnx")
+            raise UsageError("give a CHECKPOINT and -o MODEL.onnx, or --superres FIT.pt --package MODEL.onnx")
         if args.output or args.float16 or args.basis_components is not None or args.no_superres:
-            p.error(
+            raise UsageError(
                 "--package adds a super-resolution network only; -o, --float16, --basis-components and "
                 "--no-superres need a CHECKPOINT"
             )
         return _add_superres_main(args)
     if args.output is None:
-        p.error("-o/--output is required with a CHECKPOINT")
+        raise UsageError("-o/--output is required with a CHECKPOINT")
     if args.package is not None:
-        p.error("--package is for adding a super-resolution network to an existing package (no CHECKPOINT)")
+        raise UsageError(
+            "--package is for adding a super-resolution network to an existing package (no CHECKPOINT)"
+        )
     if args.superres is not None and args.no_superres:
-        p.error("--superres and --no-superres exclude each other")
+        raise UsageError("--superres and --no-superres exclude each other")
     notes: list[str] = []
     sr: SuperResolution | None = None
     sr_entry: dict[str, Any] | None = None
@@ -629,10 +652,10 @@ def main(argv: list[str] | None = None) -> int:
     except ParityError as e:
         Path(args.output).unlink(missing_ok=True)  # no package without its super-resolution network
         print(f"error: {e}; removed {args.output}", file=sys.stderr)
-        return 1
+        return EXIT_ERROR
     except (CheckpointError, ValueError, ExportError) as e:
         print(f"error: {e}", file=sys.stderr)
-        return 2
+        return EXIT_ERROR
     cfg = student.config
     if not err <= args.tolerance:
         Path(path).unlink(missing_ok=True)
@@ -640,7 +663,7 @@ def main(argv: list[str] | None = None) -> int:
             f"error: ONNX vs PyTorch max abs error {err:.3g} > {args.tolerance:g}; removed {path}",
             file=sys.stderr,
         )
-        return 1
+        return EXIT_ERROR
     print(
         f"wrote {path} (encoder {cfg.name!r}, image (B, 3, {cfg.image_size}, {cfg.image_size}) -> triplane "
         f"(B, 3, 32, {cfg.triplane_resolution}, {cfg.triplane_resolution}), opset {args.opset}); "

@@ -65,6 +65,7 @@ from torch import Tensor
 
 from lp3d.atomic import atomic_path
 from lp3d.camera_sampling import FFHQ_MULTIVIEW, FFHQ_REFERENCE, CameraDistribution, sample_cameras
+from lp3d.errors import EXIT_ERROR, run_command
 from lp3d.losses import SSIMGradientLoss, ssim
 from lp3d.superres import SuperresConfig, SuperResolution
 
@@ -381,7 +382,7 @@ class PairSet:
     @staticmethod
     def build(key: PairKey, encoder: Any, teacher: Any, path: Path, *, progress: bool = True) -> Path:
         """Render the pairs of ``key`` into ``path`` (written whole or not at all)."""
-        from lp3d.cli import render_triplane, renderer
+        from lp3d.native import render_triplane, renderer
         from lp3d.synthetic_data import teacher_fingerprint
         from lp3d.teachers import ProceduralTeacher
 
@@ -844,11 +845,9 @@ def fit_superres(
 # --------------------------------------------------------------------------------------------------
 
 
-def main(argv: list[str] | None = None) -> int:
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The fitting options: one flag per :class:`FitConfig` field, plus the inputs and outputs."""
     defaults = FitConfig()
-    p = argparse.ArgumentParser(
-        prog="python -m lp3d.superres_fit", description=__doc__.splitlines()[0] if __doc__ else None
-    )
     p.add_argument(
         "model",
         nargs="?",
@@ -871,7 +870,23 @@ def main(argv: list[str] | None = None) -> int:
             p.add_argument(flag, choices=TRAIN_ON, default=value, help=f"(default: {value})")
         else:
             p.add_argument(flag, type=type(value), default=value, help=f"(default: {value})")
-    args = p.parse_args(argv)
+
+
+def build_parser(prog: str = "python -m lp3d.superres_fit") -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0] if __doc__ else None)
+    add_arguments(p)
+    p.set_defaults(func=run_cli)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m lp3d.superres_fit``; exit status 0, 1 (an error, one line) or 2 (usage), as
+    :mod:`lp3d.errors` says."""
+    return run_command(build_parser(), argv)
+
+
+def run_cli(args: argparse.Namespace) -> int:
+    """Fit with parsed :func:`add_arguments` options; returns the exit status."""
     if args.threads:
         torch.set_num_threads(args.threads)
     from lp3d.model_package import ModelPackageError
@@ -883,7 +898,7 @@ def main(argv: list[str] | None = None) -> int:
         )
     except (FitError, StalePairsError, ModelPackageError, ValueError) as e:
         print(f"error: {e}", file=sys.stderr)
-        return 2
+        return EXIT_ERROR
     return 0
 
 

@@ -137,6 +137,7 @@ from lp3d.discriminator import (
 )
 from lp3d.encoder import CONFIGS as ENCODER_CONFIGS
 from lp3d.encoder import EncoderConfig, LP3DEncoder
+from lp3d.errors import EXIT_ERROR, EXIT_INTERRUPTED, run_command
 from lp3d.losses import (
     PERCEPTUAL_KINDS,
     DistillationLoss,
@@ -1942,11 +1943,12 @@ class Trainer:
 # --------------------------------------------------------------------------------------------------
 
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="python -m lp3d.train",
-        description="Distil a teacher into the LP3D triplane encoder (paper §3.2).",
-    )
+#: ``--help``'s description (``python -m lp3d.train`` and ``lp3d train``).
+DESCRIPTION = "Distil a teacher into the LP3D triplane encoder (paper §3.2)."
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The training options, shared by ``python -m lp3d.train`` and ``lp3d train``."""
     p.add_argument(
         "--config",
         choices=sorted(TRAIN_CONFIGS),
@@ -2022,11 +2024,23 @@ def _parser() -> argparse.ArgumentParser:
         "it must cover rank 0 synthesising a missing dataset)",
     )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def build_parser(prog: str = "python -m lp3d.train") -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=prog, description=DESCRIPTION)
+    add_arguments(p)
+    p.set_defaults(func=run_cli)
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
+    """``python -m lp3d.train`` (an alias of ``lp3d train``); the exit status is :mod:`lp3d.errors`'
+    policy: 0 done, 1 an error (printed as one line), 2 a usage error, 130 interrupted."""
+    return run_command(build_parser(), argv)
+
+
+def run_cli(args: argparse.Namespace) -> int:
+    """Train with parsed :func:`add_arguments` options; returns the exit status."""
     try:
         return _main(args)
     finally:
@@ -2122,7 +2136,7 @@ def _main(args: argparse.Namespace) -> int:
         )
     except (ValueError, RuntimeError, FileNotFoundError) as e:
         error(e)
-        return 2
+        return EXIT_ERROR
     distributed.note(
         f"training {cfg.name!r} on {device} with the {teacher_name} teacher, batch {cfg.batch_size}, "
         f"from step {trainer.step} to {args.max_steps or cfg.total_steps}; run directory {out}"
@@ -2131,14 +2145,14 @@ def _main(args: argparse.Namespace) -> int:
         trainer.train(args.max_steps)
     except NonFiniteError as e:
         error(e)
-        return 3
+        return EXIT_ERROR
     except KeyboardInterrupt:
         distributed.note(f"aborted; the last checkpoint is {latest_checkpoint(out)}")
-        return 130
+        return EXIT_INTERRUPTED
     if trainer.interrupted:
         last = latest_checkpoint(out) if trainer.is_main else None
         distributed.note(f"interrupted at step {trainer.step}; saved {last}; continue with --resume {out}")
-        return 130
+        return EXIT_INTERRUPTED
     if trainer.is_main:
         print(f"done at step {trainer.step}; checkpoint {latest_checkpoint(out)}", file=sys.stderr)
     return 0

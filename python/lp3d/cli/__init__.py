@@ -1,0 +1,175 @@
+"""``lp3d``: the command line. One entry point, one subcommand per job::
+
+    lp3d encode photo.jpg -o head.npz            photo(s) -> triplane(s) (face detection + alignment)
+    lp3d render head.npz --yaw 30 -o view.png    one view (also --depth, --features-channel)
+    lp3d orbit head.npz -o orbit.mp4             a turntable video (.gif or .mp4)
+    lp3d mesh head.npz -o head.glb               marching cubes (.ply, .obj or .glb)
+    lp3d info head.npz                           what is in a triplane file
+    lp3d video in.mp4 -o out.mp4 --yaw 20        lift a talking-head video frame by frame
+    lp3d view head.npz                           the interactive viewer (also: lp3d-view)
+    lp3d demo                                    the end-to-end demo
+    lp3d train | eval | export                   python -m lp3d.train | eval | export (need torch)
+
+**Super-resolution.** When the model package has a super-resolution network (SR; see
+``docs/model-package.md``), ``render``, ``orbit``, ``video`` and ``demo`` draw the raw feature image at
+the network's input size and write the super-resolved image at its output size (``--resolution``
+resizes that); ``--raw`` gives the plain volume render instead. ``video`` and ``demo`` use their
+``--model``'s SR. A triplane file names no model, so ``render`` and ``orbit`` apply the SR of
+``--model MODEL`` when given (an error if that package has none, or if the triplane's decoder and
+bounds are not that package's), else the shipped model's SR when the triplane has the shipped model's
+decoder and bounds (every triplane the shipped model encodes has), else none (raw, and they say why).
+
+Every subcommand has ``--help`` and is one module of this package (``add_arguments(parser)``,
+``run(args) -> int``); what they share is in :mod:`lp3d.cli.common`. Errors go to stderr as
+``lp3d <command>: error: <what and where>``: exit status 0 ok, 1 an error, 2 a usage error, 130
+interrupted (:mod:`lp3d.errors`, the policy of every entry point); set ``LP3D_DEBUG=1`` for the
+traceback. Outputs are written to temporary files beside their destination and renamed into place
+only when everything succeeded (:mod:`lp3d.outputs`), so a failed command leaves no partial files;
+an output that would replace an input or another output (by name, relative path or link) is refused
+before any work. Rendering uses ``lp3d_render`` (wgpu); on a machine without a GPU set
+``VK_DRIVER_FILES`` to Mesa's lavapipe ICD (see README).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+from types import ModuleType
+
+from lp3d.cli.common import (
+    IMAGE_SUFFIXES,
+    MESH_SUFFIXES,
+    PROG,
+    VIDEO_SUFFIXES,
+    CLIError,
+    Staged,
+    VideoWriter,
+    check_distinct,
+    check_output,
+    choose_superres,
+    final_images,
+    load_triplane_file,
+    make_camera,
+    parse_samples,
+    progress,
+    render_file_views,
+    render_triplane,
+    render_triplane_file,
+    render_views,
+    renderer,
+    resize_image,
+    write_image,
+)
+from lp3d.cli.encode import prepare_photo
+from lp3d.cli.info import camera_summary, triplane_info
+from lp3d.cli.orbit import orbit_angles
+from lp3d.cli.video import VIDEO_CROP_SMOOTHING, _nearest, _smooth_crops, count_video_frames, read_video
+from lp3d.errors import EXIT_ERROR, run_command
+
+# The names ``from lp3d.cli import X`` has always given, kept working.
+__all__ = [
+    "COMMANDS",
+    "IMAGE_SUFFIXES",
+    "MESH_SUFFIXES",
+    "PROG",
+    "VIDEO_CROP_SMOOTHING",
+    "VIDEO_SUFFIXES",
+    "CLIError",
+    "Staged",
+    "VideoWriter",
+    "_nearest",
+    "_smooth_crops",
+    "build_parser",
+    "camera_summary",
+    "check_distinct",
+    "check_output",
+    "choose_superres",
+    "count_video_frames",
+    "final_images",
+    "load_triplane_file",
+    "main",
+    "make_camera",
+    "orbit_angles",
+    "parse_samples",
+    "prepare_photo",
+    "progress",
+    "read_video",
+    "render_file_views",
+    "render_triplane",
+    "render_triplane_file",
+    "render_views",
+    "renderer",
+    "resize_image",
+    "standalone_parser",
+    "triplane_info",
+    "write_image",
+]
+
+#: The subcommands in ``lp3d --help`` order: each module has ``HELP``, ``add_arguments(parser)`` and
+#: ``run(args) -> int``, and ``DESCRIPTION`` unless its ``add_arguments`` sets it; ``LAZY`` ones import
+#: torch, so their options are added only when the command line names them.
+COMMANDS: dict[str, ModuleType] = {
+    name: importlib.import_module(f"lp3d.cli.{name}")
+    for name in (
+        "encode",
+        "render",
+        "orbit",
+        "mesh",
+        "info",
+        "video",
+        "view",
+        "demo",
+        "train",
+        "eval",
+        "export",
+    )
+}
+
+
+def _add_command(p: argparse.ArgumentParser, module: ModuleType) -> None:
+    module.add_arguments(p)
+    p.set_defaults(func=module.run, command_parser=p)
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The ``lp3d`` parser. A lazy subcommand (train, eval, export) gets its options only when
+    ``command`` names it, so that ``lp3d encode`` never imports torch."""
+    from lp3d import __version__ as version
+
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description="lp3d: single portrait photo -> 3D (EG3D triplane), rendered in real time.",
+        epilog="Run 'lp3d COMMAND --help' for each command's options.",
+    )
+    parser.add_argument("--version", action="version", version=f"lp3d {version}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, module in COMMANDS.items():
+        p = sub.add_parser(name, help=module.HELP, description=getattr(module, "DESCRIPTION", None))
+        if not getattr(module, "LAZY", False) or name == command:
+            _add_command(p, module)
+    return parser
+
+
+def standalone_parser(module: ModuleType, prog: str) -> argparse.ArgumentParser:
+    """A parser for one subcommand on its own (``lp3d-view``, ``python -m lp3d.demo``), to run with
+    :func:`lp3d.errors.run_command`."""
+    p = argparse.ArgumentParser(prog=prog, description=getattr(module, "DESCRIPTION", None))
+    _add_command(p, module)
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit status (0 ok, 1 error, 2 usage, 130 interrupted)."""
+    args = sys.argv[1:] if argv is None else list(argv)
+    command = args[0] if args else None
+    try:
+        parser = build_parser(command)
+    except ImportError as e:  # a lazy subcommand without its dependencies (torch)
+        print(
+            f"{PROG} {command}: error: {e}; install the training extra: pip install 'lp3d[train]'",
+            file=sys.stderr,
+        )
+        return EXIT_ERROR
+    return run_command(parser, args)

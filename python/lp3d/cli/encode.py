@@ -1,0 +1,206 @@
+"""``lp3d encode``: photo(s) -> triplane file(s): read, detect the face, level and crop it, encode."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from lp3d.cli.common import (
+    CLIError,
+    Staged,
+    check_distinct,
+    check_folder,
+    check_output,
+    int_in,
+    resolve_model,
+    say,
+    warn,
+    write_image,
+)
+
+HELP = "photo(s) -> triplane .npz (detect, align, crop, encode)"
+DESCRIPTION = (
+    "Encode portrait photos into triplane files. Each photo is read, the "
+    "largest face is detected (OpenCV Haar cascades), levelled by its eye line and "
+    "cropped to the training framing, then encoded."
+)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "inputs", nargs="+", type=Path, metavar="PHOTO", help="image files and/or folders of images"
+    )
+    p.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        required=True,
+        help="a .npz file (one photo) or a folder (several photos: FOLDER/<name>.npz)",
+    )
+    p.add_argument(
+        "--model",
+        type=Path,
+        default=None,
+        help="MODEL.onnx (with MODEL.json beside it) or CHECKPOINT.pt (default: the shipped "
+        "lp3d/models/small.onnx in the package)",
+    )
+    p.add_argument(
+        "--backend",
+        choices=("onnx", "torch"),
+        default=None,
+        help="onnx (onnxruntime) or torch (default: by the model file's suffix)",
+    )
+    p.add_argument(
+        "--no-detect",
+        action="store_true",
+        help="skip face detection: the photo is already a centred portrait (centre square crop)",
+    )
+    p.add_argument(
+        "--batch-size", type=int_in(1, 256), default=4, help="images per encoder call (default: 4)"
+    )
+    p.add_argument("--half", action="store_true", help="store the planes as float16 (half the file size)")
+    p.add_argument(
+        "--save-crop", action="store_true", help="also write the aligned input crop as <name>.crop.png"
+    )
+
+
+def _collect_images(inputs: Sequence[Path]) -> list[Path]:
+    """Files as given; folders expand to their images (non-recursive, sorted)."""
+    from lp3d.photo import IMAGE_SUFFIXES as PHOTO_SUFFIXES
+
+    found: list[Path] = []
+    for item in inputs:
+        if item.is_dir():
+            images = sorted(p for p in item.iterdir() if p.is_file() and p.suffix.lower() in PHOTO_SUFFIXES)
+            if not images:
+                raise CLIError(f"{item}: folder holds no images ({', '.join(PHOTO_SUFFIXES)})")
+            found += images
+        elif not item.exists():
+            raise CLIError(f"{item}: no such file or folder")
+        else:
+            found.append(item)
+    return found
+
+
+def _plan_outputs(images: Sequence[Path], output: Path) -> tuple[list[Path], Path | None]:
+    """Destination per image, and the folder to create (if any). One image and a ``.npz`` name: that
+    file; otherwise ``output`` is a folder (created if missing) holding ``<stem>.npz`` per image."""
+    if output.suffix.lower() == ".npz" and not output.is_dir():
+        if len(images) != 1:
+            raise CLIError(f"-o {output}: {len(images)} images need an output folder, not one .npz file")
+        check_output(output, (".npz",))
+        return [output], None
+    if output.exists() and not output.is_dir():
+        raise CLIError(f"-o {output}: exists and is not a folder (name a .npz file for a single image)")
+    if output.suffix and not output.exists():
+        raise CLIError(f"-o {output}: unsupported format {output.suffix}; name a .npz file or a folder")
+    check_folder(output.parent if not output.exists() else output, "output folder", output)
+    stems: dict[str, Path] = {}
+    for img in images:
+        if img.stem in stems:
+            raise CLIError(f"{img} and {stems[img.stem]} would both write {output / (img.stem + '.npz')}")
+        stems[img.stem] = img
+    return [output / f"{img.stem}.npz" for img in images], (None if output.exists() else output)
+
+
+def prepare_photo(rgb: np.ndarray, size: int, *, detect: bool, name: str) -> tuple[np.ndarray, str]:
+    """(crop (size, size, 3) uint8, a one-line description) of one photo; NoFaceError without a face."""
+    from lp3d.photo import NoFaceError, centre_crop, crop_image, detect_face
+
+    h, w = rgb.shape[:2]
+    if not detect:
+        crop = centre_crop(rgb.shape)
+        return crop_image(rgb, crop, size), f"{w}x{h}, centre crop {crop.side:.0f} px (no detection)"
+    found = detect_face(rgb)
+    if found is None:
+        raise NoFaceError(
+            f"{name}: no face found; if the photo is already a centred portrait crop, pass --no-detect"
+        )
+    x, y, bw, bh = found.box
+    eyes = f"roll {found.angle_deg:+.1f}°" if found.eyes is not None else "eyes not found, not levelled"
+    more = f", {found.n_faces} face candidates (the largest clear one used)" if found.n_faces > 1 else ""
+    desc = (
+        f"{w}x{h}, face {bw:.0f}x{bh:.0f} at ({x:.0f}, {y:.0f}){more}, {eyes}, crop {found.crop.side:.0f} px"
+    )
+    return crop_image(rgb, found.crop, size), desc
+
+
+def _crop_path(dest: Path) -> Path:
+    """Where ``lp3d encode --save-crop`` writes the aligned crop of the photo encoded to ``dest``."""
+    return dest.with_name(dest.stem + ".crop.png")
+
+
+def run(args: argparse.Namespace) -> int:
+    from lp3d.inference import load_encoder
+    from lp3d.photo import PhotoError, load_image, to_encoder_input
+    from lp3d.triplane_io import save_triplane
+
+    images = _collect_images(args.inputs)
+    destinations, new_folder = _plan_outputs(images, args.output)
+    crop_paths = [_crop_path(dest) for dest in destinations] if args.save_crop else []
+    check_distinct(
+        [("photo", img) for img in images],
+        [("output", dest) for dest in destinations] + [("crop", crop) for crop in crop_paths],
+    )
+    model_path = resolve_model(args.model)
+
+    t0 = time.perf_counter()
+    encoder = load_encoder(model_path, args.backend)
+    pkg = encoder.package
+    say(
+        f"model: {encoder.description}, config {pkg.config_name!r}, {pkg.image_size}² -> "
+        f"{pkg.triplane_resolution}² triplane, loaded in {time.perf_counter() - t0:.2f} s"
+    )
+
+    # Read, detect and crop everything first: one bad photo fails the run before anything is written.
+    t0 = time.perf_counter()
+    crops: list[np.ndarray] = []
+    failures: list[str] = []
+    for img in images:
+        try:
+            rgb, notes = load_image(img)
+            for note in notes:
+                warn(note)
+            crop, desc = prepare_photo(rgb, pkg.image_size, detect=not args.no_detect, name=str(img))
+        except PhotoError as e:
+            failures.append(str(e))
+            continue
+        crops.append(crop)
+        say(f"{img}: {desc}")
+    if failures:
+        if len(failures) == 1:
+            raise CLIError(failures[0])
+        raise CLIError(f"{len(failures)} of {len(images)} photos cannot be used:\n  " + "\n  ".join(failures))
+    t_prep = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    batch = to_encoder_input(np.stack(crops))
+    planes = np.concatenate(
+        [encoder.run(batch[i : i + args.batch_size]) for i in range(0, len(batch), args.batch_size)]
+    )
+    t_enc = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    with Staged() as staged:
+        if new_folder is not None:
+            staged.mkdir(new_folder)
+        for img, dest, plane, crop in zip(images, destinations, planes, crops, strict=True):
+            source = f"lp3d encode {img.name} (model {pkg.config_name}, {encoder.backend})"
+            tri = pkg.triplane(plane.astype(np.float16) if args.half else plane, source=source)
+            save_triplane(staged.temp(dest), tri)
+            if args.save_crop:
+                write_image(staged.temp(_crop_path(dest)), crop, ".png")
+        written = staged.commit()
+    t_write = time.perf_counter() - t0
+    n = len(images)
+    say(
+        f"timings: detect+crop {t_prep:.2f} s ({t_prep / n:.3f} s/image), encode {t_enc:.2f} s "
+        f"({t_enc / n:.3f} s/image, {encoder.backend}), write {t_write:.2f} s"
+    )
+    for path in written:
+        say(f"wrote {path}")
+    return 0

@@ -1,0 +1,103 @@
+"""``lp3d orbit``: a turntable video (.gif or .mp4) of a triplane file."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from lp3d.cli.common import (
+    VIDEO_SUFFIXES,
+    CLIError,
+    Staged,
+    VideoWriter,
+    camera_args,
+    check_distinct,
+    check_output,
+    choose_superres,
+    describe_size,
+    final_images,
+    float_in,
+    int_in,
+    make_camera,
+    progress,
+    render_args,
+    render_triplane_file,
+    say,
+    superres_model_arg,
+)
+
+HELP = "render a turntable video (.gif or .mp4)"
+DESCRIPTION = (
+    "Render a closed camera loop around a triplane: yaw = R sin(2 pi t), pitch = pitch + P cos(2 pi t)."
+)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("triplane", type=Path, help="triplane .npz file")
+    p.add_argument("-o", "--output", type=Path, required=True, help="output video (.gif or .mp4)")
+    p.add_argument("--frames", type=int_in(1, 10000), default=36, help="frames in the loop (default: 36)")
+    p.add_argument(
+        "--yaw-range", type=float_in(0.0, 89.0), default=35.0, help="yaw amplitude in degrees (default: 35)"
+    )
+    p.add_argument(
+        "--pitch-range",
+        type=float_in(0.0, 60.0),
+        default=0.0,
+        help="pitch amplitude in degrees (default: 0)",
+    )
+    p.add_argument("--fps", type=float_in(0.1, 120.0), default=18.0, help="frames per second (default: 18)")
+    p.add_argument("--batch", type=int_in(1, 64), default=4, help="frames per render call (default: 4)")
+    camera_args(p, yaw=None)
+    render_args(p, 128)
+    superres_model_arg(p)
+
+
+def orbit_angles(frames: int, yaw_range: float, pitch_range: float) -> list[tuple[float, float]]:
+    """(yaw, pitch offset) per frame of a closed loop, as EG3D's videos: ``yaw = R_y sin(2 pi t)``,
+    ``pitch = R_p cos(2 pi t)`` with ``t = i / frames`` (the last frame leads back to the first)."""
+    out = []
+    for i in range(frames):
+        t = 2.0 * math.pi * i / frames
+        out.append((yaw_range * math.sin(t), pitch_range * math.cos(t)))
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    out_path = check_output(args.output, VIDEO_SUFFIXES)
+    if not (-90.0 < args.pitch - args.pitch_range and args.pitch + args.pitch_range < 90.0):
+        raise CLIError(
+            f"--pitch {args.pitch:g} with --pitch-range {args.pitch_range:g} leaves (-90, 90) degrees"
+        )
+    check_distinct([("triplane", args.triplane)], [("-o", out_path)])
+    tri, rtri = render_triplane_file(args.triplane)
+    sr, how = choose_superres(args, tri)
+    size = args.resolution or (sr.output_resolution if sr is not None else 128)
+    angles = orbit_angles(args.frames, args.yaw_range, args.pitch_range)
+    cams = np.stack([make_camera(args, yaw=y, pitch=args.pitch + p) for y, p in angles])
+    say(f"orbit: {len(cams)} frames of {describe_size(sr, size)}; {how}")
+
+    start = time.perf_counter()
+    with Staged() as staged:
+        writer = VideoWriter(staged.temp(out_path), out_path.suffix, args.fps)
+        bar = progress(len(cams), "orbit")
+        try:
+            for i in range(0, len(cams), args.batch):
+                frames, _ = final_images(rtri, cams[i : i + args.batch], args, sr, size, path=args.triplane)
+                for frame in frames:
+                    writer.add(frame)
+                bar.update(len(frames))
+            writer.close()
+        finally:
+            writer.abort()
+            bar.close()
+        staged.commit()
+    seconds = time.perf_counter() - start
+    say(
+        f"rendered {len(cams)} frames at {size}² in {seconds:.1f} s "
+        f"({seconds / len(cams):.2f} s/frame); wrote {out_path}"
+    )
+    return 0
