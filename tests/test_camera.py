@@ -36,7 +36,7 @@ def _project(label: np.ndarray, point: np.ndarray) -> tuple[float, float]:
 
 
 def test_frontal_pose_matches_eg3d_sanity_numbers() -> None:
-    # eg3d-rendering.md §13: h = v = pi/2, radius 2.7, lookat origin (EG3D's float32 residues < 1e-6).
+    # docs/eg3d-rendering.md §13: h = v = pi/2, radius 2.7, lookat origin (EG3D's float32 residues < 1e-6).
     c2w = lookat_pose(math.pi / 2, math.pi / 2, radius=2.7, lookat=(0, 0, 0))
     expected = np.array([[1, 0, 0, 0], [0, -1, 0, 0], [0, 0, -1, 2.7], [0, 0, 0, 1]], dtype=float)
     np.testing.assert_allclose(c2w, expected, atol=1e-6)

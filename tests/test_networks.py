@@ -240,7 +240,7 @@ def test_superres_eg3d_structure_on_meta() -> None:
         out = sr(torch.empty(2, 32, 128, 128))
     assert tuple(out.shape) == (2, 3, 512, 512)
     shapes = {k: tuple(v.shape) for k, v in sr.state_dict().items()}
-    # EG3D parameter names and shapes (shared/design/eg3d-rendering.md §10).
+    # EG3D parameter names and shapes (docs/eg3d-rendering.md §10).
     assert shapes["block0.conv0.weight"] == (256, 32, 3, 3)
     assert shapes["block0.conv0.affine.weight"] == (32, 512)
     assert shapes["block0.conv1.weight"] == (256, 256, 3, 3)

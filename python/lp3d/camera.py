@@ -9,7 +9,7 @@ A camera is EG3D's 25-float *label* (``float64`` here):
 * ``label[16:25]``: the 3x3 intrinsics ``[[fx, skew, cx], [0, fy, cy], [0, 0, 1]]``, row-major,
   **normalised by image size** (resolution independent; FFHQ: ``fx = fy = 4.2647``, ``cx = cy = 0.5``).
 
-A batch is ``(B, 25)``. See ``shared/design/eg3d-rendering.md`` §5 for the EG3D sources.
+A batch is ``(B, 25)``. See ``docs/eg3d-rendering.md`` §5 for how the renderers use it.
 """
 
 from __future__ import annotations

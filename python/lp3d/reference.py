@@ -1,6 +1,6 @@
 """Float64 NumPy reference renderer with EG3D's exact semantics.
 
-Written from ``shared/design/eg3d-rendering.md`` alone (section numbers below refer to it), to be the
+It states the semantics of ``docs/eg3d-rendering.md`` (section numbers below refer to it) as the
 slow, obvious ground truth that the WGSL renderer and the torch twin are tested against. Functions
 follow the data flow: :func:`rays_from_cameras` (camera) -> :func:`sample_stratified` (sampling) ->
 :func:`sample_triplane` (triplane) -> :func:`decode` (decoder) -> :func:`march` (compositing) ->

@@ -1,7 +1,7 @@
 """PyTorch twin of the EG3D triplane renderer: differentiable, batched, device-agnostic.
 
 Training needs gradients through the renderer, so this module re-implements, in torch, exactly the
-semantics of ``shared/design/eg3d-rendering.md`` that ``lp3d_render`` (WGSL) and the float64 NumPy
+semantics of ``docs/eg3d-rendering.md`` that ``lp3d_render`` (WGSL) and the float64 NumPy
 reference (``lp3d.reference``) implement. The stages follow the data flow and have the reference's
 names, arguments and quantities (``t`` depths, ``sigma_raw`` raw densities, ``feat`` features):
 
@@ -169,7 +169,7 @@ def sample_stratified(
     lead = (n_rays,) if isinstance(n_rays, int) else tuple(n_rays)
     if jitter is not None:
         dtype, device = jitter.dtype, jitter.device
-    # torch's CPU linspace is the bit-exact recipe of the spec (§7); build it there on every device.
+    # torch's CPU linspace is the bit-exact recipe (docs/eg3d-rendering.md §7): build it there on any device.
     lin = torch.linspace(ray_start, ray_end, depth_resolution, dtype=dtype).to(device)
     t = lin.expand(*lead, depth_resolution)
     if jitter is not None:

@@ -2,7 +2,7 @@
 
 Paper §3 ("We make use of the MLP volume renderer and superresolution architectures from EG3D") and
 supplement "Implementation details": "we replaced the latent code W injected to the StyleGAN2-based
-super-resolution layer with a constant 1". Structure (``shared/design/eg3d-rendering.md`` §10)::
+super-resolution layer with a constant 1". Structure (``docs/eg3d-rendering.md`` §10)::
 
     feature image (B,32,128,128), rgb = its first 3 channels
       block0: SynthesisBlock 32 -> 256 at 256² (modulated conv up ×2, modulated conv, ToRGB)

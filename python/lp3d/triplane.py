@@ -1,6 +1,6 @@
 """The triplane: planes, decoder weights and scene bounds, as one validated value.
 
-Layout follows EG3D (``shared/design/eg3d-rendering.md`` §1-§4): ``planes`` is (3, 32, H, W), each
+Layout follows EG3D (``docs/eg3d-rendering.md`` §1-§4): ``planes`` is (3, 32, H, W), each
 plane a (C, H, W) image whose rows (H) are the grid_sample ``v`` coordinate and columns (W) the ``u``
 coordinate. The decoder weights are EG3D's OSGDecoder weights in *effective* form (gains already
 applied, see :func:`effective_decoder_weights`).

@@ -230,7 +230,7 @@ mod tests {
 
     #[test]
     fn frontal_look_at_matches_eg3d_sanity_numbers() {
-        // eg3d-rendering.md section 13: camera at (0, 0, 2.7), right (1,0,0), up' (0,-1,0), forward (0,0,-1).
+        // docs/eg3d-rendering.md §13: camera at (0, 0, 2.7), right (1,0,0), up' (0,-1,0), forward (0,0,-1).
         let c = Camera::look_at(
             std::f64::consts::FRAC_PI_2,
             std::f64::consts::FRAC_PI_2,

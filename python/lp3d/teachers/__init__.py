@@ -4,7 +4,7 @@ A teacher turns a seed into an EG3D-format triplane (planes, its decoder and sce
 trainer renders from any camera. Two implementations share the :class:`Teacher` protocol:
 
 * :class:`~lp3d.teachers.procedural.ProceduralTeacher`, the embedded default: stylised heads built
-  in closed form, no weights, no training (``shared/design/ARCHITECTURE.md``, "The teacher");
+  in closed form, no weights, no training (how: :mod:`lp3d.teachers.procedural`);
 * an EG3D adapter for a user-supplied generator pickle.
 
 The trainer only relies on what is declared here.

@@ -16,7 +16,7 @@ What the adapter uses of the generator (``training/triplane.py`` in NVlabs/eg3d)
     G.rendering_kwargs: box_warp, ray_start, ray_end, depth_resolution, depth_resolution_importance, ...
     G.neural_rendering_resolution                               128 for the *-128.pkl checkpoints
 
-Choices (``shared/design/eg3d-rendering.md`` §4, §5, §10, §11):
+Choices (``docs/eg3d-rendering.md`` §4, §5, §10, §11):
 
 * **z**: ``np.random.RandomState(seed).randn(1, z_dim)``, exactly as EG3D's ``gen_samples.py`` and
   ``gen_videos.py`` draw it.
@@ -513,7 +513,8 @@ class EG3DTeacher:
         """Effective decoder weights ``(w0 (64, 32), b0 (64,), w1 (33, 64), b1 (33,))`` float32 (copies).
 
         ``W_eff = W * lr_multiplier / sqrt(in_features)``, ``b_eff = b * lr_multiplier``
-        (``eg3d-rendering.md`` §4): ``h = softplus(w0 f + b0)``, ``o = w1 h + b1`` is the decoder's forward.
+        (``docs/eg3d-rendering.md`` §4): ``h = softplus(w0 f + b0)``, ``o = w1 h + b1`` is the decoder's
+        forward.
         """
         w0, b0, w1, b1 = self._decoder
         return w0.copy(), b0.copy(), w1.copy(), b1.copy()
