@@ -1,7 +1,7 @@
 // Stage: occupancy (docs/occupancy.md). The occupancy grid test, and the walk over a ray's
 // merged coarse + fine samples that skips the samples no decoded interval needs.
 // needs: params, occupancy_bits, MAX_SAMPLES, Ray, coarse_depth, plane_coords
-// provides: occupied, Walk, next_depth, walk_start, walk_advance, walk_to_needed
+// provides: occupied, NOT_COARSE, Walk, next_depth, walk_start, walk_advance, walk_to_needed
 
 // Whether `pos` lies in a cell of the occupancy grid that may hold density (always, when the
 // skip is off). Outside the box the index clamps to the edge cells, which the bake extends to
@@ -16,6 +16,9 @@ fn occupied(pos: vec3<f32>) -> bool {
     let idx = (cell.x * g + cell.y) * g + cell.z;
     return ((occupancy_bits[idx >> 5u] >> (idx & 31u)) & 1u) != 0u;
 }
+
+// Walk.k_cur / k_next of a fine sample.
+const NOT_COARSE: u32 = 0xffffffffu;
 
 // A walk over a ray's samples in depth order (coarse k and fine j = t_fine[0..n] merged; n = 0
 // walks the coarse samples alone) with the occupancy of samples i - 1, i and i + 1
@@ -36,6 +39,11 @@ struct Walk {
     occ_prev: bool,
     occ_cur: bool,
     occ_next: bool,
+    // Coarse index of the samples at t_cur and t_next (NOT_COARSE for a fine one), and of the
+    // depth next_depth returned last.
+    k_cur: u32,
+    k_next: u32,
+    k_last: u32,
 }
 
 // The next depth of the merged coarse + fine list (both ascending), advancing k or j.
@@ -48,9 +56,11 @@ fn next_depth(
     if ((*w).j < n && ((*w).k >= params.depth_resolution || (*t_fine)[(*w).j] < coarse_depth(ray_index, (*w).k))) {
         let t = (*t_fine)[(*w).j];
         (*w).j += 1u;
+        (*w).k_last = NOT_COARSE;
         return t;
     }
     let t = coarse_depth(ray_index, (*w).k);
+    (*w).k_last = (*w).k;
     (*w).k += 1u;
     return t;
 }
@@ -62,11 +72,13 @@ fn walk_start(
     use_grid: bool,
     t_fine: ptr<function, array<f32, MAX_SAMPLES>>,
 ) -> Walk {
-    var w = Walk(use_grid, 0u, 0u, 0u, params.depth_resolution + n, 0.0, 0.0, false, false, false);
+    var w = Walk(use_grid, 0u, 0u, 0u, params.depth_resolution + n, 0.0, 0.0, false, false, false, NOT_COARSE, NOT_COARSE, NOT_COARSE);
     w.t_cur = next_depth(&w, ray_index, n, t_fine);
+    w.k_cur = w.k_last;
     w.occ_cur = !use_grid || occupied(ray.origin + w.t_cur * ray.dir);
     if (w.total > 1u) {
         w.t_next = next_depth(&w, ray_index, n, t_fine);
+        w.k_next = w.k_last;
         w.occ_next = !use_grid || occupied(ray.origin + w.t_next * ray.dir);
     }
     return w;
@@ -83,8 +95,11 @@ fn walk_advance(
     (*w).t_cur = (*w).t_next;
     (*w).occ_cur = (*w).occ_next;
     (*w).occ_next = false;
+    (*w).k_cur = (*w).k_next;
+    (*w).k_next = NOT_COARSE;
     if ((*w).i + 2u < (*w).total) {
         (*w).t_next = next_depth(w, ray_index, n, t_fine);
+        (*w).k_next = (*w).k_last;
         (*w).occ_next = !(*w).use_grid || occupied(ray.origin + (*w).t_next * ray.dir);
     }
     (*w).i += 1u;

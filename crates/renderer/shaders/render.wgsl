@@ -1,14 +1,15 @@
 // Stage: the renderer (lp3d.reference.render_reference, lp3d.render_torch.render_rays): the
 // render_rays entry point. One invocation renders one ray end to end: the coarse density pass
 // and inverse-CDF importance draw (sample_importance), then a single streaming pass over the
-// merged, sorted samples that decodes each sample once and composites as it goes. Both passes
-// run in one loop around one sample evaluation (see render_rays).
-// No per-sample buffers: the coarse list is recomputable from its index and the fine
-// depths come out sorted, so merging two sorted lists replaces EG3D's sort.
+// merged, sorted samples that composites as it goes. Each sample is decoded once, as in EG3D: the
+// coarse pass keeps what it decoded for the composite (COARSE_CACHE). Both passes run in one
+// loop around one sample evaluation (see render_rays).
+// The coarse list is recomputable from its index and the fine depths come out sorted, so
+// merging two sorted lists replaces EG3D's sort.
 // needs: params, out_features, out_depth, out_weights_sum, depth_bounds, MAX_SAMPLES,
 // needs: FLAG_OCCUPANCY_COARSE, FLAG_WHITE_BACK, camera_ray, importance_depths, sample_triplane,
-// needs: decode, interval_alpha, transmit, walk_start, walk_advance, walk_to_needed
-// provides: render_rays
+// needs: decode, interval_alpha, transmit, Walk, walk_start, walk_advance, walk_to_needed
+// provides: COARSE_CACHE, Composite, composite_sample, render_rays
 
 // One loop walks a ray twice: first its coarse samples (the density pass of sample_importance,
 // weights into `scratch`), then, after the importance draw, the merged coarse + fine list
@@ -17,6 +18,59 @@
 // time grows with each copy (bench/RESULTS.md, "Kernel compile time"). The importance draw
 // sits in the outer loop, between the walks: inside the per-sample loop it made every sample
 // slower.
+
+// The compositing state of a walk (MipRayMarcher2, front to back).
+struct Composite {
+    transmittance: f32,
+    weights_sum: f32,
+    depth_acc: f32,
+    prev_t: f32,
+    prev_sigma: f32,
+    acc: array<vec4<f32>, 8>,
+    prev_feat: array<vec4<f32>, 8>,
+}
+
+// Adds the interval ending at the walk's current sample (depth t, raw density sigma, features
+// cur_feat) to `c`: its weight into `scratch` in the coarse walk, else into the outputs.
+fn composite_sample(
+    c: ptr<function, Composite>,
+    walk: Walk,
+    t: f32,
+    sigma: f32,
+    cur_feat: ptr<function, array<vec4<f32>, 8>>,
+    coarse: bool,
+    n_feat: u32,
+    scratch: ptr<function, array<f32, MAX_SAMPLES>>,
+) {
+    if (walk.i > 0u && (walk.occ_prev || walk.occ_cur)) {
+        // Both ends were decoded (each is the other's neighbour).
+        let alpha = interval_alpha((*c).prev_sigma, sigma, t - (*c).prev_t);
+        let w = alpha * (*c).transmittance;
+        (*c).transmittance = transmit((*c).transmittance, alpha);
+        if (coarse) {
+            (*scratch)[walk.i - 1u] = w;
+        } else {
+            (*c).weights_sum += w;
+            (*c).depth_acc += w * (((*c).prev_t + t) * 0.5);
+            if (n_feat == 32u) {
+                for (var q = 0u; q < 8u; q++) {
+                    (*c).acc[q] += w * (((*c).prev_feat[q] + (*cur_feat)[q]) * 0.5);
+                }
+            } else {
+                (*c).acc[0] += w * (((*c).prev_feat[0] + (*cur_feat)[0]) * 0.5);
+            }
+        }
+    }
+    (*c).prev_t = t;
+    (*c).prev_sigma = sigma;
+    (*c).prev_feat = *cur_feat;
+}
+
+// Coarse samples the coarse walk keeps for the composite (the first ones, when a ray has more).
+// Not MAX_SAMPLES: lavapipe's compile time grows with the size of a private array (fast kernel
+// 27 s at 256, 20 s at 64; quick kernel 7 s and 2.1 s; bench/RESULTS.md).
+const COARSE_CACHE: u32 = 64u;
+
 @compute @workgroup_size(64)
 fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
     let n_pix = params.resolution * params.resolution;
@@ -30,12 +84,19 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
     let ray = camera_ray(cam, pixel);
     let s = params.depth_resolution;
     let n_feat = params.feature_channels;
+    let thr = params.transmittance_threshold;
     // Per-invocation scratch: coarse weights -> pdf -> cdf (importance_depths), and the fine
     // depths it draws.
     var scratch = array<f32, MAX_SAMPLES>();
     var t_fine = array<f32, MAX_SAMPLES>();
+    // The raw density and decoded features of coarse samples 0..n_cached, kept by the coarse walk
+    // for the composite, so that each sample is decoded once, as in EG3D (a coarse sample the
+    // occupancy grid skipped ends the run; the composite decodes the ones after it again).
+    var cache_sigma = array<f32, COARSE_CACHE>();
+    var cache_feat = array<array<vec4<f32>, 8>, COARSE_CACHE>();
+    var n_cached = 0u;
 
-    // The coarse walk (only with an importance pass): densities alone, weights w_0..w_{S-2}
+    // The coarse walk (only with an importance pass): weights w_0..w_{S-2}
     // (MipRayMarcher2 on the coarse samples) into `scratch`, front to back so that early
     // termination can stop evaluating densities; weights behind it, and of intervals the
     // occupancy grid skips, stay 0. Skipping here too is faster but moves the importance
@@ -49,52 +110,50 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
     // Fine samples in the current walk (none in the coarse walk).
     var n = 0u;
     var walk = walk_start(ray, ray_index, 0u, !coarse || (params.flags & FLAG_OCCUPANCY_COARSE) != 0u, &t_fine);
-    var transmittance = 1.0;
-    var weights_sum = 0.0;
-    var depth_acc = 0.0;
-    var acc = array<vec4<f32>, 8>();
-    // The triplane feature of the current sample (the decoder's input).
+    var c = Composite(1.0, 0.0, 0.0, 0.0, 0.0, array<vec4<f32>, 8>(), array<vec4<f32>, 8>());
+    // The triplane feature of the current sample (the decoder's input), and its decoded features.
     var feat = array<vec4<f32>, 8>();
-    var prev_feat = array<vec4<f32>, 8>();
     var cur_feat = array<vec4<f32>, 8>();
-    var prev_t = 0.0;
-    var prev_sigma = 0.0;
-    // The walks: the coarse one (if any), then the composite. The inner loop holds the one
+    // The walks: the coarse one (if any), then the composite. The middle loop holds the one
     // sample evaluation; the outer loop runs it once per walk.
     loop {
         loop {
-            walk_to_needed(&walk, ray, ray_index, n, &t_fine);
-            // Early ray termination (a skip; the exact mode's threshold is 0, so it never fires).
-            if (walk.i >= walk.total || transmittance < params.transmittance_threshold) {
+            // The composite walk's cached coarse samples, in a loop of their own: lavapipe runs
+            // 8 rays in lock-step, so each ray composites its cached samples up to its next
+            // sample to decode, and the 8 decode together. Early ray termination (a skip; the
+            // exact mode's threshold is 0, so it never fires) ends both loops.
+            loop {
+                walk_to_needed(&walk, ray, ray_index, n, &t_fine);
+                if (coarse || walk.i >= walk.total || c.transmittance < thr || walk.k_cur >= n_cached) {
+                    break;
+                }
+                let k = walk.k_cur;
+                if (n_feat == 32u) {
+                    cur_feat = cache_feat[k];
+                } else {
+                    cur_feat[0] = cache_feat[k][0];
+                }
+                composite_sample(&c, walk, walk.t_cur, cache_sigma[k], &cur_feat, false, n_feat, &scratch);
+                walk_advance(&walk, ray, ray_index, n, &t_fine);
+            }
+            if (walk.i >= walk.total || c.transmittance < thr) {
                 break;
             }
             let t = walk.t_cur;
             sample_triplane(ray.origin + t * ray.dir, &feat);
-            // Only the requested decoder rows: none in the coarse walk, else all 32 features or
-            // the 4 that hold RGB.
-            let sigma = decode(select(n_feat, 0u, coarse), &feat, &cur_feat);
-            if (walk.i > 0u && (walk.occ_prev || walk.occ_cur)) {
-                // Both ends were decoded (each is the other's neighbour).
-                let alpha = interval_alpha(prev_sigma, sigma, t - prev_t);
-                let w = alpha * transmittance;
-                transmittance = transmit(transmittance, alpha);
-                if (coarse) {
-                    scratch[walk.i - 1u] = w;
+            // Only the requested decoder rows: all 32 features or the 4 that hold RGB (also in the
+            // coarse walk, for the cache).
+            let sigma = decode(n_feat, &feat, &cur_feat);
+            if (coarse && walk.k_cur == n_cached && n_cached < COARSE_CACHE) {
+                cache_sigma[n_cached] = sigma;
+                if (n_feat == 32u) {
+                    cache_feat[n_cached] = cur_feat;
                 } else {
-                    weights_sum += w;
-                    depth_acc += w * ((prev_t + t) * 0.5);
-                    if (n_feat == 32u) {
-                        for (var q = 0u; q < 8u; q++) {
-                            acc[q] += w * ((prev_feat[q] + cur_feat[q]) * 0.5);
-                        }
-                    } else {
-                        acc[0] += w * ((prev_feat[0] + cur_feat[0]) * 0.5);
-                    }
+                    cache_feat[n_cached][0] = cur_feat[0];
                 }
+                n_cached++;
             }
-            prev_t = t;
-            prev_sigma = sigma;
-            prev_feat = cur_feat;
+            composite_sample(&c, walk, t, sigma, &cur_feat, coarse, n_feat, &scratch);
             walk_advance(&walk, ray, ray_index, n, &t_fine);
         }
         if (!coarse) {
@@ -102,13 +161,15 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
         // End of the coarse walk: draw the fine depths, then composite the merged list,
         // skipping as the coarse walk does.
-        n = importance_depths(ray_index, transmittance, &scratch, &t_fine);
+        n = importance_depths(ray_index, c.transmittance, &scratch, &t_fine);
         coarse = false;
         walk = walk_start(ray, ray_index, n, true, &t_fine);
-        transmittance = 1.0;
-        prev_t = 0.0;
-        prev_sigma = 0.0;
+        c.transmittance = 1.0;
+        c.prev_t = 0.0;
+        c.prev_sigma = 0.0;
     }
+    let weights_sum = c.weights_sum;
+    let depth_acc = c.depth_acc;
 
     // Depth: EG3D turns 0/0 into +inf and clamps to the batch-global depth range, so a ray
     // with no weight gets the range's maximum.
@@ -128,7 +189,7 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
         background = 1.0 - weights_sum;
     }
     for (var ch = 0u; ch < n_feat; ch++) {
-        let v = acc[ch / 4u][ch % 4u] + background;
+        let v = c.acc[ch / 4u][ch % 4u] + background;
         out_features[(gid.y * n_feat + ch) * n_pix + pixel] = v * 2.0 - 1.0;
     }
 }
