@@ -50,9 +50,7 @@ import hashlib
 import json
 import math
 import os
-import shutil
 import sys
-import tempfile
 import time
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
@@ -63,6 +61,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from lp3d import array_cache
 from lp3d.atomic import atomic_path
 from lp3d.camera_sampling import FFHQ_MULTIVIEW, FFHQ_REFERENCE, CameraDistribution, sample_cameras
 from lp3d.errors import EXIT_ERROR, run_command
@@ -97,7 +96,7 @@ class FitError(ValueError):
     """A fit that cannot run or continue here; the message says what and where."""
 
 
-class StalePairsError(ValueError):
+class StalePairsError(array_cache.StaleCacheError):
     """A cached pair folder that does not match its key or its recorded digests."""
 
 
@@ -265,8 +264,7 @@ class PairKey:
     format: int = PAIRS_FORMAT
 
     def digest(self) -> str:
-        text = json.dumps(asdict(self), sort_keys=True)
-        return hashlib.blake2b(text.encode(), digest_size=10).hexdigest()
+        return array_cache.key_digest(asdict(self))
 
     @property
     def n_pairs(self) -> int:
@@ -290,12 +288,6 @@ def default_pair_cache() -> Path:
     from lp3d.synthetic_data import default_cache_root
 
     return default_cache_root() / "superres-pairs"
-
-
-def _sha256(path: Path) -> str:
-    from lp3d.model_package import file_sha256
-
-    return file_sha256(path)
 
 
 def _camera(dist: CameraDistribution, camera_seed: int, stream: int, identity_seed: int) -> np.ndarray:
@@ -327,32 +319,7 @@ class PairSet:
     def load(cls, path: str | os.PathLike[str], key: PairKey) -> PairSet:
         """Read and verify a cached folder; :class:`StalePairsError` names what does not match."""
         path = Path(path)
-        meta_path = path / "meta.json"
-        try:
-            meta = json.loads(meta_path.read_text())
-        except (OSError, ValueError) as e:
-            raise StalePairsError(f"{meta_path}: unreadable ({e})") from None
-        if not isinstance(meta, dict) or meta.get("key") != json.loads(json.dumps(asdict(key))):
-            raise StalePairsError(
-                f"{meta_path}: made for another key (model, teacher, sizes or cameras differ)"
-            )
-        arrays: dict[str, np.ndarray] = {}
-        for name, (shape, dtype) in key.shapes().items():
-            file = path / f"{name}.npy"
-            want = meta.get("arrays", {}).get(name, {})
-            if not file.is_file():
-                raise StalePairsError(f"{file}: missing")
-            if _sha256(file) != want.get("sha256"):
-                raise StalePairsError(f"{file}: its SHA-256 differs from meta.json (corrupt or edited)")
-            try:
-                a = np.load(file, allow_pickle=False)
-            except (OSError, ValueError) as e:
-                raise StalePairsError(f"{file}: unreadable ({e})") from None
-            if a.shape != shape or a.dtype != np.dtype(dtype):
-                raise StalePairsError(f"{file}: shape {a.shape} {a.dtype}, expected {shape} {dtype}")
-            if a.dtype.kind == "f" and not np.isfinite(a).all():
-                raise StalePairsError(f"{file}: holds NaN or Inf")
-            arrays[name] = a
+        arrays = array_cache.load(path, asdict(key), key.shapes(), error=StalePairsError)
         return cls(key=key, path=path, **arrays)
 
     @classmethod
@@ -368,16 +335,12 @@ class PairSet:
         """The pairs of ``key`` under ``root``: loaded when cached and valid, else (re)built."""
         root = Path(root) if root is not None else default_pair_cache()
         path = root / f"sr-{key.digest()}"
-        if path.exists():
-            try:
-                return cls.load(path, key)
-            except StalePairsError as e:
-                print(
-                    f"warning: cached super-resolution pairs rejected, rebuilding them: {e}", file=sys.stderr
-                )
-                shutil.rmtree(path, ignore_errors=True)
-        cls.build(key, encoder, teacher, path, progress=progress)
-        return cls.load(path, key)
+        return array_cache.load_or_build(
+            path,
+            lambda: cls.load(path, key),
+            lambda: cls.build(key, encoder, teacher, path, progress=progress),
+            "cached super-resolution pairs rejected, rebuilding them",
+        )
 
     @staticmethod
     def build(key: PairKey, encoder: Any, teacher: Any, path: Path, *, progress: bool = True) -> Path:
@@ -393,14 +356,7 @@ class PairSet:
         pkg = encoder.package
         ref_dist = CameraDistribution.from_dict(key.reference_cameras)
         mv_dist = CameraDistribution.from_dict(key.multiview_cameras)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
-        try:
-            shapes = key.shapes()
-            out = {
-                name: np.lib.format.open_memmap(tmp / f"{name}.npy", mode="w+", dtype=dtype, shape=shape)
-                for name, (shape, dtype) in shapes.items()
-            }
+        with array_cache.build(path, asdict(key), key.shapes()) as out:
             bar = None
             if progress:
                 from tqdm import tqdm
@@ -448,22 +404,6 @@ class PairSet:
                     bar.update()
             if bar is not None:
                 bar.close()
-            digests = {}
-            for name, a in out.items():
-                a.flush()
-                del a
-                digests[name] = {
-                    "shape": list(shapes[name][0]),
-                    "dtype": shapes[name][1],
-                    "sha256": _sha256(tmp / f"{name}.npy"),
-                }
-            out.clear()
-            meta = {"key": asdict(key), "arrays": digests}
-            (tmp / "meta.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
-            os.replace(tmp, path)
-        except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
         return path
 
 

@@ -19,19 +19,16 @@ identities and views as a smaller one.
 
 **Cache.** The folder name is a hash of :class:`DatasetKey` (teacher fingerprint, seeds, sizes,
 cameras, samples per ray), so a change of any of them makes a new dataset rather than reusing a stale
-one. ``meta.json`` records the key and each array's shape, dtype and BLAKE2 digest; loading checks
-them all, and a folder that fails (truncated, edited, another key) is reported and rebuilt, never
-reused. A build writes into a private temporary folder and renames it into place when complete.
+one. ``meta.json`` records the key and each array's shape, dtype and SHA-256; loading checks them
+all, and a folder that fails (truncated, edited, another key) is reported and rebuilt, never reused.
+A build writes into a private temporary folder and renames it into place when complete (both
+:mod:`lp3d.array_cache`, shared with the SR fit's pairs).
 """
 
 from __future__ import annotations
 
 import hashlib
-import json
 import os
-import shutil
-import sys
-import tempfile
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -42,6 +39,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from lp3d import array_cache
 from lp3d.camera_sampling import CameraDistribution, sample_cameras
 
 __all__ = [
@@ -57,7 +55,7 @@ __all__ = [
 DATASET_FORMAT = 1
 
 
-class StaleDatasetError(ValueError):
+class StaleDatasetError(array_cache.StaleCacheError):
     """A cached dataset folder that does not match its key or its recorded digests."""
 
 
@@ -118,8 +116,7 @@ class DatasetKey:
     format: int = DATASET_FORMAT
 
     def digest(self) -> str:
-        text = json.dumps(asdict(self), sort_keys=True)
-        return hashlib.blake2b(text.encode(), digest_size=10).hexdigest()
+        return array_cache.key_digest(asdict(self))
 
     def shapes(self) -> dict[str, tuple[tuple[int, ...], str]]:
         n, s, t = self.n_identities, self.image_size, self.triplane_resolution
@@ -128,14 +125,6 @@ class DatasetKey:
             "ref_camera": ((n, 25), "float32"),
             "ref_image": ((n, 3, s, s), "float16"),
         }
-
-
-def _file_digest(path: Path) -> str:
-    h = hashlib.blake2b(digest_size=16)
-    with open(path, "rb") as f:
-        while chunk := f.read(1 << 22):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 #: ``render(planes (B,3,32,T,T), cameras (B,25)) -> the encoder's input images (B,3,S,S)``, no gradients.
@@ -160,30 +149,7 @@ class SyntheticDataset:
     def load(cls, path: str | os.PathLike[str], key: DatasetKey) -> SyntheticDataset:
         """Read and verify a cached folder; :class:`StaleDatasetError` names what does not match."""
         path = Path(path)
-        meta_path = path / "meta.json"
-        try:
-            meta = json.loads(meta_path.read_text())
-        except (OSError, ValueError) as e:
-            raise StaleDatasetError(f"{meta_path}: unreadable ({e})") from None
-        if not isinstance(meta, dict) or meta.get("key") != json.loads(json.dumps(asdict(key))):
-            raise StaleDatasetError(f"{meta_path}: made for another key (teacher, sizes or cameras differ)")
-        arrays: dict[str, np.ndarray] = {}
-        for name, (shape, dtype) in key.shapes().items():
-            file = path / f"{name}.npy"
-            want = meta.get("arrays", {}).get(name, {})
-            if not file.is_file():
-                raise StaleDatasetError(f"{file}: missing")
-            if _file_digest(file) != want.get("blake2b"):
-                raise StaleDatasetError(f"{file}: its digest differs from meta.json (corrupt or edited)")
-            try:
-                a = np.load(file, allow_pickle=False)
-            except (OSError, ValueError) as e:
-                raise StaleDatasetError(f"{file}: unreadable ({e})") from None
-            if a.shape != shape or a.dtype != np.dtype(dtype):
-                raise StaleDatasetError(f"{file}: shape {a.shape} {a.dtype}, expected {shape} {dtype}")
-            if not np.isfinite(a).all():
-                raise StaleDatasetError(f"{file}: holds NaN or Inf")
-            arrays[name] = a
+        arrays = array_cache.load(path, asdict(key), key.shapes(), error=StaleDatasetError)
         return cls(key=key, path=path, **arrays)
 
     @classmethod
@@ -200,14 +166,12 @@ class SyntheticDataset:
         """The dataset for ``key`` under ``root``: loaded when cached and valid, else (re)built."""
         root = Path(root) if root is not None else default_cache_root()
         path = root / key.digest()
-        if path.exists():
-            try:
-                return cls.load(path, key)
-            except StaleDatasetError as e:
-                print(f"warning: cached dataset rejected, rebuilding it: {e}", file=sys.stderr)
-                shutil.rmtree(path, ignore_errors=True)
-        cls.build(key, teacher, render, path, progress=progress, chunk=chunk)
-        return cls.load(path, key)
+        return array_cache.load_or_build(
+            path,
+            lambda: cls.load(path, key),
+            lambda: cls.build(key, teacher, render, path, progress=progress, chunk=chunk),
+            "cached dataset rejected, rebuilding it",
+        )
 
     # -- building ----------------------------------------------------------------------------------
     @staticmethod
@@ -223,14 +187,7 @@ class SyntheticDataset:
         """Synthesise the arrays of ``key`` into ``path`` (written whole or not at all)."""
         if teacher_fingerprint(teacher, key.first_seed) != key.teacher_fingerprint:
             raise StaleDatasetError("the teacher's fingerprint differs from the dataset key's")
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
-        try:
-            shapes = key.shapes()
-            out = {
-                name: np.lib.format.open_memmap(tmp / f"{name}.npy", mode="w+", dtype=dtype, shape=shape)
-                for name, (shape, dtype) in shapes.items()
-            }
+        with array_cache.build(path, asdict(key), key.shapes()) as out:
             ref_dist = CameraDistribution.from_dict(key.reference_cameras)
             bar = None
             if progress:
@@ -253,22 +210,6 @@ class SyntheticDataset:
                     bar.update(hi - lo)
             if bar is not None:
                 bar.close()
-            digests = {}
-            for name, a in out.items():
-                a.flush()
-                del a
-                digests[name] = {
-                    "shape": list(shapes[name][0]),
-                    "dtype": shapes[name][1],
-                    "blake2b": _file_digest(tmp / f"{name}.npy"),
-                }
-            out.clear()
-            meta = {"key": asdict(key), "arrays": digests}
-            (tmp / "meta.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
-            os.replace(tmp, path)
-        except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
         return path
 
 
