@@ -9,39 +9,16 @@
 use std::time::Instant;
 
 use lp3d_renderer::camera::{FFHQ_FOCAL, FFHQ_RADIUS};
-use lp3d_renderer::{Camera, Decoder, GpuContext, Outputs, PlaneDtype, RenderSettings, Renderer, Triplane};
+use lp3d_renderer::{Camera, GpuContext, Outputs, RenderSettings, Renderer};
+
+mod common;
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let arg = |i: usize, d: u32| args.get(i).map(|s| s.parse().expect("integer argument")).unwrap_or(d);
     let (r, s, n, repeats) = (arg(0, 128), arg(1, 48), arg(2, 48), arg(3, 3));
     let dump = args.get(4).cloned();
-    let mut state = 7u32;
-    let mut rand = move || {
-        state ^= state << 13;
-        state ^= state >> 17;
-        state ^= state << 5;
-        (state as f32 / u32::MAX as f32) * 2.0 - 1.0
-    };
-    let size = 256;
-    let tri = Triplane {
-        planes: (0..3 * 32 * size * size).map(|_| rand() * 1.7).collect(),
-        height: size,
-        width: size,
-        plane_dtype: PlaneDtype::F32,
-        decoder: Decoder {
-            w0: (0..64 * 32).map(|_| rand() * 0.3).collect(),
-            b0: (0..64).map(|_| rand() * 0.1).collect(),
-            w1: (0..33 * 64).map(|_| rand() * 0.2).collect(),
-            b1: (0..33).map(|_| rand() * 0.1).collect(),
-        },
-        box_warp: 1.0,
-        ray_start: 2.25,
-        ray_end: 3.3,
-        camera: None,
-        occupancy: None,
-        source: None,
-    };
+    let tri = common::random_triplane();
     let t0 = Instant::now();
     let ctx = GpuContext::headless().expect("GPU adapter");
     let t_ctx = t0.elapsed().as_secs_f64();
