@@ -120,7 +120,8 @@ class EncoderConfig:
     # The plane basis (CPU configurations; not in the paper, 0 turns it off): K coefficients regressed
     # from DeepLab's features select a learned basis of K planes at ``basis_resolution``², added
     # (upsampled) to the head's output. Initialised from the principal components of the teacher's
-    # triplanes: they span its identities in ~100 dimensions (python/lp3d/train.py, "The CPU recipe").
+    # triplanes: they span its identities in ~100 dimensions (python/lp3d/training/__init__.py,
+    # "The CPU recipe").
     basis_components: int = 0
     basis_resolution: int = 32
     basis_pool: int = 4

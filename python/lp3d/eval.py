@@ -84,17 +84,10 @@ from lp3d.images import rgb_to_uint8, save_png, tile
 from lp3d.losses import LPIPSLoss, LPIPSWeightsNotFound, build_perceptual, l1, ssim
 from lp3d.teachers import ProceduralTeacher, Teacher
 from lp3d.teachers.procedural import RESOLUTION as PROCEDURAL_RESOLUTION
-from lp3d.train import (
-    SceneBounds,
-    Student,
-    TrainConfig,
-    build_teacher,
-    load_checkpoint,
-    render_teacher,
-    render_views,
-    resolve_teacher_args,
-    student_from_checkpoint,
-)
+from lp3d.training.checkpoint import load_checkpoint, student_from_checkpoint
+from lp3d.training.config import TrainConfig
+from lp3d.training.student import SceneBounds, Student, render_teacher, render_views
+from lp3d.training.teacher_factory import build_teacher, resolve_teacher_args
 
 __all__ = [
     "INPUT_YAW_RANGE_DEG",

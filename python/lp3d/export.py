@@ -55,7 +55,8 @@ from lp3d.model_package import (
     superres_path,
 )
 from lp3d.superres import FoldedSuperResolution, SuperResolution
-from lp3d.train import CheckpointError, Student, load_checkpoint, student_from_checkpoint
+from lp3d.training.checkpoint import CheckpointError, load_checkpoint, student_from_checkpoint
+from lp3d.training.student import Student
 
 __all__ = [
     "ExportError",
@@ -106,7 +107,8 @@ def export_encoder(
     model: LP3DEncoder | Student, path: str | os.PathLike[str], *, opset: int = MIN_OPSET
 ) -> Path:
     """Write the encoder of ``model`` as ONNX (input ``image``, output ``triplane``, dynamic batch),
-    atomically. A :class:`~lp3d.train.Student` exports ``Student.encode`` (encoder + offset)."""
+    atomically. A :class:`~lp3d.training.student.Student` exports ``Student.encode`` (encoder +
+    offset)."""
     if opset < MIN_OPSET:
         raise ValueError(f"opset must be >= {MIN_OPSET}, got {opset}")
     path = Path(path)
@@ -431,7 +433,7 @@ def check_rounding(reference: Student, rounded: Student, *, batch: int = 2, seed
 def _training_inputs(cfg: Any, teacher_name: str, data_cache: str | None, n: int = 256) -> Tensor:
     """The first ``n`` encoder inputs of the run's cached synthetic dataset (CPU recipe)."""
     from lp3d.synthetic_data import SyntheticDataset, default_cache_root
-    from lp3d.train import build_teacher, dataset_key
+    from lp3d.training.teacher_factory import build_teacher, dataset_key
 
     if cfg.recipe != "cpu" or teacher_name != "procedural":
         raise ValueError("--basis-components needs a CPU-recipe run of the procedural teacher")

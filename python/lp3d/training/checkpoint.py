@@ -1,0 +1,138 @@
+"""Training checkpoints: their format (:data:`CHECKPOINT_FORMAT`), reading them
+(:func:`load_checkpoint`, :func:`student_from_checkpoint`), atomic writes, and the RNG states they
+carry so that a resume is exact.
+
+Imports :mod:`lp3d.training.config` and :mod:`lp3d.training.student`."""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from lp3d import distributed
+from lp3d.atomic import atomic_path
+from lp3d.run_dir import newest_readable
+from lp3d.training.config import TrainConfig
+from lp3d.training.student import SceneBounds, Student
+
+#: Identifies lp3d training checkpoints; bumped when the layout changes.
+CHECKPOINT_FORMAT = "lp3d-train-checkpoint-v1"
+
+
+class CheckpointError(ValueError):
+    """A checkpoint that cannot be used here (another configuration, another format, a bad file)."""
+
+
+def _atomic_torch_save(obj: dict[str, Any], path: Path) -> None:
+    """torch.save that never leaves a half-written checkpoint."""
+    with atomic_path(path) as tmp:
+        torch.save(obj, tmp)
+
+
+def _atomic_write_text(path: Path, text: str) -> None:
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)
+
+
+def load_checkpoint(
+    path: str | os.PathLike[str], *, map_location: str | torch.device = "cpu"
+) -> dict[str, Any]:
+    """Read a training checkpoint (a run directory means its latest); never unpickles code.
+
+    Returns the raw dict with ``config`` parsed into a :class:`TrainConfig` under ``"train_config"``.
+    For a run directory, an unreadable newest checkpoint (a kill or a full disk mid-copy) is skipped
+    with a warning in favour of the newest readable one.
+
+    Raises:
+        CheckpointError: not a file, not an lp3d checkpoint, another format version.
+    """
+    p = Path(path)
+    if p.is_dir():
+        return newest_readable(p, lambda f: load_checkpoint(f, map_location=map_location), CheckpointError)
+    if not p.is_file():
+        raise CheckpointError(f"checkpoint {str(p)!r}: no such file")
+    try:
+        ckpt = torch.load(p, map_location=map_location, weights_only=True)
+    except Exception as e:
+        raise CheckpointError(f"checkpoint {str(p)!r} cannot be read as a plain state dict: {e}") from None
+    if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
+        got = ckpt.get("format") if isinstance(ckpt, dict) else type(ckpt).__name__
+        raise CheckpointError(
+            f"{str(p)!r} is not an lp3d training checkpoint of format {CHECKPOINT_FORMAT!r} (got {got!r})"
+        )
+    try:
+        ckpt["train_config"] = TrainConfig.from_json(ckpt["config"])
+    except (ValueError, TypeError, KeyError) as e:
+        raise CheckpointError(f"{str(p)!r}: its configuration cannot be read by this version: {e}") from None
+    ckpt["path"] = str(p)
+    return ckpt
+
+
+def _load_shared_checkpoint(
+    path: str | os.PathLike[str], device: str | torch.device = "cpu"
+) -> dict[str, Any]:
+    """:func:`load_checkpoint` on every rank of the same file: under torchrun rank 0 picks it (a run
+    directory means its newest readable checkpoint) and tells the others which."""
+    if distributed.is_main():
+        ckpt = load_checkpoint(path, map_location=device)
+        distributed.broadcast_object(ckpt["path"])
+        return ckpt
+    return load_checkpoint(distributed.broadcast_object(""), map_location=device)
+
+
+def _rank_seed(seed: int, rank: int, step: int) -> int:
+    """The torch seed of a rank other than 0 (its own dropout masks), from the run's seed, the rank and
+    the step it starts its streams at; rank 0 keeps the single-process streams."""
+    return int(np.random.SeedSequence([seed, rank, step]).generate_state(1)[0])
+
+
+def student_from_checkpoint(ckpt: dict[str, Any], device: torch.device | str = "cpu") -> Student:
+    """Rebuild the student of a checkpoint (from :func:`load_checkpoint`) in eval mode."""
+    cfg: TrainConfig = ckpt["train_config"]
+    scene = SceneBounds(**json.loads(ckpt["scene"]))
+    dec = ckpt["student"]
+    decoder = tuple(dec[f"decoder.{n}"].cpu().numpy() for n in ("w0", "b0", "w1", "b1"))
+    student = Student(cfg, decoder, scene)  # type: ignore[arg-type]
+    try:
+        student.load_state_dict(ckpt["student"])
+    except RuntimeError as e:
+        raise CheckpointError(f"checkpoint weights do not fit configuration {cfg.name!r}: {e}") from None
+    return student.to(device).eval()
+
+
+def _rng_states() -> dict[str, Any]:
+    py = random.getstate()
+    np_state = np.random.get_state()  # noqa: NPY002  (the global state other code may use)
+    out: dict[str, Any] = {
+        "python": json.dumps([py[0], list(py[1]), py[2]]),
+        "numpy": json.dumps(
+            [
+                np_state[0],
+                np.asarray(np_state[1]).tolist(),
+                int(np_state[2]),
+                int(np_state[3]),
+                float(np_state[4]),
+            ]
+        ),
+        "torch": torch.get_rng_state(),
+    }
+    if torch.cuda.is_available():
+        out["cuda"] = torch.cuda.get_rng_state_all()
+    return out
+
+
+def _set_rng_states(states: dict[str, Any]) -> None:
+    v, s, g = json.loads(states["python"])
+    random.setstate((v, tuple(s), g))
+    n = json.loads(states["numpy"])
+    legacy = (n[0], np.asarray(n[1], dtype=np.uint32), n[2], n[3], n[4])
+    np.random.set_state(legacy)  # noqa: NPY002
+    torch.set_rng_state(states["torch"].cpu())
+    if "cuda" in states and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all([t.cpu() for t in states["cuda"]])

@@ -1,0 +1,236 @@
+"""The command line of training (``python -m lp3d.train`` and ``lp3d train``): its options
+(:func:`add_arguments`) and :func:`main`, which builds the teacher and the :class:`Trainer` and runs it.
+
+The last module of :mod:`lp3d.training`; nothing in the package imports it."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import sys
+from pathlib import Path
+
+from lp3d import distributed
+from lp3d.errors import EXIT_ERROR, EXIT_INTERRUPTED, run_command
+from lp3d.losses import PERCEPTUAL_KINDS, build_perceptual
+from lp3d.run_dir import latest_checkpoint
+from lp3d.training.checkpoint import CheckpointError, _load_shared_checkpoint
+from lp3d.training.config import TRAIN_CONFIGS, TrainConfig, _scaled_schedule
+from lp3d.training.steps import NonFiniteError
+from lp3d.training.teacher_factory import TEACHERS, _recordable, build_teacher, resolve_teacher_args
+from lp3d.training.trainer import Trainer
+
+#: ``--help``'s description (``python -m lp3d.train`` and ``lp3d train``).
+DESCRIPTION = "Distil a teacher into the LP3D triplane encoder (paper §3.2)."
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The training options, shared by ``python -m lp3d.train`` and ``lp3d train``."""
+    p.add_argument(
+        "--config",
+        choices=sorted(TRAIN_CONFIGS),
+        help="named configuration (default tiny; on --resume, the checkpoint's)",
+    )
+    p.add_argument("--teacher", choices=TEACHERS, default=None, help="teacher (default procedural)")
+    p.add_argument(
+        "--teacher-pkl",
+        default=None,
+        help="EG3D generator pickle for --teacher eg3d (remembered on --resume)",
+    )
+    p.add_argument(
+        "--eg3d-source",
+        default=None,
+        help="NVlabs/eg3d's source, to unpickle the generator: the repository root or its inner eg3d/ "
+        "folder (the one holding torch_utils/, dnnlib/ and training/); not needed when those are "
+        "importable already (remembered on --resume)",
+    )
+    p.add_argument(
+        "--eg3d-conditioning",
+        choices=("gen_videos", "gen_samples"),
+        default=None,
+        help="whose conditioning camera the EG3D mapping gets: gen_videos.py's (LookAtPoseSampler(3.14/2, "
+        "3.14/2), focal 4.2647; default) or gen_samples.py's (exactly frontal, focal 4.26339)",
+    )
+    p.add_argument("--out", default=None, help="run directory (default runs/<config>)")
+    p.add_argument("--max-steps", type=int, default=None, help="stop at this global step (default: config)")
+    p.add_argument("--batch", type=int, default=None, help="batch size (overrides the config)")
+    p.add_argument(
+        "--total-steps",
+        type=int,
+        default=None,
+        help="rescale the config's schedule (stage boundaries keep the paper's proportions) to this length",
+    )
+    p.add_argument("--resume", default=None, help="checkpoint file or run directory to continue from")
+    p.add_argument(
+        "--perceptual",
+        choices=PERCEPTUAL_KINDS,
+        default=None,
+        help="perceptual loss (default: the config's; lpips needs backbone weights on disk)",
+    )
+    p.add_argument("--lpips-weights", default=None, help="torchvision VGG16/AlexNet state dict for LPIPS")
+    p.add_argument(
+        "--data-cache",
+        default=None,
+        help="folder of the CPU recipe's cached synthetic datasets (default $LP3D_DATA_CACHE, "
+        "$LP3D_CACHE/datasets or ~/.cache/lp3d/datasets)",
+    )
+    p.add_argument(
+        "--dataset-identities",
+        type=int,
+        default=None,
+        help="identities in the CPU recipe's synthetic dataset (overrides the config)",
+    )
+    p.add_argument(
+        "--checkpoint-every",
+        type=int,
+        default=None,
+        help="write a checkpoint every N steps (default: the config's; may change on --resume)",
+    )
+    p.add_argument(
+        "--device",
+        default="auto",
+        help="cpu, cuda, cuda:N or auto; under torchrun each process takes cuda:LOCAL_RANK (cuda:N is "
+        "refused) or the CPU",
+    )
+    p.add_argument(
+        "--dist-timeout",
+        type=float,
+        default=60.0,
+        metavar="MINUTES",
+        help="under torchrun, how long a process waits for the others at a collective call (default 60; "
+        "it must cover rank 0 synthesising a missing dataset)",
+    )
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def build_parser(prog: str = "python -m lp3d.train") -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=prog, description=DESCRIPTION)
+    add_arguments(p)
+    p.set_defaults(func=run_cli)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m lp3d.train`` (an alias of ``lp3d train``); the exit status is :mod:`lp3d.errors`'
+    policy: 0 done, 1 an error (printed as one line), 2 a usage error, 130 interrupted."""
+    return run_command(build_parser(), argv)
+
+
+def run_cli(args: argparse.Namespace) -> int:
+    """Train with parsed :func:`add_arguments` options; returns the exit status."""
+    try:
+        return _main(args)
+    finally:
+        distributed.shutdown()  # leaves torchrun's process group (a no-op for one process)
+
+
+def _main(args: argparse.Namespace) -> int:
+    # Errors are printed by every process (one rank may fail alone); under torchrun they name the rank.
+    def error(e: BaseException | str) -> None:
+        where = f" (rank {distributed.rank()})" if distributed.world_size() > 1 else ""
+        print(f"error{where}: {e}", file=sys.stderr)
+
+    try:
+        if not (math.isfinite(args.dist_timeout) and args.dist_timeout > 0):
+            raise ValueError(f"--dist-timeout must be a positive number of minutes, got {args.dist_timeout}")
+        device = distributed.setup(args.device, timeout_minutes=args.dist_timeout).device
+        ckpt = _load_shared_checkpoint(args.resume) if args.resume else None
+        if ckpt is not None:
+            cfg: TrainConfig = ckpt["train_config"]
+            if args.config is not None and args.config != cfg.name:
+                raise CheckpointError(
+                    f"--resume {args.resume}: the checkpoint was trained with configuration {cfg.name!r}, "
+                    f"not {args.config!r}; omit --config to resume it"
+                )
+            teacher_name = args.teacher or ckpt["teacher"]
+            out = Path(args.out) if args.out else Path(ckpt["path"]).parent.parent
+        else:
+            cfg = TRAIN_CONFIGS[args.config or "tiny"]
+            teacher_name = args.teacher or "procedural"
+            out = Path(args.out) if args.out else Path("runs") / cfg.name
+        if args.batch is not None:
+            cfg = dataclasses.replace(cfg, batch_size=args.batch)
+        if args.total_steps is not None:
+            if ckpt is not None and args.total_steps != cfg.total_steps:
+                raise CheckpointError(
+                    f"--total-steps {args.total_steps}: the checkpoint's schedule has {cfg.total_steps} "
+                    "steps; a resumed run keeps its schedule"
+                )
+            if args.total_steps < 1:
+                raise ValueError(f"--total-steps must be >= 1, got {args.total_steps}")
+            cfg = dataclasses.replace(cfg, **_scaled_schedule(args.total_steps, cfg))
+        if args.perceptual is not None:
+            cfg = dataclasses.replace(cfg, perceptual=args.perceptual)
+        if args.checkpoint_every is not None:
+            if args.checkpoint_every < 1:
+                raise ValueError(f"--checkpoint-every must be >= 1, got {args.checkpoint_every}")
+            cfg = dataclasses.replace(cfg, checkpoint_every=args.checkpoint_every)
+        if args.dataset_identities is not None:
+            if ckpt is not None and args.dataset_identities != cfg.dataset_identities:
+                raise CheckpointError(
+                    f"--dataset-identities {args.dataset_identities}: the checkpoint was trained on "
+                    f"{cfg.dataset_identities}; a resumed run keeps its dataset"
+                )
+            cfg = dataclasses.replace(cfg, dataset_identities=args.dataset_identities)
+        perceptual = build_perceptual(
+            cfg.perceptual, lpips_net=cfg.lpips_net, lpips_weights=args.lpips_weights
+        )
+        if perceptual is not None:
+            perceptual = perceptual.to(device)
+        targs = resolve_teacher_args(
+            ckpt if ckpt is not None and teacher_name == ckpt["teacher"] else None,
+            teacher_pkl=args.teacher_pkl,
+            eg3d_source=args.eg3d_source,
+            conditioning=args.eg3d_conditioning,
+        )
+        recorded = resolve_teacher_args(ckpt) if ckpt is not None else None
+        if recorded is not None and _recordable(targs) != recorded:  # recorded paths are absolute
+            if targs["conditioning"] != recorded["conditioning"]:
+                raise CheckpointError(
+                    f"--eg3d-conditioning {targs['conditioning']}: the run was trained with "
+                    f"{recorded['conditioning']!r}; a resumed run keeps its teacher"
+                )
+            distributed.note(f"note: teacher arguments differ from the run's recorded ones: {targs}")
+        teacher = build_teacher(
+            teacher_name,
+            triplane_resolution=cfg.triplane_resolution,
+            teacher_pkl=targs["teacher_pkl"],
+            eg3d_source=targs["eg3d_source"],
+            conditioning=targs["conditioning"],  # type: ignore[arg-type]
+            device=device,
+        )
+        trainer = Trainer(
+            cfg,
+            out,
+            teacher=teacher,
+            teacher_name=teacher_name,
+            perceptual=perceptual,
+            device=device,
+            resume=ckpt["path"] if ckpt is not None else None,
+            progress=not args.no_progress,
+            data_cache=args.data_cache,
+            teacher_args=targs,
+        )
+    except (ValueError, RuntimeError, FileNotFoundError) as e:
+        error(e)
+        return EXIT_ERROR
+    distributed.note(
+        f"training {cfg.name!r} on {device} with the {teacher_name} teacher, batch {cfg.batch_size}, "
+        f"from step {trainer.step} to {args.max_steps or cfg.total_steps}; run directory {out}"
+    )
+    try:
+        trainer.train(args.max_steps)
+    except NonFiniteError as e:
+        error(e)
+        return EXIT_ERROR
+    except KeyboardInterrupt:
+        distributed.note(f"aborted; the last checkpoint is {latest_checkpoint(out)}")
+        return EXIT_INTERRUPTED
+    if trainer.interrupted:
+        last = latest_checkpoint(out) if trainer.is_main else None
+        distributed.note(f"interrupted at step {trainer.step}; saved {last}; continue with --resume {out}")
+        return EXIT_INTERRUPTED
+    if trainer.is_main:
+        print(f"done at step {trainer.step}; checkpoint {latest_checkpoint(out)}", file=sys.stderr)
+    return 0
