@@ -8,15 +8,14 @@
 
 use std::time::Instant;
 
-use lp3d_renderer::camera::{FFHQ_FOCAL, FFHQ_RADIUS};
-use lp3d_renderer::{Camera, GpuContext, Outputs, RenderSettings, Renderer};
+use lp3d_renderer::{GpuContext, Outputs, RenderSettings, Renderer};
 
 mod common;
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let arg = |i: usize, d: u32| args.get(i).map(|s| s.parse().expect("integer argument")).unwrap_or(d);
-    let (r, s, n, repeats) = (arg(0, 128), arg(1, 48), arg(2, 48), arg(3, 3));
+    let (settings, repeats) = common::settings_from_args(&args);
+    let (r, s, n) = (settings.resolution, settings.depth_resolution, settings.depth_resolution_importance);
     let dump = args.get(4).cloned();
     let tri = common::random_triplane();
     let t0 = Instant::now();
@@ -26,28 +25,21 @@ fn main() {
     let renderer = Renderer::new(&ctx).expect("pipelines");
     let t_new = t.elapsed().as_secs_f64();
     let gpu = renderer.upload(&tri).expect("upload");
-    let half_pi = std::f64::consts::FRAC_PI_2;
-    let cams = [Camera::look_at(half_pi, half_pi, FFHQ_RADIUS, [0.0, 0.0, 0.2], FFHQ_FOCAL)];
-    let settings = RenderSettings {
-        resolution: r,
-        depth_resolution: s,
-        depth_resolution_importance: n,
-        ..Default::default()
-    };
+    let cams = common::frontal_camera();
     let t = Instant::now();
-    let c = process_cpu_s();
+    let c = common::process_cpu_s();
     renderer.render(&gpu, &cams, &RenderSettings { resolution: 4, ..settings }, Outputs::ALL).expect("first");
     let t_first = t.elapsed().as_secs_f64();
-    let c_first = process_cpu_s() - c;
+    let c_first = common::process_cpu_s() - c;
     let mut times = Vec::new();
     let mut cpu = Vec::new();
     let mut last = None;
     for _ in 0..repeats {
         let t = Instant::now();
-        let c = process_cpu_s();
+        let c = common::process_cpu_s();
         last = Some(renderer.render(&gpu, &cams, &settings, Outputs::ALL).expect("render"));
         times.push(t.elapsed().as_secs_f64() * 1e3);
-        cpu.push((process_cpu_s() - c) * 1e3);
+        cpu.push((common::process_cpu_s() - c) * 1e3);
         eprintln!(
             "  render at {:.1} s: {:.0} ms, kernel {:?}",
             t0.elapsed().as_secs_f64(),
@@ -73,14 +65,4 @@ fn main() {
         }
         std::fs::write(path, bytemuck::cast_slice(&v)).expect("write dump");
     }
-}
-
-/// User + system CPU time of this process (all threads), in seconds: less sensitive than wall
-/// time to other jobs sharing the cores (the JIT compile is one thread).
-fn process_cpu_s() -> f64 {
-    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-    let fields: Vec<&str> = stat.rsplit(')').next().unwrap_or("").split_whitespace().collect();
-    let ticks: f64 = fields.get(11).and_then(|u| u.parse::<f64>().ok()).unwrap_or(0.0)
-        + fields.get(12).and_then(|s| s.parse::<f64>().ok()).unwrap_or(0.0);
-    ticks / 100.0 // USER_HZ is 100 on Linux
 }

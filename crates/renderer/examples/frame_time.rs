@@ -7,15 +7,14 @@
 
 use std::time::Instant;
 
-use lp3d_renderer::camera::{FFHQ_FOCAL, FFHQ_RADIUS};
-use lp3d_renderer::{Camera, GpuContext, Outputs, RenderSettings, Renderer};
+use lp3d_renderer::{GpuContext, Outputs, RenderSettings, Renderer};
 
 mod common;
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let arg = |i: usize, d: u32| args.get(i).map(|s| s.parse().expect("integer argument")).unwrap_or(d);
-    let (r, s, n, repeats) = (arg(0, 128), arg(1, 48), arg(2, 48), arg(3, 3));
+    let (settings, repeats) = common::settings_from_args(&args);
+    let (r, s, n) = (settings.resolution, settings.depth_resolution, settings.depth_resolution_importance);
     let outputs = match args.get(4) {
         Some(list) => Outputs::from_names(&list.split(',').collect::<Vec<_>>()).expect("outputs"),
         None => Outputs::ALL,
@@ -24,14 +23,7 @@ fn main() {
     let ctx = GpuContext::headless().expect("GPU adapter");
     let renderer = Renderer::new(&ctx).expect("pipelines");
     let gpu = renderer.upload(&tri).expect("upload");
-    let half_pi = std::f64::consts::FRAC_PI_2;
-    let cams = [Camera::look_at(half_pi, half_pi, FFHQ_RADIUS, [0.0, 0.0, 0.2], FFHQ_FOCAL)];
-    let settings = RenderSettings {
-        resolution: r,
-        depth_resolution: s,
-        depth_resolution_importance: n,
-        ..Default::default()
-    };
+    let cams = common::frontal_camera();
     let t0 = Instant::now();
     renderer.render(&gpu, &cams, &RenderSettings { resolution: 4, ..settings }, outputs).expect("warm-up");
     eprintln!(
@@ -44,10 +36,10 @@ fn main() {
     let mut checksum = 0.0f64;
     for _ in 0..repeats {
         let t = Instant::now();
-        let c = process_cpu_ms();
+        let c = common::process_cpu_s();
         let out = renderer.render(&gpu, &cams, &settings, outputs).expect("render");
         times.push(t.elapsed().as_secs_f64() * 1e3);
-        cpu.push(process_cpu_ms() - c);
+        cpu.push((common::process_cpu_s() - c) * 1e3);
         checksum = out.weights_sum.map(|w| w.iter().map(|&v| v as f64).sum()).unwrap_or(0.0);
     }
     times.sort_by(f64::total_cmp);
@@ -58,14 +50,4 @@ fn main() {
         times[0],
         cpu[cpu.len() / 2]
     );
-}
-
-/// User + system CPU time of this process (all threads, lavapipe's workers included), in ms.
-/// Less sensitive than wall time to other jobs sharing the cores.
-fn process_cpu_ms() -> f64 {
-    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-    let fields: Vec<&str> = stat.rsplit(')').next().unwrap_or("").split_whitespace().collect();
-    let ticks: f64 = fields.get(11).and_then(|u| u.parse::<f64>().ok()).unwrap_or(0.0)
-        + fields.get(12).and_then(|s| s.parse::<f64>().ok()).unwrap_or(0.0);
-    ticks * 10.0 // USER_HZ is 100 on Linux
 }
