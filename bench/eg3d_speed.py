@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 import lp3d_render
-from lp3d.camera import look_at_camera
+from lp3d.render.camera import look_at_camera
 from lp3d.teachers import ProceduralTeacher
 from render_bench import scene as random_scene  # bench/ is on sys.path when run as a script
 

@@ -19,7 +19,7 @@ import numpy as np
 
 
 def main(argv: list[str] | None = None) -> int:
-    from lp3d.inference import DEFAULT_MODEL
+    from lp3d.lift.inference import DEFAULT_MODEL
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--model", type=Path, default=DEFAULT_MODEL, help="ONNX encoder (default: shipped)")

@@ -3,7 +3,7 @@
     python bench/error_budget.py --n-identities 16            # about 23 min on a loaded 2-core CPU
 
 For each identity (teacher seeds ``0 ..`` = training identities, ``eval_seed_start ..`` = held-out
-ones, inputs rendered as ``python -m lp3d.eval`` renders them) it renders the same novel views as the
+ones, inputs rendered as ``lp3d eval`` renders them) it renders the same novel views as the
 evaluation (128², scored against the teacher at its native 256² planes) from:
 
 * ``ceiling``: the teacher's own head at the student's 64² plane resolution;
@@ -31,7 +31,9 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from lp3d.eval import (
+from lp3d.lift.inference import load_encoder
+from lp3d.train import TRAIN_CONFIGS, SceneBounds, build_teacher
+from lp3d.training.eval import (
     EvalSettings,
     _render_truth,
     _views,
@@ -40,8 +42,6 @@ from lp3d.eval import (
     psnr,
     reference_teachers,
 )
-from lp3d.inference import load_encoder
-from lp3d.train import TRAIN_CONFIGS, SceneBounds, build_teacher
 
 METHODS = ("ceiling", "basis oracle", "ceiling + noise", "student", "mean head")
 MODEL = Path(__file__).resolve().parents[1] / "python" / "lp3d" / "models" / "small.pt"

@@ -30,8 +30,8 @@ from pathlib import Path
 #: A fresh process's first default render (128², 48+48) of a small scene, read back to numpy.
 RENDER = """
 import numpy as np, lp3d_render
-from lp3d.camera import look_at_camera
-from lp3d.sample_scenes import coloured_sphere
+from lp3d.render.camera import look_at_camera
+from lp3d.render.sample_scenes import coloured_sphere
 t = coloured_sphere(size=64)
 tri = t.to_native()
 out = lp3d_render.render(tri, look_at_camera(yaw_deg=20.0))
@@ -43,8 +43,8 @@ def _commands(work: Path) -> dict[str, tuple[list[str], dict[str, str]]]:
     """Label -> (command, extra environment)."""
     scene = work / "sphere.npz"
     if not scene.exists():
-        from lp3d.sample_scenes import coloured_sphere
-        from lp3d.triplane_io import save_triplane
+        from lp3d.render.sample_scenes import coloured_sphere
+        from lp3d.render.triplane_io import save_triplane
 
         save_triplane(scene, coloured_sphere(size=64))
     xvfb = ["xvfb-run", "-a", "-s", "-screen 0 1024x768x24"]
@@ -56,11 +56,20 @@ def _commands(work: Path) -> dict[str, tuple[list[str], dict[str, str]]]:
             {"LP3D_KERNEL": "fast"},
         ),
         "lp3d demo (2 encodes, 12 views, orbit GIF)": (
-            [sys.executable, "-m", "lp3d.demo", "--out", str(work / "demo")],
+            [sys.executable, "-m", "lp3d.cli", "demo", "--out", str(work / "demo")],
             {},
         ),
         "lp3d-view first frame (screenshot, 128²)": (
-            [*xvfb, sys.executable, "-m", "lp3d.view", "--screenshot", str(work / "view.png"), str(scene)],
+            [
+                *xvfb,
+                sys.executable,
+                "-m",
+                "lp3d.cli",
+                "view",
+                "--screenshot",
+                str(work / "view.png"),
+                str(scene),
+            ],
             {},
         ),
     }

@@ -21,7 +21,7 @@ import sys
 CHILD = r"""
 import json, resource, sys, time
 import lp3d_render
-from lp3d.camera import look_at_camera
+from lp3d.render.camera import look_at_camera
 from lp3d.teachers import ProceduralTeacher
 r, s, n = (int(a) for a in sys.argv[1:4])
 t = ProceduralTeacher().sample(0)

@@ -24,10 +24,10 @@ from pathlib import Path
 import numpy as np
 
 import lp3d_render
-from lp3d.camera import look_at_camera
+from lp3d.render.camera import look_at_camera
+from lp3d.render.triplane import TriplaneData
+from lp3d.render.triplane_io import load_triplane
 from lp3d.teachers import ProceduralTeacher
-from lp3d.triplane import TriplaneData
-from lp3d.triplane_io import load_triplane
 
 # Time the steady state: the fast kernel, not the quick one the renderer draws with while the fast
 # one compiles in the background on a machine whose shader cache lacks it (README, "first render").
@@ -189,7 +189,7 @@ def main(argv: list[str] | None = None) -> int:
     info = lp3d_render.adapter_info()
 
     try:
-        from lp3d.render_torch import render_triplane_torch
+        from lp3d.render.torch_twin import render_triplane_torch
     except ImportError:
         render_triplane_torch = None
 

@@ -21,9 +21,9 @@ from collections.abc import Callable
 import numpy as np
 
 import lp3d_render
-from lp3d.camera import look_at_camera
-from lp3d.reference import render_reference
-from lp3d.triplane import TriplaneData
+from lp3d.render.camera import look_at_camera
+from lp3d.render.reference import render_reference
+from lp3d.render.triplane import TriplaneData
 
 # Time the steady state: the fast kernel, not the quick one the renderer draws with while the fast
 # one compiles in the background on a machine whose shader cache lacks it (README, "first render").
@@ -68,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         import torch
 
-        from lp3d.render_torch import render_triplane_torch
+        from lp3d.render.torch_twin import render_triplane_torch
 
         torch_threads = torch.get_num_threads()
     except ImportError:

@@ -22,7 +22,7 @@ from dataclasses import replace
 import numpy as np
 
 import lp3d_render
-from lp3d.camera import look_at_camera
+from lp3d.render.camera import look_at_camera
 from lp3d.teachers import ProceduralTeacher
 
 # Time the steady state: the fast kernel, not the quick one the renderer draws with while the fast

@@ -62,11 +62,11 @@ import torch
 from torch import Tensor
 
 from lp3d.atomic import atomic_path
-from lp3d.camera_sampling import sample_cameras
-from lp3d.losses import ViewRenders, build_perceptual, l1, normalised_triplane_loss
-from lp3d.render_torch import rays_from_cameras, render_rays
+from lp3d.render.torch_twin import rays_from_cameras, render_rays
+from lp3d.render.triplane import mirror_planes
 from lp3d.train import TRAIN_CONFIGS, Batch, TrainConfig, Trainer, build_teacher, render_teacher, render_views
-from lp3d.triplane import mirror_planes
+from lp3d.training.camera_sampling import sample_cameras
+from lp3d.training.losses import ViewRenders, build_perceptual, l1, normalised_triplane_loss
 
 Times = dict[str, float]
 

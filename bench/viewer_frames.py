@@ -51,7 +51,8 @@ def run_once(scene: Path, work: Path, budget: float, drag_frames: int, timeout: 
         *XVFB,
         sys.executable,
         "-m",
-        "lp3d.view",
+        "lp3d.cli",
+        "view",
         *("--screenshot", str(shot), "--drag-frames", str(drag_frames)),
         *("--frame-budget-ms", str(budget), str(scene)),
     ]
@@ -116,8 +117,8 @@ def main(argv: list[str] | None = None) -> int:
     if shutil.which("xvfb-run") is None:
         p.error("xvfb-run is missing: run scripts/install-system-deps.sh")
 
+    from lp3d.render.triplane_io import save_triplane
     from lp3d.teachers.procedural import ProceduralTeacher
-    from lp3d.triplane_io import save_triplane
 
     results = []
     with tempfile.TemporaryDirectory(prefix="lp3d-viewer-frames-") as tmp:

@@ -33,9 +33,9 @@ steps, never in lp3d's (lp3d's loader puts it there while unpickling, as it does
 
    * ``train``: ``python -m lp3d.train --config C --teacher eg3d --teacher-pkl G.pkl
      --eg3d-source SRC --max-steps 2``; the checkpoint must record the teacher's pickle and source;
-   * ``eval``: ``python -m lp3d.eval RUN --teacher-pkl G.pkl --eg3d-source SRC`` (2 identities, no
+   * ``eval``: ``lp3d eval RUN --teacher-pkl G.pkl --eg3d-source SRC`` (2 identities, no
      baseline);
-   * ``export``: ``python -m lp3d.export RUN -o model-C.onnx`` (its own onnxruntime check);
+   * ``export``: ``lp3d export RUN -o model-C.onnx`` (its own onnxruntime check);
    * ``encode``: ``lp3d encode`` of EG3D's super-resolved image with that model.
 
 Each step is timed; a failed step is reported with the end of its log (all logs are in
@@ -365,9 +365,9 @@ def _lp3d_compare(cfg: dict[str, Any]) -> dict[str, Any]:
         raise RuntimeError(f"EG3D's {', '.join(leaked)} importable in lp3d's process before loading")
 
     import lp3d_render
-    from lp3d.render_torch import render_triplane_torch
+    from lp3d.render.torch_twin import render_triplane_torch
+    from lp3d.render.triplane import TriplaneData
     from lp3d.teachers.eg3d import EG3DTeacher
-    from lp3d.triplane import TriplaneData
 
     ref = dict(np.load(cfg["reference"], allow_pickle=False))
     seed, resolution = int(cfg["seed"]), int(cfg["resolution"])
@@ -691,7 +691,7 @@ def _step_eval(check: Check, config: str) -> list[Row]:
     start = time.perf_counter()
     check.lp3d(
         name,
-        "lp3d.eval",
+        "lp3d.training.eval",
         _run_dir(config),
         *("--teacher-pkl", str(check.pkl), "--eg3d-source", str(check.eg3d_source)),
         *("--n-identities", "2", "--baseline-steps", "0", "--out", f"eval-{config}"),
@@ -716,7 +716,7 @@ def _step_export(check: Check, config: str) -> list[Row]:
     name = f"export:{config}"
     model = check.work / f"model-{config}.onnx"
     start = time.perf_counter()
-    text = check.lp3d(name, "lp3d.export", _run_dir(config), "-o", model.name)
+    text = check.lp3d(name, "lp3d.training.export", _run_dir(config), "-o", model.name)
     seconds = time.perf_counter() - start
     errors = re.findall(r"onnxruntime vs PyTorch max abs error (\S+)", text)
     ok = model.is_file() and bool(errors)
@@ -729,7 +729,7 @@ def _step_export(check: Check, config: str) -> list[Row]:
 
 def _step_encode(check: Check, config: str) -> list[Row]:
     from lp3d.images import rgb_to_uint8, save_png
-    from lp3d.triplane_io import load_triplane
+    from lp3d.render.triplane_io import load_triplane
 
     name = f"encode:{config}"
     photo = check.work / "eg3d_image.png"
@@ -764,11 +764,11 @@ def _per_config(config: str) -> tuple[Step, ...]:
         ),
         Step(
             f"eval:{config}",
-            "python -m lp3d.eval RUN --teacher-pkl ... --eg3d-source ...",
+            "lp3d eval RUN --teacher-pkl ... --eg3d-source ...",
             (train,),
             bind(_step_eval),
         ),
-        Step(f"export:{config}", "python -m lp3d.export RUN", (train,), bind(_step_export)),
+        Step(f"export:{config}", "lp3d export RUN", (train,), bind(_step_export)),
         Step(
             f"encode:{config}",
             "lp3d encode (EG3D's image) with the exported model",

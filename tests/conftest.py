@@ -8,8 +8,8 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from lp3d.camera import look_at_camera
-from lp3d.triplane import TriplaneData
+from lp3d.render.camera import look_at_camera
+from lp3d.render.triplane import TriplaneData
 
 
 @pytest.fixture(scope="session")

@@ -7,7 +7,7 @@ seconds a step, with every part of the recipe on within four steps:
 * ``dist-paper`` (the paper's recipe, ``tiny-paper`` sizes): stage 2 from step 1, so the decoder,
   the SR and the discriminator all train, R1 every step, reference views on steps 0, 1 and from 3 on.
   Global batch 4, so 2 per rank on 2 ranks; the discriminator's minibatch-stddev groups of 2 then hold
-  the same samples on a rank as in one process (``lp3d.distributed.shard``).
+  the same samples on a rank as in one process (``lp3d.training.distributed.shard``).
 * ``dist-cpu`` (the CPU recipe, ``tiny`` sizes): a 4-identity cached dataset, regression at step 0
   and random rays from step 1, mirror flips, held-out curve of 2 identities.
 

@@ -13,9 +13,9 @@ import pytest
 
 from lp3d.atomic import StagedFiles, atomic_path, create_temp
 from lp3d.cli import CLIError, Staged
-from lp3d.model_package import save_model_package
-from lp3d.sample_scenes import coloured_sphere
-from lp3d.triplane_io import save_triplane
+from lp3d.lift.model_package import save_model_package
+from lp3d.render.sample_scenes import coloured_sphere
+from lp3d.render.triplane_io import save_triplane
 
 #: An unusual umask, so the expected mode (0640) is neither mkstemp's 0600 nor the common 0644.
 UMASK = 0o027

@@ -1,4 +1,4 @@
-"""lp3d.camera: EG3D's camera label, look-at poses and their sign conventions, validation."""
+"""lp3d.render.camera: EG3D's camera label, look-at poses and their sign conventions, validation."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from lp3d.camera import (
+from lp3d.render.camera import (
     FFHQ_FOCAL,
     FFHQ_PIVOT,
     FFHQ_RADIUS,

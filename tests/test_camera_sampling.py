@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 import torch
 
-from lp3d.camera import FFHQ_FOCAL, FFHQ_PIVOT, fov_to_focal, validate_camera
-from lp3d.camera_sampling import (
+from lp3d.render.camera import FFHQ_FOCAL, FFHQ_PIVOT, fov_to_focal, validate_camera
+from lp3d.training.camera_sampling import (
     AFHQ_REFERENCE,
     FFHQ_MULTIVIEW,
     FFHQ_REFERENCE,

@@ -4,7 +4,7 @@ Several threads of this process and two child processes save *different* triplan
 while other threads load it. Every save must succeed; every load must return one saver's triplane
 whole (its planes, decoder and source agree), or, only while no save has finished yet, a clean "no
 such file". Nothing else is allowed: no "Could not find EOCD", no "Invalid checksum", no half file,
-no leftover temporary file. Run for ``lp3d_render.Triplane`` (Rust) and ``lp3d.triplane_io``.
+no leftover temporary file. Run for ``lp3d_render.Triplane`` (Rust) and ``lp3d.render.triplane_io``.
 
 The work is bounded by counts (savers x saves), not by time; each case takes a second or two.
 """
@@ -70,14 +70,14 @@ def rust_load(path: Path) -> int:
 
 
 def python_save(path: Path, marker: int) -> None:
-    from lp3d.triplane import TriplaneData
-    from lp3d.triplane_io import save_triplane
+    from lp3d.render.triplane import TriplaneData
+    from lp3d.render.triplane_io import save_triplane
 
     save_triplane(path, TriplaneData(**marked_arrays(marker), source=f"saver {marker}"))
 
 
 def python_load(path: Path) -> int:
-    from lp3d.triplane_io import load_triplane
+    from lp3d.render.triplane_io import load_triplane
 
     tri = load_triplane(path)
     return marker_of(tri.planes, tri.w1, tri.b1, tri.source)

@@ -14,13 +14,13 @@ import numpy as np
 import pytest
 import torch
 
-from lp3d.camera import look_at_camera
-from lp3d.losses import normalised_triplane_loss
-from lp3d.synthetic_data import DatasetKey, StaleDatasetError, SyntheticDataset, teacher_fingerprint
+from lp3d.render.camera import look_at_camera
+from lp3d.render.triplane import mirror_planes
 from lp3d.teachers import ProceduralTeacher
 from lp3d.train import TRAIN_CONFIGS, SceneBounds, TrainConfig, Trainer, render_views
 from lp3d.train import main as train_main
-from lp3d.triplane import mirror_planes
+from lp3d.training.losses import normalised_triplane_loss
+from lp3d.training.synthetic_data import DatasetKey, StaleDatasetError, SyntheticDataset, teacher_fingerprint
 
 #: Steps and dataset size of the learning test, and the specificity it must reach.
 LEARN_STEPS = 120
@@ -235,7 +235,7 @@ def test_a_short_cpu_run_learns_to_follow_its_input(learned):
 
 # ---------------------------------------------------------------------------------------- basis
 def test_principal_planes_span_a_low_rank_family_and_start_the_basis_at_zero():
-    from lp3d.encoder import CONFIGS, build_encoder
+    from lp3d.nets.encoder import CONFIGS, build_encoder
     from lp3d.train import principal_planes
 
     gen = torch.Generator().manual_seed(0)

@@ -42,10 +42,10 @@ import pytest
 import torch
 
 from distributed_worker import CONFIGS
-from lp3d import distributed
-from lp3d.losses import build_perceptual
 from lp3d.teachers import ProceduralTeacher
 from lp3d.train import TrainConfig, Trainer, load_checkpoint
+from lp3d.training import distributed
+from lp3d.training.losses import build_perceptual
 
 WORKER = str(Path(__file__).with_name("distributed_worker.py"))
 GLOBAL_RTOL = 2e-2

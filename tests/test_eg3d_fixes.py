@@ -1,6 +1,6 @@
 """Rough edges of the EG3D path that ``scripts/eg3d_check.py`` found (issue 10): a teacher whose planes
 are larger than the student's (EG3D's 256² for ``tiny``'s 64²) in the CPU recipe's dataset, the
-conditioning camera of ``gen_videos.py``, and ``python -m lp3d.eval --help``.
+conditioning camera of ``gen_videos.py``, and ``lp3d eval --help``.
 
 ``EG3D_SRC`` (NVlabs/eg3d's ``eg3d/`` folder) additionally checks the conditioning camera against EG3D's
 own ``LookAtPoseSampler``; without it that test is skipped.
@@ -21,12 +21,12 @@ import numpy as np
 import pytest
 import torch
 
-from lp3d.camera import FFHQ_FOCAL, look_at_camera
-from lp3d.eval import main as eval_main
-from lp3d.synthetic_data import DatasetKey, SyntheticDataset, resize_planes, teacher_fingerprint
+from lp3d.render.camera import FFHQ_FOCAL, look_at_camera
 from lp3d.teachers import ProceduralTeacher
 from lp3d.teachers.eg3d import CONDITIONING_CAMERAS, default_conditioning_pose
 from lp3d.train import TRAIN_CONFIGS, Trainer
+from lp3d.training.eval import main as eval_main
+from lp3d.training.synthetic_data import DatasetKey, SyntheticDataset, resize_planes, teacher_fingerprint
 
 
 # ------------------------------------------------------------------- (a) larger teacher planes

@@ -14,10 +14,10 @@ import torch
 
 import lp3d.teachers.eg3d as eg3d_mod
 from eg3d_standin import NUM_WS, PLANE_RES, W_DIM, Z_DIM, StandInGenerator
-from lp3d.camera import look_at_camera
+from lp3d.render.camera import look_at_camera
+from lp3d.render.triplane import TriplaneData
 from lp3d.teachers import Teacher
 from lp3d.teachers.eg3d import EG3D_HINT, EG3DLoadError, EG3DTeacher, load_eg3d_generator
-from lp3d.triplane import TriplaneData
 
 
 def make_teacher(gen: StandInGenerator | None = None, **kwargs: object) -> EG3DTeacher:
@@ -195,7 +195,7 @@ def test_truncation_is_applied() -> None:
 
 
 #: gen_videos.py's LookAtPoseSampler.sample(3.14/2, 3.14/2, ...) as look_at_camera angles: yaw is
-#: h - pi/2 and pitch asin(1 - 2v/pi) (lp3d.camera.eg3d_angles), so 3.14 for pi puts the camera
+#: h - pi/2 and pitch asin(1 - 2v/pi) (lp3d.render.camera.eg3d_angles), so 3.14 for pi puts the camera
 #: 0.0456° toward -x and 0.0290° up.
 GEN_VIDEOS_YAW_DEG = float(np.degrees((3.14 - np.pi) / 2))
 GEN_VIDEOS_PITCH_DEG = float(np.degrees(np.arcsin(1.0 - 3.14 / np.pi)))
@@ -346,7 +346,7 @@ def test_missing_pickle_says_what_to_pass(tmp_path: Path) -> None:
             EG3DTeacher.from_pickle(path, eg3d_source=fake_eg3d_source(tmp_path / f"src{path is None}"))
         msg = str(e.value)
         assert EG3D_HINT in msg
-        # The flags the hint names are the ones lp3d.train and lp3d.eval really have.
+        # The flags the hint names are the ones lp3d.train and lp3d.training.eval really have.
         assert "--teacher-pkl" in msg and "--eg3d-source" in msg and "ffhqrebalanced512-128.pkl" in msg
         assert "--eg3d-pkl" not in msg
         if path is not None:
@@ -431,13 +431,13 @@ def test_an_eg3d_run_resumes_and_evaluates_without_being_told_the_teacher_again(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """The run records the pickle and source paths (absolute) in its checkpoints; ``--resume`` and
-    ``lp3d.eval`` rebuild the teacher from them, from another working directory too."""
+    ``lp3d.training.eval`` rebuild the teacher from them, from another working directory too."""
     import json
 
-    from lp3d.eval import EvalSettings
-    from lp3d.eval import run as eval_run
     from lp3d.train import load_checkpoint
     from lp3d.train import main as train_main
+    from lp3d.training.eval import EvalSettings
+    from lp3d.training.eval import run as eval_run
 
     pkl = dump(tmp_path / "standin.pkl", {"G": None, "D": None, "G_ema": StandInGenerator(seed=3)})
     src = fake_eg3d_source(tmp_path / "src")

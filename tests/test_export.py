@@ -9,7 +9,10 @@ import onnx
 import pytest
 import torch
 
-from lp3d.export import (
+from lp3d.lift.inference import load_encoder
+from lp3d.lift.model_package import load_model_package
+from lp3d.train import TRAIN_CONFIGS, Trainer, build_teacher, load_checkpoint, student_from_checkpoint
+from lp3d.training.export import (
     MIN_OPSET,
     check_onnx,
     export_encoder,
@@ -17,11 +20,8 @@ from lp3d.export import (
     round_to_float16,
     store_float16,
 )
-from lp3d.export import main as export_main
-from lp3d.inference import load_encoder
-from lp3d.losses import build_perceptual
-from lp3d.model_package import load_model_package
-from lp3d.train import TRAIN_CONFIGS, Trainer, build_teacher, load_checkpoint, student_from_checkpoint
+from lp3d.training.export import main as export_main
+from lp3d.training.losses import build_perceptual
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,7 @@ import pytest
 
 import lp3d_render
 from conftest import PARITY_CAMERAS, make_scene
-from lp3d.reference import render_reference
+from lp3d.render.reference import render_reference
 
 SAMPLES = {"resolution": 17, "depth_resolution": 12, "depth_resolution_importance": 12}
 

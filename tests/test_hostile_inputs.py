@@ -16,9 +16,9 @@ import pytest
 import lp3d_render
 from conftest import PARITY_CAMERAS, make_scene
 from lp3d.cli import main
-from lp3d.sample_scenes import coloured_sphere
-from lp3d.triplane import TriplaneData
-from lp3d.triplane_io import save_triplane
+from lp3d.render.sample_scenes import coloured_sphere
+from lp3d.render.triplane import TriplaneData
+from lp3d.render.triplane_io import save_triplane
 
 KW = {"resolution": 5, "depth_resolution": 12, "depth_resolution_importance": 12}
 FRONTAL = PARITY_CAMERAS["frontal"]
@@ -202,7 +202,7 @@ def test_viewer_refuses_an_overflowing_triplane(gpu, tmp_path) -> None:
     assert shutil.which("xvfb-run"), "xvfb-run is missing: run scripts/install-system-deps.sh"
     path = overflowing_file(tmp_path)
     shot = tmp_path / "shot.png"
-    cmd = ["xvfb-run", "-a", "-s", "-screen 0 640x480x24", sys.executable, "-m", "lp3d.view"]
+    cmd = ["xvfb-run", "-a", "-s", "-screen 0 640x480x24", sys.executable, "-m", "lp3d.cli", "view"]
     proc = subprocess.run(
         [*cmd, "--screenshot", str(shot), str(path)], capture_output=True, text=True, timeout=120
     )

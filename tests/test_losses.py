@@ -10,7 +10,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from lp3d.losses import (
+from lp3d.training.losses import (
     LPIPS_BACKBONE_FILES,
     DistillationLoss,
     LossWeights,

@@ -31,7 +31,7 @@ import pytest
 from PIL import Image
 
 from lp3d.cli import main
-from lp3d.triplane_io import load_triplane
+from lp3d.render.triplane_io import load_triplane
 from tiny_model import tiny_onnx_package
 
 VIDEO_SMALL = ["--resolution", "8", "--samples", "4+4"]
@@ -62,9 +62,9 @@ def encoders() -> dict[tuple[str, str | None], object]:
 @pytest.fixture(autouse=True)
 def load_encoder_once(monkeypatch: pytest.MonkeyPatch, encoders: dict) -> None:
     """Each `lp3d` call loads the model again; the fuzzers make hundreds of calls, so keep one."""
-    import lp3d.inference
+    import lp3d.lift.inference
 
-    real = lp3d.inference.load_encoder
+    real = lp3d.lift.inference.load_encoder
 
     def load(path: Path, backend: str | None = None, *, superres: bool = False) -> object:
         key = (str(path), backend, superres)
@@ -72,7 +72,7 @@ def load_encoder_once(monkeypatch: pytest.MonkeyPatch, encoders: dict) -> None:
             encoders[key] = real(path, backend, superres=superres)
         return encoders[key]
 
-    monkeypatch.setattr(lp3d.inference, "load_encoder", load)
+    monkeypatch.setattr(lp3d.lift.inference, "load_encoder", load)
 
 
 def face(size: int) -> np.ndarray:

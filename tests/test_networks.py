@@ -14,7 +14,7 @@ import pytest
 torch = pytest.importorskip("torch")
 import torch.nn.functional as F  # noqa: E402
 
-from lp3d.discriminator import (  # noqa: E402
+from lp3d.nets.discriminator import (  # noqa: E402
     DISCRIMINATOR_CONFIGS,
     DiscriminatorConfig,
     DualDiscriminator,
@@ -24,7 +24,7 @@ from lp3d.discriminator import (  # noqa: E402
     minibatch_stddev,
     r1_penalty,
 )
-from lp3d.encoder import (  # noqa: E402
+from lp3d.nets.encoder import (  # noqa: E402
     CONFIGS,
     BasicBlock,
     EncoderConfig,
@@ -33,8 +33,8 @@ from lp3d.encoder import (  # noqa: E402
     parameter_breakdown,
     pixel_coordinates,
 )
-from lp3d.stylegan_ops import setup_filter, upfirdn2d, upsample2d  # noqa: E402
-from lp3d.superres import SUPERRES_CONFIGS, SuperresConfig, build_superres, modulated_conv2d  # noqa: E402
+from lp3d.nets.stylegan_ops import setup_filter, upfirdn2d, upsample2d  # noqa: E402
+from lp3d.nets.superres import SUPERRES_CONFIGS, SuperresConfig, build_superres, modulated_conv2d  # noqa: E402
 
 META = torch.device("meta")
 
@@ -213,7 +213,7 @@ def test_encoder_config_validation() -> None:
 
 
 def test_encoder_cli_prints_counts(capsys) -> None:
-    from lp3d.encoder import _main
+    from lp3d.nets.encoder import _main
 
     assert _main(["--config", "lt"]) == 0
     text = capsys.readouterr().out

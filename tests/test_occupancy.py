@@ -12,11 +12,11 @@ import pytest
 
 import lp3d_render
 from conftest import make_scene
-from lp3d.camera import look_at_camera
-from lp3d.reference import decode, sample_triplane
+from lp3d.render.camera import look_at_camera
+from lp3d.render.reference import decode, sample_triplane
+from lp3d.render.triplane import TriplaneData
+from lp3d.render.triplane_io import TriplaneFileError, load_triplane, save_triplane
 from lp3d.teachers import ProceduralTeacher
-from lp3d.triplane import TriplaneData
-from lp3d.triplane_io import TriplaneFileError, load_triplane, save_triplane
 
 S, N, R = 12, 12, 32
 SAMPLES = {"resolution": R, "depth_resolution": S, "depth_resolution_importance": N}

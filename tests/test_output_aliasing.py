@@ -16,8 +16,8 @@ import pytest
 from PIL import Image
 
 from lp3d.cli import main
-from lp3d.sample_scenes import coloured_sphere
-from lp3d.triplane_io import save_triplane
+from lp3d.render.sample_scenes import coloured_sphere
+from lp3d.render.triplane_io import save_triplane
 
 
 def run(capsys: pytest.CaptureFixture[str], *argv: object) -> tuple[int, str, str]:
@@ -136,7 +136,7 @@ def test_video_refuses_to_overwrite_its_input(capsys, in_tmp: Path, alias: str) 
 def view(*args: object) -> subprocess.CompletedProcess[str]:
     """``lp3d-view ARGS`` without a display: a refusal must come before any window opens."""
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
-    cmd = [sys.executable, "-m", "lp3d.view", *map(str, args)]
+    cmd = [sys.executable, "-m", "lp3d.cli", "view", *map(str, args)]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=120, env=env)
 
 

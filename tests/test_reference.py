@@ -1,4 +1,5 @@
-"""lp3d.reference: hand-worked values for each stage of the float64 EG3D renderer, then whole renders."""
+"""lp3d.render.reference: hand-worked values for each stage of the float64 EG3D renderer, then whole
+renders."""
 
 from __future__ import annotations
 
@@ -8,8 +9,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from lp3d.camera import intrinsics, look_at_camera, lookat_pose, pack_label
-from lp3d.reference import (
+from lp3d.render.camera import intrinsics, look_at_camera, lookat_pose, pack_label
+from lp3d.render.reference import (
     decode,
     grid_sample_bilinear,
     march,
@@ -21,8 +22,8 @@ from lp3d.reference import (
     sample_triplane,
     softplus,
 )
-from lp3d.sampling_rng import coarse_jitter
-from lp3d.triplane import TriplaneData
+from lp3d.render.sampling_rng import coarse_jitter
+from lp3d.render.triplane import TriplaneData
 
 FRONTAL = pack_label(lookat_pose(math.pi / 2, math.pi / 2, radius=2.7, lookat=(0, 0, 0)), intrinsics(4.2647))
 

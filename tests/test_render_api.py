@@ -14,10 +14,10 @@ import pytest
 
 import lp3d_render
 from conftest import PARITY_CAMERAS, make_scene
-from lp3d import camera as pycam
-from lp3d import settings
-from lp3d.triplane import PLANE_AXES
-from lp3d.triplane_io import load_triplane, save_triplane
+from lp3d.render import camera as pycam
+from lp3d.render import settings
+from lp3d.render.triplane import PLANE_AXES
+from lp3d.render.triplane_io import load_triplane, save_triplane
 
 KW = {"resolution": 9, "depth_resolution": 12, "depth_resolution_importance": 12}
 
@@ -161,8 +161,8 @@ def test_settings_agree_across_languages() -> None:
     assert lp3d_render.MAX_RESOLUTION == settings.MAX_RESOLUTION
     assert lp3d_render.MAX_SAMPLES == settings.MAX_SAMPLES
     assert [tuple(a) for a in lp3d_render.PLANE_AXES] == [tuple(a) for a in PLANE_AXES]
-    # EG3D's FFHQ conventions: one name per language (Rust's module constants, Python's lp3d.camera
-    # and lp3d.settings), and the native signatures' defaults spell those constants.
+    # EG3D's FFHQ conventions: one name per language (Rust's module constants, Python's lp3d.render.camera
+    # and lp3d.render.settings), and the native signatures' defaults spell those constants.
     scene = {
         name: getattr(settings, name) for name in ("DEFAULT_BOX_WARP", "DEFAULT_RAY_START", "DEFAULT_RAY_END")
     }

@@ -1,4 +1,4 @@
-"""The WGSL renderer against the independent float64 NumPy reference (lp3d.reference).
+"""The WGSL renderer against the independent float64 NumPy reference (lp3d.render.reference).
 
 Tolerances (float32 kernel vs float64 reference): max abs error <= 1e-4 on features, rgb and depth,
 <= 1e-5 on weights_sum. Sizes are small so lavapipe keeps the suite fast; the kernel has no size-
@@ -12,7 +12,7 @@ import pytest
 
 import lp3d_render
 from conftest import PARITY_CAMERAS, make_scene
-from lp3d.reference import render_reference
+from lp3d.render.reference import render_reference
 
 FEATURE_TOL = 1e-4
 DEPTH_TOL = 1e-4

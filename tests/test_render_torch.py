@@ -19,16 +19,16 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from lp3d import reference
-from lp3d.camera import look_at_camera, stack_labels
-from lp3d.render_torch import (
+from lp3d.render import reference
+from lp3d.render.camera import look_at_camera, stack_labels
+from lp3d.render.torch_twin import (
     rays_from_cameras,
     render_rays,
     render_torch,
     render_triplane_torch,
     sample_triplane,
 )
-from lp3d.triplane import TriplaneData
+from lp3d.render.triplane import TriplaneData
 
 TOL = {"features": 1e-4, "rgb": 1e-4, "depth": 1e-4, "weights_sum": 1e-5}
 

@@ -1,5 +1,5 @@
 """A training run's directory survives kills, damage, a second trainer and resuming from the past
-(issue 11, item 7; ``lp3d.run_dir``). Small CPU-recipe runs, a few seconds each."""
+(issue 11, item 7; ``lp3d.training.run_dir``). Small CPU-recipe runs, a few seconds each."""
 
 from __future__ import annotations
 
@@ -13,10 +13,10 @@ from pathlib import Path
 
 import pytest
 
-from lp3d.run_dir import RunBusyError, RunLock, checkpoints
 from lp3d.teachers import ProceduralTeacher
 from lp3d.train import TRAIN_CONFIGS, CheckpointError, TrainConfig, Trainer, load_checkpoint
 from lp3d.train import main as train_main
+from lp3d.training.run_dir import RunBusyError, RunLock, checkpoints
 
 
 def _cfg(**changes) -> TrainConfig:
@@ -123,7 +123,7 @@ def test_a_second_trainer_on_the_same_run_is_refused(tmp_path, cache):
             textwrap.dedent(
                 f"""
                 import sys
-                from lp3d.run_dir import RunLock
+                from lp3d.training.run_dir import RunLock
                 lock = RunLock({str(run)!r})
                 lock.acquire()
                 print("locked", flush=True)

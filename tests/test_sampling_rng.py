@@ -1,4 +1,5 @@
-"""lp3d.sampling_rng against an independent pure-Python (int) implementation of docs/sampling-rng.md."""
+"""lp3d.render.sampling_rng against an independent pure-Python (int) implementation of
+docs/sampling-rng.md."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from lp3d.sampling_rng import coarse_jitter, pcg_hash, rand_u32, sorted_importance_u, uniform01
+from lp3d.render.sampling_rng import coarse_jitter, pcg_hash, rand_u32, sorted_importance_u, uniform01
 
 M32 = 0xFFFFFFFF
 

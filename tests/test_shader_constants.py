@@ -1,5 +1,5 @@
 """The WGSL kernels' named constants equal their Python definitions (issue 13: one name per quantity,
-tied across languages). The kernels cannot import lp3d.settings, so this reads them as text: a
+tied across languages). The kernels cannot import lp3d.render.settings, so this reads them as text: a
 renamed, removed or changed constant on either side fails here rather than as a parity drift."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from lp3d import camera, settings
+from lp3d.render import camera, settings
 
 SHADERS = Path(__file__).resolve().parents[1] / "crates" / "renderer" / "shaders"
 
@@ -49,6 +49,8 @@ def test_the_parser_reads_the_shaders() -> None:
 @pytest.mark.parametrize("name", sorted(PYTHON_VALUES))
 def test_wgsl_constant_equals_python(name: str) -> None:
     found = wgsl_constants()
-    assert name in found, f"no `const {name}` in {SHADERS} (renamed? update this test and lp3d.settings)"
+    assert name in found, (
+        f"no `const {name}` in {SHADERS} (renamed? update this test and lp3d.render.settings)"
+    )
     value, where = found[name]
     assert value == PYTHON_VALUES[name], f"{where}: {name} = {value}, Python has {PYTHON_VALUES[name]}"

@@ -8,8 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from lp3d.inference import DEFAULT_MODEL, load_encoder
-from lp3d.model_package import load_model_package
+from lp3d.lift.inference import DEFAULT_MODEL, load_encoder
+from lp3d.lift.model_package import load_model_package
 
 MODELS = DEFAULT_MODEL.parent
 #: Issue 4: the weights in the repository within 25 MB (each of the ONNX graph and the torch weights).
@@ -54,7 +54,7 @@ def test_the_shipped_super_resolution_matches_its_torch_form() -> None:
     """small.superres.onnx against the same network built from small.pt's float16 state (export's
     parity bound, 1e-3)."""
     pytest.importorskip("torch")
-    from lp3d.inference import load_superres
+    from lp3d.lift.inference import load_superres
 
     onnx_sr, torch_sr = load_superres(DEFAULT_MODEL), load_superres(MODELS / "small.pt")
     assert onnx_sr is not None and torch_sr is not None, "the shipped package has no super-resolution"
@@ -69,7 +69,7 @@ def test_orbit_of_a_shipped_model_head_writes_super_resolved_frames(tmp_path, ca
     from PIL import Image
 
     from lp3d.cli import main
-    from lp3d.triplane_io import save_triplane
+    from lp3d.render.triplane_io import save_triplane
 
     encoder = load_encoder(DEFAULT_MODEL)
     image = np.random.default_rng(2).uniform(-1, 1, (1, 3, 128, 128)).astype(np.float32)

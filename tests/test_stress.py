@@ -9,7 +9,7 @@ Invariants, checked on every GPU render in this file (``check_invariants``):
 * **features in [-1.002, 1.002]**: ``2 * sum(w * c) - 1`` with MipNeRF-clamped c in (-0.001, 1.001);
   ``rgb`` is exactly ``features[:3]``.
 
-**Against the float64 reference** (``lp3d.reference.render_reference``, ``assert_close``). A float32
+**Against the float64 reference** (``lp3d.render.reference.render_reference``, ``assert_close``). A float32
 renderer only ever sees rounded inputs and rounds as it goes: the camera centre is off by ~u |pos|
 (u = 2^-24 ~ 6e-8), ray directions, computed as ``cam2world @ p - centre``, cancel to an error of
 ~u |pos| radians, sample depths are rounded to ~u ray_end, and the decoder's dot products round at
@@ -82,8 +82,8 @@ from hypothesis import strategies as st
 
 import lp3d_render
 from conftest import Scene, smooth_planes
-from lp3d.camera import FFHQ_FOCAL, intrinsics, look_at_camera, pack_label
-from lp3d.reference import (
+from lp3d.render.camera import FFHQ_FOCAL, intrinsics, look_at_camera, pack_label
+from lp3d.render.reference import (
     march,
     rays_from_cameras,
     render_reference,
@@ -93,7 +93,7 @@ from lp3d.reference import (
     sigmoid,
     softplus,
 )
-from lp3d.triplane import TriplaneData
+from lp3d.render.triplane import TriplaneData
 
 #: float32 unit roundoff and the float32 spacing just above 1.
 U32 = 2.0**-24

@@ -93,8 +93,8 @@ def test_installed_files() -> None:
         "lp3d_render/_lp3d_render.pyi",
         "lp3d_render/py.typed",
         "lp3d/__init__.py",
-        "lp3d/reference.py",
-        "lp3d/camera.py",
+        "lp3d/render/reference.py",
+        "lp3d/render/camera.py",
     ):
         assert expected in files, expected
     assert any(f.startswith("lp3d_render/_lp3d_render") and f.endswith(".so") for f in files)

@@ -1,6 +1,6 @@
 """The super-resolution network in the model package (issue 10, item 3): ONNX export and its parity
 with torch, the sidecar's ``superres`` entry and its validation, the Python API (features in, image
-out, both backends), the CLI's super-resolved and ``--raw`` outputs, and ``lp3d.superres_fit`` on a
+out, both backends), the CLI's super-resolved and ``--raw`` outputs, and ``lp3d.training.superres_fit`` on a
 tiny pair cache (resume, corrupt and stale caches, export guards).
 
 Networks are tiny and randomly initialised (weights perturbed so that every layer matters); renders
@@ -20,23 +20,23 @@ import torch
 from PIL import Image
 
 from lp3d.cli import main
-from lp3d.export import (
-    check_superres_onnx,
-    export_superres,
-    package_superres,
-)
-from lp3d.export import main as export_main
-from lp3d.inference import load_superres, superresolve
-from lp3d.model_package import (
+from lp3d.lift.inference import load_superres, superresolve
+from lp3d.lift.model_package import (
     ModelPackageError,
     load_model_package,
     set_package_superres,
     superres_path,
 )
-from lp3d.sample_scenes import coloured_sphere
-from lp3d.superres import SUPERRES_CONFIGS, FoldedSuperResolution, SuperresConfig, SuperResolution
-from lp3d.superres_fit import FitConfig, FitError, fit_superres, load_fit
-from lp3d.triplane_io import save_triplane
+from lp3d.nets.superres import SUPERRES_CONFIGS, FoldedSuperResolution, SuperresConfig, SuperResolution
+from lp3d.render.sample_scenes import coloured_sphere
+from lp3d.render.triplane_io import save_triplane
+from lp3d.training.export import (
+    check_superres_onnx,
+    export_superres,
+    package_superres,
+)
+from lp3d.training.export import main as export_main
+from lp3d.training.superres_fit import FitConfig, FitError, fit_superres, load_fit
 from tiny_model import tiny_onnx_package
 
 #: The tolerance the issue sets for onnxruntime against torch.
@@ -93,7 +93,7 @@ def package(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
     "config",
     [
         SUPERRES_CONFIGS["tiny"],  # the CPU paper recipe's (64² -> 128², one block)
-        FitConfig().superres_config(),  # what lp3d.superres_fit makes for the shipped model (64² -> 256²)
+        FitConfig().superres_config(),  # the shipped model's fit (64² -> 256²)
     ],
     ids=["tiny", "fit-default"],
 )
@@ -116,10 +116,10 @@ def test_superres_onnx_matches_torch(tmp_path, config) -> None:
 
 def test_export_refuses_a_network_that_disagrees(tmp_path, monkeypatch) -> None:
     """When onnxruntime and torch disagree beyond the tolerance: ParityError, and no file left behind."""
-    import lp3d.export
-    from lp3d.export import ParityError
+    import lp3d.training.export
+    from lp3d.training.export import ParityError
 
-    monkeypatch.setattr(lp3d.export, "check_superres_onnx", lambda sr, path: 0.5)
+    monkeypatch.setattr(lp3d.training.export, "check_superres_onnx", lambda sr, path: 0.5)
     with pytest.raises(ParityError, match="max abs error 0.5 > 0.001"):
         package_superres(random_sr(cli_sr_config()), tmp_path / "m.onnx")
     assert not superres_path(tmp_path / "m.onnx").exists()
@@ -162,7 +162,7 @@ def test_package_entry_and_python_api(package) -> None:
 
 
 def weights_file(encoder: torch.nn.Module, path: Path, **extra: object) -> dict[str, object]:
-    """An inference-weights file (``lp3d.export --weights``'s layout) of the tiny encoder with the
+    """An inference-weights file (``lp3d.training.export --weights``'s layout) of the tiny encoder with the
     sphere's decoder; returns its contents."""
     tri = coloured_sphere(size=8)
     data = {
@@ -179,8 +179,8 @@ def weights_file(encoder: torch.nn.Module, path: Path, **extra: object) -> dict[
 
 
 def test_torch_backend_reads_the_network_from_weights(package, tmp_path) -> None:
-    """``lp3d.export --weights`` files carry the network for ``--backend torch``; same images."""
-    from lp3d.export import _superres_weights
+    """``lp3d.training.export --weights`` files carry the network for ``--backend torch``; same images."""
+    from lp3d.training.export import _superres_weights
 
     weights = tmp_path / "tiny.pt"
     data = weights_file(package["encoder"], weights)
@@ -318,10 +318,10 @@ def test_render_is_super_resolved_unless_raw(capsys, package, tmp_path) -> None:
 
 def test_render_image_is_the_network_applied_to_the_raw_features(capsys, package, tmp_path) -> None:
     import lp3d_render
-    from lp3d.camera import look_at_camera
     from lp3d.cli import render_triplane
     from lp3d.images import rgb_to_uint8
-    from lp3d.triplane_io import load_triplane
+    from lp3d.render.camera import look_at_camera
+    from lp3d.render.triplane_io import load_triplane
 
     code, _, err = run(
         capsys, "render", package["sphere"], "-o", tmp_path / "sr.png", "--model", package["onnx"], *SAMPLES
@@ -344,9 +344,9 @@ def test_render_image_is_the_network_applied_to_the_raw_features(capsys, package
 def test_render_default_uses_the_shipped_models_network_for_its_triplanes(
     capsys, package, tmp_path, monkeypatch
 ) -> None:
-    import lp3d.inference
+    import lp3d.lift.inference
 
-    monkeypatch.setattr(lp3d.inference, "DEFAULT_MODEL", Path(package["onnx"]))
+    monkeypatch.setattr(lp3d.lift.inference, "DEFAULT_MODEL", Path(package["onnx"]))
     code, out, err = run(capsys, "render", package["sphere"], "-o", tmp_path / "a.png", *SAMPLES)
     assert code == 0, err
     assert _size(tmp_path / "a.png") == (SR_OUT, SR_OUT) and "the shipped model's" in out
@@ -362,7 +362,7 @@ def test_render_default_uses_the_shipped_models_network_for_its_triplanes(
     )
     assert code == 1 and "--raw" in err and "decoder" in err and not (tmp_path / "c.png").exists()
     # A shipped model without a network: raw, said so.
-    monkeypatch.setattr(lp3d.inference, "DEFAULT_MODEL", Path(package["plain"]))
+    monkeypatch.setattr(lp3d.lift.inference, "DEFAULT_MODEL", Path(package["plain"]))
     code, out, err = run(capsys, "render", package["sphere"], "-o", tmp_path / "d.png", *SAMPLES)
     assert code == 0 and "has no super-resolution network" in out
     code, _, err = run(
@@ -587,10 +587,10 @@ def test_export_guards_on_fits(package, tmp_path, capsys) -> None:
 
 
 def test_export_of_a_paper_recipe_checkpoint_carries_its_network(tmp_path, capsys) -> None:
-    """The paper recipe trains an SR with the encoder: ``lp3d.export`` packages it (ONNX, sidecar entry,
-    ``--weights``), and the checkpoint, the ONNX package and the weights file give the same images."""
-    from lp3d.losses import build_perceptual
+    """The paper recipe trains an SR with the encoder: ``lp3d export`` packages it (ONNX, sidecar
+    entry, ``--weights``), and the checkpoint, the ONNX package and the weights file give the same images."""
     from lp3d.train import TRAIN_CONFIGS, Trainer, build_teacher
+    from lp3d.training.losses import build_perceptual
 
     cfg = TRAIN_CONFIGS["tiny-paper"]
     teacher = build_teacher("procedural", triplane_resolution=cfg.triplane_resolution)

@@ -1,6 +1,6 @@
 """The procedural teacher: determinism, speed, identity variety, format, and the density it decodes to.
 
-Geometry is checked with the float64 NumPy reference (``lp3d.reference``) at chosen points and on a few
+Geometry is checked with the float64 NumPy reference (``lp3d.render.reference``) at chosen points and on a few
 tiny renders, so this file needs no GPU and runs in seconds.
 """
 
@@ -14,9 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lp3d.camera import look_at_camera
-from lp3d.reference import decode, render_reference, sample_triplane, softplus
-from lp3d.settings import DEFAULT_RAY_END, DEFAULT_RAY_START
+from lp3d.render.camera import look_at_camera
+from lp3d.render.reference import decode, render_reference, sample_triplane, softplus
+from lp3d.render.settings import DEFAULT_RAY_END, DEFAULT_RAY_START
+from lp3d.render.triplane import TriplaneData
+from lp3d.render.triplane_io import load_triplane, save_triplane
 from lp3d.teachers import HeadParams, ProceduralTeacher, Teacher
 from lp3d.teachers.procedural import (
     BACKGROUND,
@@ -28,8 +30,6 @@ from lp3d.teachers.procedural import (
     TORSO,
     procedural_decoder,
 )
-from lp3d.triplane import TriplaneData
-from lp3d.triplane_io import load_triplane, save_triplane
 
 #: Acceptance bound for building one identity.
 MAX_SAMPLE_SECONDS = 0.100

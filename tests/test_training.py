@@ -22,9 +22,6 @@ import numpy as np
 import pytest
 import torch
 
-from lp3d.eval import EvalSettings, evaluate
-from lp3d.eval import main as eval_main
-from lp3d.losses import build_perceptual
 from lp3d.teachers import ProceduralTeacher
 from lp3d.train import (
     TRAIN_CONFIGS,
@@ -38,6 +35,9 @@ from lp3d.train import (
     student_from_checkpoint,
 )
 from lp3d.train import main as train_main
+from lp3d.training.eval import EvalSettings, evaluate
+from lp3d.training.eval import main as eval_main
+from lp3d.training.losses import build_perceptual
 
 LEARN_STEPS = 30
 MIN_GAIN_DB = 2.0

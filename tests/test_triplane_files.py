@@ -1,4 +1,4 @@
-"""Both triplane readers, ``lp3d.triplane_io.load_triplane`` (Python) and ``lp3d_render.Triplane.load``
+"""Both triplane readers, ``lp3d.render.triplane_io.load_triplane`` (Python) and ``lp3d_render.Triplane.load``
 (Rust), judge every file of ``tests/triplane_files.py`` alike: both accept it and read the same
 values, or both refuse it with the same kind of error (OSError or ValueError) naming the file and
 the key. Cases that once aborted, panicked or hung a reader run in a subprocess with a time limit,
@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 import lp3d_render
-from lp3d import triplane_io
+from lp3d.render import triplane_io
 from triplane_files import CASES, Case, assert_same_triplane, outcome
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "triplane-format.md"
@@ -32,7 +32,7 @@ import json, sys
 reader, path = sys.argv[1], sys.argv[2]
 try:
     if reader == "python":
-        from lp3d.triplane_io import load_triplane
+        from lp3d.render.triplane_io import load_triplane
         load_triplane(path)
     else:
         import lp3d_render
@@ -97,7 +97,7 @@ def test_fifo_does_not_hang_the_viewer(tmp_path: Path) -> None:
     os.mkfifo(fifo)
     try:
         done = subprocess.run(
-            [sys.executable, "-m", "lp3d.view", "--screenshot", str(tmp_path / "s.png"), str(fifo)],
+            [sys.executable, "-m", "lp3d.cli", "view", "--screenshot", str(tmp_path / "s.png"), str(fifo)],
             capture_output=True,
             text=True,
             timeout=HANG_LIMIT_S,
@@ -130,7 +130,7 @@ def test_writers_refuse_what_the_readers_refuse(tmp_path: Path) -> None:
     wider than ``max_plane_size`` (Python; the Rust type cannot even hold them)."""
     import numpy as np
 
-    from lp3d.sample_scenes import coloured_sphere
+    from lp3d.render.sample_scenes import coloured_sphere
 
     tri = coloured_sphere(size=8)
     long = "x" * (triplane_io.MAX_SOURCE_CHARS + 1)

@@ -155,6 +155,6 @@ def test_mutated_entries(folder: Path, grid: bool, which: int, ops: list[tuple[s
 
 
 def _camera() -> np.ndarray:
-    from lp3d.camera import look_at_camera
+    from lp3d.render.camera import look_at_camera
 
     return look_at_camera(yaw_deg=10.0)

@@ -1,4 +1,4 @@
-"""lp3d.triplane and lp3d.triplane_io: validation, the .npz format, atomic writes, bad files."""
+"""lp3d.render.triplane and lp3d.render.triplane_io: validation, the .npz format, atomic writes, bad files."""
 
 from __future__ import annotations
 
@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lp3d import triplane_io
-from lp3d.camera import look_at_camera
-from lp3d.triplane import PLANE_AXES, TriplaneData, TriplaneError, effective_decoder_weights
-from lp3d.triplane_io import FORMAT_VERSION, load_triplane, save_triplane
+from lp3d.render import triplane_io
+from lp3d.render.camera import look_at_camera
+from lp3d.render.triplane import PLANE_AXES, TriplaneData, TriplaneError, effective_decoder_weights
+from lp3d.render.triplane_io import FORMAT_VERSION, load_triplane, save_triplane
 
 
 def make_triplane(dtype: type = np.float32, *, optional: bool = False, size: int = 6) -> TriplaneData:

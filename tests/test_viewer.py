@@ -17,17 +17,17 @@ import pytest
 from PIL import Image
 
 import lp3d_render
-from lp3d.camera import look_at_camera
 from lp3d.images import rgb_to_uint8
-from lp3d.sample_scenes import coloured_sphere
-from lp3d.triplane_io import save_triplane
+from lp3d.render.camera import look_at_camera
+from lp3d.render.sample_scenes import coloured_sphere
+from lp3d.render.triplane_io import save_triplane
 
 XVFB = ["xvfb-run", "-a", "-s", "-screen 0 1024x768x24"]
 
 
 def run_view(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
     assert shutil.which("xvfb-run"), "xvfb-run is missing: run scripts/install-system-deps.sh"
-    cmd = [*XVFB, sys.executable, "-m", "lp3d.view", *args]
+    cmd = [*XVFB, sys.executable, "-m", "lp3d.cli", "view", *args]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
 
 
@@ -136,7 +136,7 @@ def test_bad_inputs_exit_non_zero(tmp_path: Path) -> None:
     bad = run_view("--screenshot", str(tmp_path / "s.png"), str(corrupt), timeout=120)
     assert bad.returncode != 0 and "bad.npz" in bad.stderr
     no_file = subprocess.run(
-        [sys.executable, "-m", "lp3d.view", "--screenshot", "x.png"],
+        [sys.executable, "-m", "lp3d.cli", "view", "--screenshot", "x.png"],
         capture_output=True,
         text=True,
         timeout=60,
@@ -150,6 +150,6 @@ def test_bad_inputs_exit_non_zero(tmp_path: Path) -> None:
         (["--frame-budget-ms", "0", str(corrupt)], "frame-budget-ms"),
     ]:
         out = subprocess.run(
-            [sys.executable, "-m", "lp3d.view", *args], capture_output=True, text=True, timeout=60
+            [sys.executable, "-m", "lp3d.cli", "view", *args], capture_output=True, text=True, timeout=60
         )
         assert out.returncode != 0 and name in out.stderr, (args, out.stderr)

@@ -7,16 +7,16 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-from lp3d.sample_scenes import coloured_sphere
-from lp3d.triplane import TriplaneData
+from lp3d.render.sample_scenes import coloured_sphere
+from lp3d.render.triplane import TriplaneData
 
 
 def tiny_onnx_package(folder: Path) -> tuple[Path, Any, TriplaneData, dict[str, float]]:
     """``(tiny.onnx with its sidecar, the torch encoder, the sphere, its scene bounds)``."""
     import torch
 
-    from lp3d.encoder import build_encoder
-    from lp3d.model_package import save_model_package
+    from lp3d.lift.model_package import save_model_package
+    from lp3d.nets.encoder import build_encoder
 
     torch.manual_seed(0)
     enc = build_encoder("tiny").eval()

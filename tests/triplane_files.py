@@ -20,9 +20,9 @@ from pathlib import Path
 import numpy as np
 
 import lp3d_render
-from lp3d.camera import look_at_camera
-from lp3d.triplane import TriplaneData, occupancy_checksum
-from lp3d.triplane_io import load_triplane
+from lp3d.render.camera import look_at_camera
+from lp3d.render.triplane import TriplaneData, occupancy_checksum
+from lp3d.render.triplane_io import load_triplane
 
 # ------------------------------------------------------------------------------------- file builders
 
@@ -331,7 +331,7 @@ def _valid_rust_written(folder: Path) -> Path:
 
 
 def _valid_python_written(folder: Path) -> Path:
-    from lp3d.triplane_io import save_triplane
+    from lp3d.render.triplane_io import save_triplane
 
     a = with_grid(good_arrays())
     tri = TriplaneData(

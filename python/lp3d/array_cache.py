@@ -1,7 +1,7 @@
 """Content-checked on-disk caches of named arrays: built whole or not at all, reused only when verified.
 
-The CPU recipe's teacher dataset (:mod:`lp3d.synthetic_data`) and the SR fit's pairs
-(:mod:`lp3d.superres_fit`) are both expensive to make and cheap to keep, so both are cached in a
+The CPU recipe's teacher dataset (:mod:`lp3d.training.synthetic_data`) and the SR fit's pairs
+(:mod:`lp3d.training.superres_fit`) are both expensive to make and cheap to keep, so both are cached in a
 folder named by a hash of their key. This module is the one mechanism they share:
 
 * :func:`build` makes a private temporary folder beside the destination, hands the caller its arrays
@@ -34,7 +34,6 @@ from typing import Any, TypeVar
 import numpy as np
 
 from lp3d.atomic import publish
-from lp3d.model_package import file_sha256
 
 __all__ = [
     "DIGEST",
@@ -42,6 +41,7 @@ __all__ = [
     "StaleCacheError",
     "build",
     "file_digest",
+    "file_sha256",
     "key_digest",
     "load",
     "load_or_build",
@@ -62,7 +62,16 @@ class StaleCacheError(ValueError):
     """A cache folder that does not match its key or the digests in its ``meta.json``."""
 
 
-#: The one digest of an array file (SHA-256 hex): the model package's, so both hash files alike.
+def file_sha256(path: str | os.PathLike[str]) -> str:
+    """The SHA-256 of a file's bytes, as 64 lowercase hex digits."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while chunk := f.read(1 << 22):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+#: The one digest of an array file (SHA-256 hex); the model package hashes its files alike.
 file_digest = file_sha256
 
 

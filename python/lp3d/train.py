@@ -6,7 +6,6 @@ the command and re-exports the names other code imports from ``lp3d.train``.
 
 from __future__ import annotations
 
-from lp3d.run_dir import latest_checkpoint as latest_checkpoint
 from lp3d.training import (
     CHECKPOINT_FORMAT,
     DESCRIPTION,
@@ -34,6 +33,7 @@ from lp3d.training import (
     teacher_superres_state,
 )
 from lp3d.training.config import _scaled_schedule as _scaled_schedule
+from lp3d.training.run_dir import latest_checkpoint as latest_checkpoint
 
 __all__ = [
     "CHECKPOINT_FORMAT",

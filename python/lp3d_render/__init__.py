@@ -8,7 +8,7 @@ Renders EG3D-format triplanes exactly as EG3D does (deterministic by default)::
     out["rgb"]      # (3, R, R) float32 in about [-1, 1]
     out["depth"]    # (R, R)
 
-See ``docs/triplane-format.md`` for the file format and ``lp3d.camera`` for cameras.
+See ``docs/triplane-format.md`` for the file format and ``lp3d.render.camera`` for cameras.
 """
 
 from lp3d_render._lp3d_render import (

@@ -9,7 +9,8 @@ import numpy.typing as npt
 MAX_RESOLUTION: int
 MAX_SAMPLES: int
 PLANE_AXES: list[tuple[int, int]]
-#: EG3D FFHQ conventions, the defaults of Triplane and look_at_camera (lp3d.camera, lp3d.settings agree).
+#: EG3D FFHQ conventions, the defaults of Triplane and look_at_camera
+#: (lp3d.render.camera and lp3d.render.settings agree).
 FFHQ_FOCAL: float
 FFHQ_RADIUS: float
 FFHQ_PIVOT: tuple[float, float, float]

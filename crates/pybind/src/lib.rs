@@ -28,7 +28,7 @@ use convert::{
 use error::{invalid, to_py};
 
 /// EG3D FFHQ's scene bounds (``rendering_kwargs``): the defaults of ``Triplane(...)``. Exposed as
-/// module constants; ``lp3d.settings.DEFAULT_*`` must agree (tests/test_render_api.py checks, and
+/// module constants; ``lp3d.render.settings.DEFAULT_*`` must agree (tests/test_render_api.py checks, and
 /// that the text signatures below spell the same values).
 const DEFAULT_BOX_WARP: f64 = 1.0;
 const DEFAULT_RAY_START: f64 = 2.25;
@@ -413,7 +413,7 @@ fn render<'py>(
 }
 
 /// A look-at camera label (25,) from geometric angles in degrees: the renderer crate's
-/// `Camera::orbit`, the camera the viewer uses. Matches `lp3d.camera.look_at_camera`.
+/// `Camera::orbit`, the camera the viewer uses. Matches `lp3d.render.camera.look_at_camera`.
 #[pyfunction]
 #[pyo3(
     signature = (*, yaw_deg=Arg::Default(0.0), pitch_deg=Arg::Default(0.0), roll_deg=Arg::Default(0.0),
@@ -541,7 +541,7 @@ fn _lp3d_render(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("DEFAULT_RAY_END", DEFAULT_RAY_END)?;
     m.add("PLANE_AXES", lp3d_renderer::triplane::PLANE_AXES.map(|a| (a[0], a[1])).to_vec())?;
     m.add("FORMAT_VERSION", lp3d_renderer::triplane::FORMAT_VERSION)?;
-    // The triplane file's caps by name; lp3d.triplane_io.FILE_LIMITS must agree (a test checks).
+    // The triplane file's caps by name; lp3d.render.triplane_io.FILE_LIMITS must agree (a test checks).
     let limits = PyDict::new(m.py());
     for (name, value) in lp3d_renderer::triplane::FILE_LIMITS {
         limits.set_item(name, value)?;

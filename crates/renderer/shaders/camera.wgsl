@@ -1,4 +1,4 @@
-// Stage: camera (lp3d.reference.rays_from_cameras). Rays from EG3D 25-float cameras
+// Stage: camera (lp3d.render.reference.rays_from_cameras). Rays from EG3D 25-float cameras
 // (RaySampler): pixel centres, OpenCV camera axes, unit directions, depth measured along the
 // direction.
 // needs: params, cameras

@@ -1,4 +1,4 @@
-// Stage: the depth range of EG3D's depth clamp (lp3d.render_torch.clamp_depth): an entry point
+// Stage: the depth range of EG3D's depth clamp (lp3d.render.torch_twin.clamp_depth): an entry point
 // run once over all cameras before render_rays.
 // needs: params, depth_bounds, coarse_depth
 // provides: depth_bounds_pass

@@ -1,4 +1,4 @@
-// Stage: march, the compositing (lp3d.reference.march, EG3D's MipRayMarcher2): one interval
+// Stage: march, the compositing (lp3d.render.reference.march, EG3D's MipRayMarcher2): one interval
 // between consecutive sorted samples. Raw densities are averaged first, then
 // softplus(x - DENSITY_SHIFT); K samples give K - 1 intervals.
 // needs: softplus

@@ -1,4 +1,4 @@
-// Stage: the renderer (lp3d.reference.render_reference, lp3d.render_torch.render_rays): the
+// Stage: the renderer (lp3d.render.reference.render_reference, lp3d.render.torch_twin.render_rays): the
 // render_rays entry point. One invocation renders one ray end to end: the coarse density pass
 // and inverse-CDF importance draw (sample_importance), then a single streaming pass over the
 // merged, sorted samples that composites as it goes. Each sample is decoded once, as in EG3D: the

@@ -1,4 +1,4 @@
-// Stage: sampling (lp3d.reference.sample_stratified, sample_importance, sample_pdf). Depths
+// Stage: sampling (lp3d.render.reference.sample_stratified, sample_importance, sample_pdf). Depths
 // along a ray: EG3D's stratified coarse samples, the counter-based jitter RNG
 // (docs/sampling-rng.md) and the importance draw (inverse CDF of the coarse weights).
 // needs: params, FLAG_JITTER, MAX_SAMPLES

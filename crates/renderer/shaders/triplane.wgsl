@@ -1,4 +1,4 @@
-// Stage: triplane fetch (lp3d.reference.sample_triplane). EG3D's plane projection (with its
+// Stage: triplane fetch (lp3d.render.reference.sample_triplane). EG3D's plane projection (with its
 // axis quirk) and grid_sample(bilinear, zeros padding per tap, align_corners=False), averaged
 // over planes.
 // needs: params, planes, FLAG_HALF_PLANES

@@ -1,7 +1,7 @@
 //! EG3D cameras: the 25-float label (cam2world 4x4 row-major, OpenCV axes x right, y down,
 //! z forward, world y-up; then 3x3 intrinsics normalised by image size), its validation, and
 //! the look-at construction of EG3D's `LookAtPoseSampler` (used by the viewer).
-//! The Python twin is `lp3d.camera`; tests tie the two.
+//! The Python twin is `lp3d.render.camera`; tests tie the two.
 
 use crate::error::{Error, Result};
 
@@ -89,7 +89,7 @@ impl Camera {
         labels.chunks(25).enumerate().map(|(i, c)| Camera::from_label(c, &format!("camera[{i}]"))).collect()
     }
 
-    /// A look-at camera from geometric angles in degrees, as `lp3d.camera.look_at_camera`:
+    /// A look-at camera from geometric angles in degrees, as `lp3d.render.camera.look_at_camera`:
     /// yaw > 0 moves the camera toward +x, pitch > 0 raises it (true elevation, in (-90, 90)),
     /// roll turns it about its viewing axis (`cam2world[:3,:3] @ Rz(roll)`). Maps onto EG3D's
     /// angles as h = π/2 + yaw, v = π/2 · (1 − sin pitch).

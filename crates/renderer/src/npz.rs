@@ -5,7 +5,7 @@
 //! The reader trusts nothing it has not checked: the zip's declared entry sizes are held against
 //! the file's real size and [`MAX_ENTRY_BYTES`] before an entry is opened, and a `.npy` header's
 //! shape and dtype against the entry's size before its data is read, so a hostile size claim is an
-//! error, never an allocation. `lp3d.npz_reader` is the Python twin (same grammar, same limits).
+//! error, never an allocation. `lp3d.render.npz_reader` is the Python twin (same grammar, same limits).
 
 use std::io::{Read, Seek, Write};
 
@@ -308,7 +308,7 @@ enum HeaderValue<'a> {
 /// The header dict's grammar, the subset of Python literals numpy writes:
 /// `{'descr': '<f4', 'fortran_order': False, 'shape': (3, 32, 8, 8), }` plus padding. Strings
 /// without escapes, `True`/`False`, tuples of decimal integers (one element needs its comma).
-/// `lp3d.npz_reader` parses the same grammar, so both readers agree on every header.
+/// `lp3d.render.npz_reader` parses the same grammar, so both readers agree on every header.
 struct HeaderParser<'a> {
     s: &'a str,
     i: usize,

@@ -1,5 +1,5 @@
 //! How to render: the one Rust definition of the rendering settings. Names follow EG3D's
-//! `rendering_kwargs` and match `lp3d.settings.RenderSettings` in Python and the WGSL
+//! `rendering_kwargs` and match `lp3d.render.settings.RenderSettings` in Python and the WGSL
 //! `Params` uniform (a cross-language test ties them).
 
 use crate::error::{Error, Result};

@@ -1,6 +1,6 @@
 //! The one place WGSL enters the crate. WGSL has no includes, so a module is the concatenation
 //! of stage files from `crates/renderer/shaders/`, one per stage of the data flow (the stage
-//! names of `lp3d.reference` and the torch twin). Each file opens with `// needs:` and
+//! names of `lp3d.render.reference` and the torch twin). Each file opens with `// needs:` and
 //! `// provides:` lines naming what it takes from earlier files and what it defines; each entry
 //! point lists the files of its module in dependency order ([`EntryPoint::stages`]). The tests
 //! below check both against the sources: every name a file uses is defined in it or in a file

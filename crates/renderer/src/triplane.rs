@@ -1,6 +1,6 @@
 //! The triplane: three 32-channel planes plus the EG3D decoder that turns a sampled feature
 //! into density and colour, and the scene bounds. Also its `.npz` file
-//! (`docs/triplane-format.md`); the Python twin is `lp3d.triplane` / `lp3d.triplane_io`.
+//! (`docs/triplane-format.md`); the Python twin is `lp3d.render.triplane` / `lp3d.render.triplane_io`.
 
 use std::fs::File;
 use std::io::BufReader;
@@ -36,7 +36,7 @@ pub const MAX_SOURCE_CHARS: usize = 4096;
 /// Largest accepted triplane file (2048 x 2048 float32 planes and a 512^3 grid are just over 2 GiB).
 pub const MAX_FILE_BYTES: u64 = 3 << 30;
 /// The file format's caps (`docs/triplane-format.md`, "Caps"), by name, as `lp3d_render.FILE_LIMITS`
-/// exposes them; `lp3d.triplane_io.FILE_LIMITS` must agree (a test checks).
+/// exposes them; `lp3d.render.triplane_io.FILE_LIMITS` must agree (a test checks).
 pub const FILE_LIMITS: [(&str, u64); 7] = [
     ("max_file_bytes", MAX_FILE_BYTES),
     ("max_entry_bytes", npz::MAX_ENTRY_BYTES),
@@ -183,7 +183,7 @@ impl Triplane {
     /// (a FIFO, device or directory is an [`Error::Io`] at once, never a hang), the zip's entry
     /// sizes must fit the file and [`MAX_ENTRY_BYTES`](npz::MAX_ENTRY_BYTES), and every `.npy`
     /// header's dtype, shape and size must match the format (and its caps, [`FILE_LIMITS`])
-    /// before any data is read. `lp3d.triplane_io.load_triplane` makes the same decisions.
+    /// before any data is read. `lp3d.render.triplane_io.load_triplane` makes the same decisions.
     pub fn load(path: impl AsRef<Path>) -> Result<Triplane> {
         let path = path.as_ref();
         let (file, bytes) = open_regular_file(path)?;
@@ -465,7 +465,7 @@ fn file_kind(t: &std::fs::FileType) -> &'static str {
 }
 
 /// Checks one entry's `.npy` header (dtype, shape, caps) against the format's table before any
-/// of its data is read. `lp3d.triplane_io` holds the same table.
+/// of its data is read. `lp3d.render.triplane_io` holds the same table.
 fn check_header(key: &str, h: &npz::NpyHeader) -> std::result::Result<(), String> {
     use npz::Dtype::{F16, F32, F64, I32, I64};
     const REAL: &[npz::Dtype] = &[F16, F32, F64, I32, I64];

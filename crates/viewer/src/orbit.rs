@@ -1,5 +1,5 @@
 //! The viewer's camera: an EG3D look-at orbit (the renderer's `Camera::orbit`, the same camera as
-//! `lp3d.camera.look_at_camera`), plus zoom as focal length and pan as principal point, so the
+//! `lp3d.render.camera.look_at_camera`), plus zoom as focal length and pan as principal point, so the
 //! scene stays inside the triplane's [ray_start, ray_end] depth range.
 
 use lp3d_renderer::camera::{Camera, FFHQ_FOCAL, FFHQ_PIVOT, FFHQ_RADIUS};

@@ -62,11 +62,11 @@ from lp3d.cli.common import (
     resize_image,
     write_image,
 )
-from lp3d.cli.encode import prepare_photo
-from lp3d.cli.info import camera_summary, triplane_info
-from lp3d.cli.orbit import orbit_angles
-from lp3d.cli.video import VIDEO_CROP_SMOOTHING, _nearest, _smooth_crops, count_video_frames, read_video
 from lp3d.errors import EXIT_ERROR, run_command
+from lp3d.photo import prepare_photo
+from lp3d.photo.video import VIDEO_CROP_SMOOTHING, count_video_frames, read_video
+from lp3d.render.camera import camera_summary, orbit_angles
+from lp3d.render.triplane_io import triplane_info
 
 # The names ``from lp3d.cli import X`` has always given, kept working.
 __all__ = [
@@ -79,8 +79,6 @@ __all__ = [
     "CLIError",
     "Staged",
     "VideoWriter",
-    "_nearest",
-    "_smooth_crops",
     "build_parser",
     "camera_summary",
     "check_distinct",
@@ -153,7 +151,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 
 
 def standalone_parser(module: ModuleType, prog: str) -> argparse.ArgumentParser:
-    """A parser for one subcommand on its own (``lp3d-view``, ``python -m lp3d.demo``), to run with
+    """A parser for one subcommand on its own (``lp3d-view``), to run with
     :func:`lp3d.errors.run_command`."""
     p = argparse.ArgumentParser(prog=prog, description=getattr(module, "DESCRIPTION", None))
     _add_command(p, module)

@@ -16,9 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from lp3d.camera import FFHQ_FOCAL, FFHQ_RADIUS
 from lp3d.errors import UsageError, UserError
-from lp3d.native import render_triplane, renderer
 from lp3d.outputs import (
     IMAGE_SUFFIXES,
     MESH_SUFFIXES,
@@ -31,6 +29,8 @@ from lp3d.outputs import (
     progress,
     write_image,
 )
+from lp3d.render.camera import FFHQ_FOCAL, FFHQ_RADIUS
+from lp3d.render.native import render_triplane, renderer
 
 __all__ = [
     "IMAGE_SUFFIXES",
@@ -99,7 +99,7 @@ def human_bytes(n: int) -> str:
 
 def parse_samples(text: str) -> tuple[int, int]:
     """``"48+48"`` -> (48, 48) coarse + fine samples per ray; ``"64"`` -> (64, 0) (no importance pass)."""
-    from lp3d.settings import MAX_SAMPLES
+    from lp3d.render.settings import MAX_SAMPLES
 
     parts = text.split("+")
     try:
@@ -167,7 +167,7 @@ def angle(lo: float | None = None, hi: float | None = None) -> Callable[[str], f
 
 
 def image_side(text: str) -> int:
-    from lp3d.settings import MAX_RESOLUTION
+    from lp3d.render.settings import MAX_RESOLUTION
 
     return int_in(8, MAX_RESOLUTION)(text)
 
@@ -235,7 +235,7 @@ def superres_model_arg(p: argparse.ArgumentParser) -> None:
 
 
 def resolve_model(arg: Path | None) -> Path:
-    from lp3d.inference import DEFAULT_MODEL
+    from lp3d.lift.inference import DEFAULT_MODEL
 
     path = arg if arg is not None else DEFAULT_MODEL
     if not path.exists():
@@ -249,8 +249,8 @@ def resolve_model(arg: Path | None) -> Path:
 
 
 def load_triplane_file(path: Path) -> Any:
-    """A validated :class:`~lp3d.triplane.TriplaneData` from ``path`` with one-line errors."""
-    from lp3d.triplane_io import load_triplane
+    """A validated :class:`~lp3d.render.triplane.TriplaneData` from ``path`` with one-line errors."""
+    from lp3d.render.triplane_io import load_triplane
 
     # The reader checks the file type first (a FIFO or device is an OSError at once, not a hang or
     # "empty file"), then every size before allocating; both kinds of error name the file.
@@ -271,7 +271,7 @@ def make_camera(
     args: argparse.Namespace, *, yaw: float | None = None, pitch: float | None = None
 ) -> np.ndarray:
     """A (25,) camera label from the camera arguments (yaw/pitch overridable)."""
-    from lp3d.camera import look_at_camera
+    from lp3d.render.camera import look_at_camera
 
     return look_at_camera(
         yaw_deg=args.yaw if yaw is None else yaw,
@@ -341,7 +341,7 @@ def final_images(
     extra: Sequence[str] = (),
 ) -> tuple[list[np.ndarray], dict[str, np.ndarray]]:
     """The images (size, size, 3) uint8 of (B, 25) cameras: the super-resolved image when ``sr`` (a
-    :class:`lp3d.inference.LoadedSuperres`) is given, else the raw render at ``size``. Also returns the
+    :class:`lp3d.lift.inference.LoadedSuperres`) is given, else the raw render at ``size``. Also returns the
     raw render's outputs, ``extra`` ones included (e.g. depth, at the raw render's resolution)."""
     from lp3d.images import rgb_to_uint8
 
@@ -358,7 +358,7 @@ def final_images(
 def choose_superres(args: argparse.Namespace, tri: Any) -> tuple[Any, str]:
     """``(LoadedSuperres or None, a phrase for the output line)`` for rendering the triplane ``tri`` (a
     TriplaneData) in ``render``/``orbit``: the rules in :mod:`lp3d.cli`'s docstring."""
-    from lp3d.inference import DEFAULT_MODEL, load_superres
+    from lp3d.lift.inference import DEFAULT_MODEL, load_superres
 
     if args.raw:
         return None, "raw volume render (--raw)"

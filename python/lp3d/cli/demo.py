@@ -16,7 +16,7 @@ row) and ``orbit.gif`` (both heads turning). When the model package has a super-
 the lifted heads' views are its images (at its output size unless ``--resolution`` says otherwise);
 ``--raw`` shows the plain volume renders. The teacher's own views are always its volume renders.
 
-    lp3d demo --out demo_out          (also: python -m lp3d.demo)
+    lp3d demo --out demo_out
 """
 
 from __future__ import annotations
@@ -42,8 +42,8 @@ from lp3d.cli.common import (
     renderer,
     resolve_model,
 )
-from lp3d.cli.encode import prepare_photo
 from lp3d.cli.orbit import orbit_angles
+from lp3d.photo import prepare_photo
 
 HELP = "photo in, 3D out: lift a teacher portrait and a real photo with the shipped model"
 DESCRIPTION = (
@@ -67,11 +67,11 @@ class Portrait:
     name: str
     crop: np.ndarray
     description: str
-    truth: Any = None  # lp3d.triplane.TriplaneData
+    truth: Any = None  # lp3d.render.triplane.TriplaneData
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The demo's options (``lp3d demo`` and ``python -m lp3d.demo``)."""
+    """The demo's options (``lp3d demo``)."""
     p.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder (default: %(default)s)")
     p.add_argument(
         "--model",
@@ -100,8 +100,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def teacher_portrait(size: int, samples: tuple[int, int]) -> Portrait:
     """The procedural teacher's held-out identity, rendered frontally at ``size``² by lp3d_render."""
     import lp3d_render
-    from lp3d.camera import look_at_camera
     from lp3d.images import rgb_to_uint8
+    from lp3d.render.camera import look_at_camera
     from lp3d.teachers.procedural import ProceduralTeacher
 
     truth = ProceduralTeacher().sample(TEACHER_SEED)
@@ -160,11 +160,11 @@ def _label(image: np.ndarray, text: str) -> np.ndarray:
 
 def run(args: argparse.Namespace) -> int:
     """The demo; raises :class:`lp3d.errors.UserError` (or a ValueError) with a clear message."""
-    from lp3d.camera import look_at_camera
     from lp3d.images import save_png, tile
-    from lp3d.inference import load_encoder
+    from lp3d.lift.inference import load_encoder
     from lp3d.photo import to_encoder_input
-    from lp3d.triplane_io import save_triplane
+    from lp3d.render.camera import look_at_camera
+    from lp3d.render.triplane_io import save_triplane
 
     model = resolve_model(args.model)
     t0 = time.perf_counter()
@@ -243,3 +243,13 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {path}")
     print(f"open {args.out / 'side_by_side.png'} and {gif}; look around with: lp3d-view {written[0]}")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``lp3d demo`` on its own (``python -m lp3d.demo``, the old alias, calls this)."""
+    import sys
+
+    from lp3d.cli import standalone_parser
+    from lp3d.errors import run_command
+
+    return run_command(standalone_parser(sys.modules[__name__], "lp3d demo"), argv)

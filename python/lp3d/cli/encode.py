@@ -107,37 +107,15 @@ def _plan_outputs(images: Sequence[Path], output: Path) -> tuple[list[Path], Pat
     return [output / f"{img.stem}.npz" for img in images], (None if output.exists() else output)
 
 
-def prepare_photo(rgb: np.ndarray, size: int, *, detect: bool, name: str) -> tuple[np.ndarray, str]:
-    """(crop (size, size, 3) uint8, a one-line description) of one photo; NoFaceError without a face."""
-    from lp3d.photo import NoFaceError, centre_crop, crop_image, detect_face
-
-    h, w = rgb.shape[:2]
-    if not detect:
-        crop = centre_crop(rgb.shape)
-        return crop_image(rgb, crop, size), f"{w}x{h}, centre crop {crop.side:.0f} px (no detection)"
-    found = detect_face(rgb)
-    if found is None:
-        raise NoFaceError(
-            f"{name}: no face found; if the photo is already a centred portrait crop, pass --no-detect"
-        )
-    x, y, bw, bh = found.box
-    eyes = f"roll {found.angle_deg:+.1f}°" if found.eyes is not None else "eyes not found, not levelled"
-    more = f", {found.n_faces} face candidates (the largest clear one used)" if found.n_faces > 1 else ""
-    desc = (
-        f"{w}x{h}, face {bw:.0f}x{bh:.0f} at ({x:.0f}, {y:.0f}){more}, {eyes}, crop {found.crop.side:.0f} px"
-    )
-    return crop_image(rgb, found.crop, size), desc
-
-
 def _crop_path(dest: Path) -> Path:
     """Where ``lp3d encode --save-crop`` writes the aligned crop of the photo encoded to ``dest``."""
     return dest.with_name(dest.stem + ".crop.png")
 
 
 def run(args: argparse.Namespace) -> int:
-    from lp3d.inference import load_encoder
-    from lp3d.photo import PhotoError, load_image, to_encoder_input
-    from lp3d.triplane_io import save_triplane
+    from lp3d.lift.inference import load_encoder
+    from lp3d.photo import PhotoError, load_image, prepare_photo, to_encoder_input
+    from lp3d.render.triplane_io import save_triplane
 
     images = _collect_images(args.inputs)
     destinations, new_folder = _plan_outputs(images, args.output)

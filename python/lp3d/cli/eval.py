@@ -1,15 +1,15 @@
 """``lp3d eval``: evaluate a trained encoder on held-out teacher identities.
 
-The options are ``python -m lp3d.eval``'s, defined once in
-:func:`lp3d.eval.add_arguments`; that module needs torch (the ``train`` extra), so it is imported
+The options are defined once, in
+:func:`lp3d.training.eval.add_arguments`; that module needs torch (the ``train`` extra), so it is imported
 only when this subcommand is parsed or run."""
 
 from __future__ import annotations
 
 from lp3d.cli.common import module_command
 
-HELP = "evaluate a trained encoder on held-out identities (python -m lp3d.eval; needs torch)"
+HELP = "evaluate a trained encoder on held-out identities (needs torch)"
 #: This subcommand's options import torch: the top-level parser adds them only when it is named.
 LAZY = True
 
-add_arguments, run = module_command("lp3d.eval")
+add_arguments, run = module_command("lp3d.training.eval")

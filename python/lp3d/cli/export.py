@@ -1,15 +1,15 @@
 """``lp3d export``: export a training checkpoint to an ONNX model package.
 
-The options are ``python -m lp3d.export``'s, defined once in
-:func:`lp3d.export.add_arguments`; that module needs torch (the ``train`` extra), so it is imported
+The options are defined once, in
+:func:`lp3d.training.export.add_arguments`; that module needs torch (the ``train`` extra), so it is imported
 only when this subcommand is parsed or run."""
 
 from __future__ import annotations
 
 from lp3d.cli.common import module_command
 
-HELP = "export a checkpoint to an ONNX model package (python -m lp3d.export; needs torch)"
+HELP = "export a checkpoint to an ONNX model package (needs torch)"
 #: This subcommand's options import torch: the top-level parser adds them only when it is named.
 LAZY = True
 
-add_arguments, run = module_command("lp3d.export")
+add_arguments, run = module_command("lp3d.training.export")

@@ -4,16 +4,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 from pathlib import Path
-from typing import Any
 
-import numpy as np
-
-from lp3d.cli.common import (
-    human_bytes,
-    load_triplane_file,
-)
+from lp3d.cli.common import human_bytes
+from lp3d.errors import UserError
+from lp3d.render.triplane_io import triplane_info
 
 HELP = "describe a triplane file"
 DESCRIPTION = (
@@ -27,71 +22,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
 
 
-def camera_summary(label: np.ndarray) -> dict[str, float]:
-    """A camera label as yaw/pitch of its centre about the origin (as ``look_at_camera`` takes them),
-    radius and focal length."""
-    c2w = np.asarray(label, np.float64)[:16].reshape(4, 4)
-    centre = c2w[:3, 3]
-    radius = float(np.linalg.norm(centre))
-    yaw = math.degrees(math.atan2(centre[0], centre[2]))
-    pitch = math.degrees(math.asin(max(-1.0, min(1.0, centre[1] / radius)))) if radius > 0 else 0.0
-    return {"yaw_deg": yaw, "pitch_deg": pitch, "radius": radius, "focal": float(label[16])}
-
-
-def triplane_info(path: Path) -> dict[str, Any]:
-    """Everything ``lp3d info`` prints, as plain data."""
-    tri = load_triplane_file(path)
-    with np.load(path, allow_pickle=False) as npz:
-        version = int(npz["format_version"])
-    planes = tri.planes.astype(np.float32)
-    info: dict[str, Any] = {
-        "file": str(path),
-        "file_size": path.stat().st_size,
-        "format_version": version,
-        "planes": {
-            "shape": list(tri.planes.shape),
-            "dtype": str(tri.planes.dtype),
-            "min": float(planes.min()),
-            "max": float(planes.max()),
-            "mean": float(planes.mean()),
-            "std": float(planes.std()),
-            "per_plane_std": [float(planes[p].std()) for p in range(3)],
-        },
-        "decoder": {
-            name: {
-                "shape": list(a.shape),
-                "min": float(a.min()),
-                "max": float(a.max()),
-                "mean": float(a.mean()),
-                "rms": float(np.sqrt(np.mean(np.square(a, dtype=np.float64)))),
-            }
-            for name, a in (("w0", tri.w0), ("b0", tri.b0), ("w1", tri.w1), ("b1", tri.b1))
-        },
-        "box_warp": tri.box_warp,
-        "box": [-tri.box_warp / 2.0, tri.box_warp / 2.0],
-        "ray_start": tri.ray_start,
-        "ray_end": tri.ray_end,
-        "camera": None if tri.camera is None else camera_summary(tri.camera),
-        "source": tri.source,
-        "occupancy": None,
-    }
-    # A hidden unit does nothing when its input row or its output column is all zeros.
-    used = np.abs(tri.w0).sum(axis=1) * np.abs(tri.w1).sum(axis=0)
-    info["decoder"]["hidden_units_used"] = int(np.count_nonzero(used))
-    info["decoder"]["density_bias"] = float(tri.b1[0])
-    if tri.occupancy is not None:
-        occ = tri.occupancy
-        info["occupancy"] = {
-            "shape": list(occ.shape),
-            "min": float(occ.min()),
-            "max": float(occ.max()),
-            "fraction_nonzero": float(np.count_nonzero(occ) / occ.size),
-        }
-    return info
-
-
 def run(args: argparse.Namespace) -> int:
-    info = triplane_info(args.triplane)
+    try:
+        info = triplane_info(args.triplane)
+    except FileNotFoundError:
+        raise UserError(f"{args.triplane}: no such file") from None
     if args.json:
         print(json.dumps(info, indent=2))
         return 0

@@ -25,7 +25,7 @@ DESCRIPTION = (
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from lp3d.mesh import EG3D_MESH_THRESHOLD
+    from lp3d.render.mesh import EG3D_MESH_THRESHOLD
 
     p.add_argument("triplane", type=Path, help="triplane .npz file")
     p.add_argument("-o", "--output", type=Path, required=True, help="output mesh (.ply, .obj or .glb)")
@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
     out_path = check_output(args.output, MESH_SUFFIXES)
     check_distinct([("triplane", args.triplane)], [("-o", out_path)])
     tri = load_triplane_file(args.triplane)
-    from lp3d.mesh import extract_mesh, write_mesh
+    from lp3d.render.mesh import extract_mesh, write_mesh
 
     start = time.perf_counter()
     mesh = extract_mesh(tri, grid=args.grid, threshold=args.threshold)

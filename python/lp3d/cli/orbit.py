@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import math
 import time
 from pathlib import Path
 
@@ -29,6 +28,7 @@ from lp3d.cli.common import (
     say,
     superres_model_arg,
 )
+from lp3d.render.camera import orbit_angles
 
 HELP = "render a turntable video (.gif or .mp4)"
 DESCRIPTION = (
@@ -54,16 +54,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     camera_args(p, yaw=None)
     render_args(p, 128)
     superres_model_arg(p)
-
-
-def orbit_angles(frames: int, yaw_range: float, pitch_range: float) -> list[tuple[float, float]]:
-    """(yaw, pitch offset) per frame of a closed loop, as EG3D's videos: ``yaw = R_y sin(2 pi t)``,
-    ``pitch = R_p cos(2 pi t)`` with ``t = i / frames`` (the last frame leads back to the first)."""
-    out = []
-    for i in range(frames):
-        t = 2.0 * math.pi * i / frames
-        out.append((yaw_range * math.sin(t), pitch_range * math.cos(t)))
-    return out
 
 
 def run(args: argparse.Namespace) -> int:

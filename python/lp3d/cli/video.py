@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import argparse
 import time
-from collections.abc import Iterator
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -60,114 +58,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     render_args(p, 128)
 
 
-#: Crop smoothing in ``lp3d video`` (exponential, per frame): damps the Haar box's frame-to-frame jitter.
-VIDEO_CROP_SMOOTHING = 0.6
-
-
-def _ffmpeg_reason(e: Exception) -> str:
-    """The informative last line of an imageio-ffmpeg error (its message embeds ffmpeg's whole log)."""
-    lines = [ln.strip() for ln in str(e).splitlines() if ln.strip()]
-    tail = [ln for ln in lines if "rror" in ln or "nvalid" in ln or "No such" in ln]
-    return (tail[-1] if tail else lines[0] if lines else type(e).__name__)[:300]
-
-
-#: Longest time ffmpeg may take to scan a video's packets (no decoding: seconds even for long films).
-VIDEO_SCAN_TIMEOUT_S = 600.0
-
-
-def count_video_frames(path: Path) -> int | None:
-    """Frames the container holds in its first video stream: its packets, counted by the bundled ffmpeg
-    without decoding (so a damaged frame still counts). ``None`` when ffmpeg cannot copy the stream (the
-    decoder may still read it). Raises :class:`CLIError` for a file with no video stream (audio only,
-    an empty container), whose ffmpeg error would only say "Invalid argument"."""
-    import re
-    import subprocess
-
-    import imageio_ffmpeg
-
-    cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-hide_banner", "-nostdin", "-i", str(path)]
-    cmd += ["-map", "0:v:0", "-c", "copy", "-f", "null", "-"]
-    try:
-        done = subprocess.run(cmd, capture_output=True, timeout=VIDEO_SCAN_TIMEOUT_S, check=False)
-    except subprocess.TimeoutExpired:
-        raise CLIError(
-            f"{path}: ffmpeg took more than {VIDEO_SCAN_TIMEOUT_S:g} s to scan the video"
-        ) from None
-    log = done.stderr.decode(errors="replace")
-    if "matches no streams" in log:
-        what = "an audio stream but no video" if re.search(r"Stream #\S+: Audio:", log) else "no video stream"
-        raise CLIError(f"{path}: has {what}")
-    counts = re.findall(r"frame=\s*(\d+)", log)
-    return int(counts[-1]) if done.returncode == 0 and counts else None
-
-
-def read_video(path: Path, max_frames: int | None) -> tuple[dict[str, Any], Iterator[np.ndarray]]:
-    """(metadata, frames (H, W, 3) uint8) of a video file read by the bundled ffmpeg; ``max_frames=0``
-    only reads the metadata, and adds ``frames_declared`` (:func:`count_video_frames`).
-
-    The decoder skips frames it cannot decode (ffmpeg goes on after a damaged frame), so callers
-    compare the frames they got with ``frames_declared``: :func:`run` warns, naming both counts.
-    """
-    from lp3d.photo import MAX_PIXELS, MAX_SIDE
-
-    if not path.exists():
-        raise CLIError(f"{path}: no such file")
-    if path.is_dir():
-        raise CLIError(f"{path}: is a folder, not a video")
-    if not path.is_file():
-        raise CLIError(f"{path}: is not a regular file")
-    if path.stat().st_size == 0:
-        raise CLIError(f"{path}: empty file")
-    try:
-        import imageio_ffmpeg
-    except ImportError as e:
-        raise CLIError(f"reading videos needs imageio-ffmpeg: {e}") from None
-    declared = count_video_frames(path) if max_frames == 0 else None
-    if declared == 0:
-        raise CLIError(f"{path}: the video stream has no frames")
-    try:
-        gen = imageio_ffmpeg.read_frames(str(path))
-        meta = next(gen)
-        w, h = (int(v) for v in meta["size"])
-    # imageio-ffmpeg parses ffmpeg's log: besides OSError, an odd log gives Index/Attribute/ValueError.
-    except (OSError, RuntimeError, StopIteration, IndexError, AttributeError, ValueError, KeyError) as e:
-        raise CLIError(f"{path}: cannot read as a video ({_ffmpeg_reason(e)})") from None
-    if not (0 < w * h <= MAX_PIXELS and max(w, h) <= MAX_SIDE):
-        gen.close()
-        raise CLIError(
-            f"{path}: frames are {w}x{h}; need 1 to {MAX_PIXELS / 1e6:.0f} MP and sides up to {MAX_SIDE} px"
-        )
-    if max_frames == 0:  # a probe: metadata only, stop ffmpeg now
-        gen.close()
-        return {**meta, "frames_declared": declared}, iter(())
-
-    def frames() -> Iterator[np.ndarray]:
-        try:
-            for i, raw in enumerate(gen):
-                if max_frames is not None and i >= max_frames:
-                    break
-                yield np.frombuffer(raw, np.uint8).reshape(h, w, 3)
-        except (OSError, RuntimeError) as e:
-            raise CLIError(f"{path}: error while decoding ({_ffmpeg_reason(e)})") from None
-        finally:
-            gen.close()
-
-    return meta, frames()
-
-
-def _frame_estimate(meta: dict[str, Any], max_frames: int | None) -> int | None:
-    """Frames to expect (for the progress bar): the container's count, else ffmpeg's duration times fps,
-    capped by --max-frames."""
-    n = meta.get("frames_declared")
-    if n is None:
-        try:
-            n = round(float(meta["duration"]) * float(meta["fps"]))
-        except (KeyError, TypeError, ValueError, OverflowError):
-            return max_frames
-    n = n if n > 0 else None
-    return n if max_frames is None else min(max_frames, n or max_frames)
-
-
 def _no_frames(path: Path, meta: dict[str, Any]) -> str:
     """The error for a video of which no frame could be decoded."""
     declared = meta.get("frames_declared")
@@ -175,32 +65,8 @@ def _no_frames(path: Path, meta: dict[str, Any]) -> str:
     return f"{path}: no frame{held} could be decoded"
 
 
-def _nearest(hits: np.ndarray, n: int) -> np.ndarray:
-    """For each of ``n`` frames, the index in sorted ``hits`` (frames with a face) nearest to it."""
-    frames = np.arange(n)
-    right = np.clip(np.searchsorted(hits, frames), 0, len(hits) - 1)
-    left = np.clip(right - 1, 0, len(hits) - 1)
-    use_left = np.abs(hits[left] - frames) <= np.abs(hits[right] - frames)
-    return np.where(use_left, hits[left], hits[right])
-
-
-def _smooth_crops(crops: list[Any], alpha: float) -> list[Any]:
-    """Exponential smoothing of the crop parameters, run forward then backward (no lag)."""
-    if alpha <= 0 or len(crops) < 2:
-        return crops
-    keys = ("cx", "cy", "side", "angle_deg")
-    vals = np.array([[getattr(c, k) for k in keys] for c in crops], np.float64)
-    for i in range(1, len(vals)):
-        vals[i] = alpha * vals[i - 1] + (1 - alpha) * vals[i]
-    for i in range(len(vals) - 2, -1, -1):
-        vals[i] = alpha * vals[i + 1] + (1 - alpha) * vals[i]
-    return [
-        replace(c, **dict(zip(keys, map(float, v), strict=True))) for c, v in zip(crops, vals, strict=True)
-    ]
-
-
 def run(args: argparse.Namespace) -> int:
-    from lp3d.inference import load_encoder
+    from lp3d.lift.inference import load_encoder
     from lp3d.photo import (
         DETECT_MAX_SIDE,
         NoFaceError,
@@ -208,6 +74,13 @@ def run(args: argparse.Namespace) -> int:
         crop_image,
         detect_face,
         to_encoder_input,
+    )
+    from lp3d.photo.video import (
+        VIDEO_CROP_SMOOTHING,
+        expected_frames,
+        nearest_hits,
+        read_video,
+        smooth_crops,
     )
 
     out_path = check_output(args.output, VIDEO_SUFFIXES)
@@ -235,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
         crops = []
     else:
         _, frames = read_video(args.input, args.max_frames)
-        bar = progress(_frame_estimate(meta, args.max_frames), "detect")
+        bar = progress(expected_frames(meta, args.max_frames), "detect")
         try:
             for frame in frames:
                 found = detect_face(frame)
@@ -252,8 +125,8 @@ def run(args: argparse.Namespace) -> int:
             )
         if len(hits) < len(crops):
             warn(f"no face in {len(crops) - len(hits)} of {len(crops)} frames; using the nearest detection")
-        crops = [crops[j] for j in _nearest(np.asarray(hits), len(crops))]
-        crops = _smooth_crops(crops, VIDEO_CROP_SMOOTHING)
+        crops = [crops[j] for j in nearest_hits(np.asarray(hits), len(crops))]
+        crops = smooth_crops(crops, VIDEO_CROP_SMOOTHING)
 
     # Pass 2: crop, encode, smooth the triplane over time, render the new view.
     camera = make_camera(args)[None]
@@ -263,7 +136,7 @@ def run(args: argparse.Namespace) -> int:
     state: np.ndarray | None = None
     with Staged() as staged:
         writer = VideoWriter(staged.temp(out_path), out_path.suffix, fps)
-        bar = progress(len(crops) if crops else _frame_estimate(meta, args.max_frames), "video")
+        bar = progress(len(crops) if crops else expected_frames(meta, args.max_frames), "video")
         try:
             for i, frame in enumerate(frames):
                 crop = crops[min(i, len(crops) - 1)] if crops else centre_crop(frame.shape)

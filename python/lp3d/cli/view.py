@@ -80,3 +80,13 @@ def run(args: argparse.Namespace) -> int:
     if args.screenshot is not None:
         print(f"wrote {args.screenshot}")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``lp3d-view``, the viewer's console script: ``lp3d view`` on its own."""
+    import sys
+
+    from lp3d.cli import standalone_parser
+    from lp3d.errors import run_command
+
+    return run_command(standalone_parser(sys.modules[__name__], "lp3d-view"), argv)

@@ -17,7 +17,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from lp3d.triplane import TriplaneData
+from lp3d.render.triplane import TriplaneData
 
 
 @runtime_checkable

@@ -40,7 +40,7 @@ Choices (``docs/eg3d-rendering.md`` §4, §5, §10, §11):
 * **Super-resolution w**: the supplement replaces "the latent code W injected to the StyleGAN2-based
   super-resolution layer with a constant 1", i.e. ``w = (1, 1, ..., 1)`` (w_dim ones) for every sample,
   and fine-tunes the whole EG3D model that way for 6.8M images. That is the default (``sr_w="ones"``), as
-  in :mod:`lp3d.superres`. Caveat: the *released* EG3D pickles were trained with the sample's own w, so
+  in :mod:`lp3d.nets.superres`. Caveat: the *released* EG3D pickles were trained with the sample's own w, so
   their SR module has never seen all-ones and its output is off-distribution; for those, ``sr_w="mean"``
   (the mapping network's tracked average ``w_avg``, i.e. the w of truncation psi = 0) is the closest
   constant. Noise: ``"none"`` (EG3D's FFHQ ``superresolution_noise_mode``).
@@ -66,7 +66,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from lp3d.camera import (
+from lp3d.render.camera import (
     FFHQ_FOCAL,
     FFHQ_PIVOT,
     FFHQ_RADIUS,
@@ -75,8 +75,8 @@ from lp3d.camera import (
     pack_label,
     validate_camera,
 )
-from lp3d.settings import RenderSettings
-from lp3d.triplane import TriplaneData, effective_decoder_weights
+from lp3d.render.settings import RenderSettings
+from lp3d.render.triplane import TriplaneData, effective_decoder_weights
 
 __all__ = [
     "CONDITIONING_CAMERAS",
@@ -106,7 +106,7 @@ def _eg3d_fov_to_focal(fov_degrees: float) -> float:
 #: The conditioning camera of EG3D's two generation scripts as ``(h, v, focal)``: the angles its
 #: ``LookAtPoseSampler.sample(h, v, pivot, radius=...)`` is given (radians) and the normalised focal
 #: length. ``gen_videos.py`` writes ``3.14/2`` for both angles, not pi/2, so its camera is slightly off
-#: frontal (yaw -0.04563°, pitch +0.02905° in :func:`lp3d.camera.look_at_camera`'s terms); kept on
+#: frontal (yaw -0.04563°, pitch +0.02905° in :func:`lp3d.render.camera.look_at_camera`'s terms); kept on
 #: purpose, since the mapping's ws depend on it (about 1e-3). Its focal is written as 4.2647;
 #: ``gen_samples.py`` uses ``np.pi/2`` and derives the focal from its default ``--fov-deg 18.837``.
 CONDITIONING_CAMERAS: dict[str, tuple[float, float, float]] = {

@@ -32,8 +32,8 @@ def render_sheet(
     """The sheet as (rows * (R + 2) + 2, columns * (R + 2) + 2, 3) uint8: one row per seed, one column
     per yaw, separated by a dark 2-pixel gutter."""
     import lp3d_render
-    from lp3d.camera import look_at_camera
     from lp3d.images import rgb_to_uint8, tile
+    from lp3d.render.camera import look_at_camera
     from lp3d.teachers.procedural import ProceduralTeacher
 
     teacher = ProceduralTeacher()

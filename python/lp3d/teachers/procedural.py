@@ -2,7 +2,7 @@
 
 No weights and no training: every identity is a handful of closed-form 2-D fields, and one fixed,
 hand-built decoder turns them into density and colour. The construction rests on EG3D's plane quirk
-(``docs/eg3d-rendering.md`` §2; :data:`lp3d.triplane.PLANE_AXES`):
+(``docs/eg3d-rendering.md`` §2; :data:`lp3d.render.triplane.PLANE_AXES`):
 
 * Plane 0 samples (x, y), planes 1 and 2 sample (x, z) and (z, x). With plane 2 the transpose of
   plane 1, a channel's triplane value (the *mean* of the three planes) is exactly
@@ -34,8 +34,15 @@ from typing import Literal
 
 import numpy as np
 
-from lp3d.settings import DEFAULT_BOX_WARP, DEFAULT_RAY_END, DEFAULT_RAY_START, HIDDEN, N_CHANNELS, N_OUT
-from lp3d.triplane import TriplaneData
+from lp3d.render.settings import (
+    DEFAULT_BOX_WARP,
+    DEFAULT_RAY_END,
+    DEFAULT_RAY_START,
+    HIDDEN,
+    N_CHANNELS,
+    N_OUT,
+)
+from lp3d.render.triplane import TriplaneData
 
 Hairstyle = Literal["bald", "short", "long", "bob", "bun", "afro"]
 Pattern = Literal["plain", "gradient", "stripes", "checker", "dots", "waves"]

@@ -6,14 +6,14 @@ procedural teacher; ``--resume runs/t`` continues it exactly where it stopped.
 One step (supplement, "Training"):
 
 1. **Synthesis.** B identities (fresh seeds from the training range; evaluation seeds are disjoint),
-   one reference camera ``P_ref`` (augmented, :data:`lp3d.camera_sampling.FFHQ_REFERENCE`) and one
-   multiview camera ``P_mv`` (:data:`~lp3d.camera_sampling.FFHQ_MULTIVIEW`) each. The frozen teacher
+   one reference camera ``P_ref`` (augmented, :data:`lp3d.training.camera_sampling.FFHQ_REFERENCE`) and one
+   multiview camera ``P_mv`` (:data:`~lp3d.training.camera_sampling.FFHQ_MULTIVIEW`) each. The frozen teacher
    renders, with the torch twin of the renderer: the encoder's input I_ref at the encoder's image size,
    and for each view set the targets I_f, I_raw (= I_f[:3]) and I_D at the raw resolution and I_high
    at the image size.
 2. **Student.** T̄ = E(I_ref); T̄ is rendered from P_mv (and from P_ref on reference steps) with the
    student's decoder, then super-resolved.
-3. **Loss** (Eq. 5, :mod:`lp3d.losses`) and one optimiser step; in stage 2 also a discriminator step
+3. **Loss** (Eq. 5, :mod:`lp3d.training.losses`) and one optimiser step; in stage 2 also a discriminator step
    on teacher (real) vs student (fake) renders, with lazy R1.
 
 Two-stage schedule (supplement): stage 1 (``warmup_steps``) without adversarial and category losses,
@@ -62,18 +62,18 @@ the encoder instead:
 
 * **Data made once.** ``dataset_identities`` teacher identities (planes at the student's resolution
   and one input render each) are synthesised once into a content-hashed cache
-  (:mod:`lp3d.synthetic_data`) and reused across steps, runs and resumes; horizontal flips with
-  mirrored planes (:func:`lp3d.triplane.mirror_planes`) double them.
+  (:mod:`lp3d.training.synthetic_data`) and reused across steps, runs and resumes; horizontal flips with
+  mirrored planes (:func:`lp3d.render.triplane.mirror_planes`) double them.
 * **Triplane regression.** For ``regression_steps`` the only loss is L_tri with every channel
-  divided by its spread over identities (:func:`lp3d.losses.normalised_triplane_loss`); after them an
+  divided by its spread over identities (:func:`lp3d.training.losses.normalised_triplane_loss`); after them an
   RGB L1 on ``rays_per_identity`` random rays of a random multiview camera is added (teacher and
-  student rendered on the same rays; :func:`lp3d.render_torch.render_rays`). ``small`` and ``tiny``
+  student rendered on the same rays; :func:`lp3d.render.torch_twin.render_rays`). ``small`` and ``tiny``
   regress for their whole schedule: with the procedural teacher's step-like decoder the ray loss
   made things worse (the shipped run, steps 500-600 with rays: held-out PSNR 18.4 -> 18.1 dB and
   identity specificity 3.8 -> 3.2 dB, L_tri 0.125 -> 0.143; ``python/lp3d/models/README.md``).
 * **A plane basis.** The teacher's triplanes span its identities in about a hundred dimensions (the
   principal components of 512 heads and their mirrors leave 3 % of the held-out L1 at 128
-  components), so the CPU encoders carry :class:`lp3d.encoder.PlaneBasis`, started from those
+  components), so the CPU encoders carry :class:`lp3d.nets.encoder.PlaneBasis`, started from those
   components (:func:`principal_planes`), beside the convolutional head; the student starts at the
   dataset's mean triplane.
 * **No SR and no discriminator.** The procedural teacher renders its high-resolution image directly,
@@ -85,7 +85,7 @@ the encoder instead:
 Checkpoints are plain dicts of tensors and JSON strings (``torch.load(weights_only=True)``), written
 atomically; they carry the optimiser, scheduler, scaler and every RNG state, so resuming is exact.
 
-**Distributed training** (``torchrun --nproc-per-node N -m lp3d.train ...``; :mod:`lp3d.distributed`,
+**Distributed training** (``torchrun --nproc-per-node N -m lp3d.train ...``; :mod:`lp3d.training.distributed`,
 ``docs/training.md``). Each process takes ``cuda:LOCAL_RANK`` (NCCL) or the CPU (gloo) and builds its
 own teacher and models from the same seed (rank 0's weights are broadcast). ``batch_size`` is the
 global batch and must be a multiple of N: every rank draws the whole step's randomness from the one
@@ -109,72 +109,57 @@ The package, in import order (each module imports only those before it): :mod:`~
 for ``python -m lp3d.train`` and older imports.
 """
 
-from lp3d.training.checkpoint import (
-    CHECKPOINT_FORMAT,
-    CheckpointError,
-    load_checkpoint,
-    student_from_checkpoint,
-)
-from lp3d.training.cli import DESCRIPTION, add_arguments, build_parser, main, run_cli
-from lp3d.training.config import (
-    MAIN_WEIGHTS,
-    RECIPES,
-    RUN_KEEPING_FIELDS,
-    TRAIN_CONFIGS,
-    WARMUP_WEIGHTS,
-    TrainConfig,
-    config_differences,
-)
-from lp3d.training.steps import Batch, NonFiniteError
-from lp3d.training.student import (
-    SceneBounds,
-    Student,
-    TriplaneDecoder,
-    principal_planes,
-    render_teacher,
-    render_views,
-)
-from lp3d.training.teacher_factory import (
-    TEACHER_ARGS,
-    TEACHERS,
-    build_teacher,
-    dataset_key,
-    resolve_teacher_args,
-    teacher_superres_state,
-)
-from lp3d.training.trainer import LOG_COLUMNS, Trainer
+import importlib
+from typing import Any
 
-__all__ = [
-    "CHECKPOINT_FORMAT",
-    "DESCRIPTION",
-    "LOG_COLUMNS",
-    "MAIN_WEIGHTS",
-    "RECIPES",
-    "RUN_KEEPING_FIELDS",
-    "TEACHERS",
-    "TEACHER_ARGS",
-    "TRAIN_CONFIGS",
-    "WARMUP_WEIGHTS",
-    "Batch",
-    "CheckpointError",
-    "NonFiniteError",
-    "SceneBounds",
-    "Student",
-    "TrainConfig",
-    "Trainer",
-    "TriplaneDecoder",
-    "add_arguments",
-    "build_parser",
-    "build_teacher",
-    "config_differences",
-    "dataset_key",
-    "load_checkpoint",
-    "main",
-    "principal_planes",
-    "render_teacher",
-    "render_views",
-    "resolve_teacher_args",
-    "run_cli",
-    "student_from_checkpoint",
-    "teacher_superres_state",
-]
+#: Each public name -> the module of this package that defines it, imported on first use, so that
+#: ``lp3d.training.camera_sampling`` (or ``run_dir``) can be imported without the trainer and torch.
+_EXPORTS = {
+    "Batch": "steps",
+    "CHECKPOINT_FORMAT": "checkpoint",
+    "CheckpointError": "checkpoint",
+    "DESCRIPTION": "cli",
+    "LOG_COLUMNS": "trainer",
+    "MAIN_WEIGHTS": "config",
+    "NonFiniteError": "steps",
+    "RECIPES": "config",
+    "RUN_KEEPING_FIELDS": "config",
+    "SceneBounds": "student",
+    "Student": "student",
+    "TEACHERS": "teacher_factory",
+    "TEACHER_ARGS": "teacher_factory",
+    "TRAIN_CONFIGS": "config",
+    "TrainConfig": "config",
+    "Trainer": "trainer",
+    "TriplaneDecoder": "student",
+    "WARMUP_WEIGHTS": "config",
+    "add_arguments": "cli",
+    "build_parser": "cli",
+    "build_teacher": "teacher_factory",
+    "config_differences": "config",
+    "dataset_key": "teacher_factory",
+    "load_checkpoint": "checkpoint",
+    "main": "cli",
+    "principal_planes": "student",
+    "render_teacher": "student",
+    "render_views": "student",
+    "resolve_teacher_args": "teacher_factory",
+    "run_cli": "cli",
+    "student_from_checkpoint": "checkpoint",
+    "teacher_superres_state": "teacher_factory",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'lp3d.training' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"lp3d.training.{module}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_EXPORTS))

@@ -15,10 +15,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from lp3d import distributed
 from lp3d.atomic import atomic_path
-from lp3d.run_dir import newest_readable
+from lp3d.training import distributed
 from lp3d.training.config import TrainConfig
+from lp3d.training.run_dir import newest_readable
 from lp3d.training.student import SceneBounds, Student
 
 #: Identifies lp3d training checkpoints; bumped when the layout changes.

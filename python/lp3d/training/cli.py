@@ -11,12 +11,12 @@ import math
 import sys
 from pathlib import Path
 
-from lp3d import distributed
 from lp3d.errors import EXIT_ERROR, EXIT_INTERRUPTED, run_command
-from lp3d.losses import PERCEPTUAL_KINDS, build_perceptual
-from lp3d.run_dir import latest_checkpoint
+from lp3d.training import distributed
 from lp3d.training.checkpoint import CheckpointError, _load_shared_checkpoint
 from lp3d.training.config import TRAIN_CONFIGS, TrainConfig, _scaled_schedule
+from lp3d.training.losses import PERCEPTUAL_KINDS, build_perceptual
+from lp3d.training.run_dir import latest_checkpoint
 from lp3d.training.steps import NonFiniteError
 from lp3d.training.teacher_factory import TEACHERS, _recordable, build_teacher, resolve_teacher_args
 from lp3d.training.trainer import Trainer

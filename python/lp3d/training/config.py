@@ -12,12 +12,12 @@ import math
 from dataclasses import dataclass, fields
 from typing import Any
 
-from lp3d.camera_sampling import FFHQ_MULTIVIEW, FFHQ_REFERENCE, CameraDistribution
-from lp3d.discriminator import DISCRIMINATOR_CONFIGS, DiscriminatorConfig
-from lp3d.encoder import CONFIGS as ENCODER_CONFIGS
-from lp3d.encoder import EncoderConfig
-from lp3d.losses import PERCEPTUAL_KINDS, LossWeights
-from lp3d.superres import SUPERRES_CONFIGS, SuperresConfig
+from lp3d.nets.discriminator import DISCRIMINATOR_CONFIGS, DiscriminatorConfig
+from lp3d.nets.encoder import CONFIGS as ENCODER_CONFIGS
+from lp3d.nets.encoder import EncoderConfig
+from lp3d.nets.superres import SUPERRES_CONFIGS, SuperresConfig
+from lp3d.training.camera_sampling import FFHQ_MULTIVIEW, FFHQ_REFERENCE, CameraDistribution
+from lp3d.training.losses import PERCEPTUAL_KINDS, LossWeights
 
 RECIPES = ("paper", "cpu")
 

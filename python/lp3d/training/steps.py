@@ -18,15 +18,15 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from lp3d import distributed
-from lp3d.camera_sampling import sample_cameras
-from lp3d.discriminator import d_loss, r1_penalty
-from lp3d.losses import ViewRenders, l1, normalised_triplane_loss
-from lp3d.render_torch import rays_from_cameras, render_rays
-from lp3d.synthetic_data import DatasetKey, SyntheticDataset, resize_planes
+from lp3d.nets.discriminator import d_loss, r1_penalty
+from lp3d.render.torch_twin import rays_from_cameras, render_rays
+from lp3d.render.triplane import TriplaneData, mirror_planes
+from lp3d.training import distributed
+from lp3d.training.camera_sampling import sample_cameras
+from lp3d.training.losses import ViewRenders, l1, normalised_triplane_loss
 from lp3d.training.student import render_teacher
+from lp3d.training.synthetic_data import DatasetKey, SyntheticDataset, resize_planes
 from lp3d.training.teacher_factory import dataset_key
-from lp3d.triplane import TriplaneData, mirror_planes
 
 
 class NonFiniteError(ValueError):

@@ -14,14 +14,14 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from lp3d import distributed
-from lp3d.encoder import LP3DEncoder
-from lp3d.losses import ViewRenders
-from lp3d.render_torch import render_torch
-from lp3d.superres import SuperResolution
+from lp3d.nets.encoder import LP3DEncoder
+from lp3d.nets.superres import SuperResolution
+from lp3d.render.torch_twin import render_torch
+from lp3d.render.triplane import TriplaneData, mirror_planes
 from lp3d.teachers import Teacher
+from lp3d.training import distributed
 from lp3d.training.config import TrainConfig
-from lp3d.triplane import TriplaneData, mirror_planes
+from lp3d.training.losses import ViewRenders
 
 
 @dataclass(frozen=True)
@@ -43,7 +43,7 @@ def principal_planes(
 ) -> tuple[Tensor, Tensor]:
     """The mean (3, C, T, T) of teacher triplanes (N, 3, C, T, T) and their first ``k`` principal
     components at ``resolution``², as (k, 3·C, r, r) scaled so unit coefficients are one standard
-    deviation (the plane basis's start, :class:`lp3d.encoder.PlaneBasis`).
+    deviation (the plane basis's start, :class:`lp3d.nets.encoder.PlaneBasis`).
 
     Channels are divided by ``scale`` (C,) before the analysis, as in the normalised L_tri, so the
     components favour what that loss weighs. ``mirror`` adds the mirrored planes (the training
@@ -83,7 +83,7 @@ def render_views(
     *,
     resolution: int | None = None,
 ) -> dict[str, Tensor]:
-    """:func:`~lp3d.render_torch.render_torch` of planes (B, 3, 32, T, T) from cameras (B, 25) with a
+    """:func:`~lp3d.render.torch_twin.render_torch` of planes (B, 3, 32, T, T) from cameras (B, 25) with a
     training configuration's sample counts (at ``raw_resolution`` unless ``resolution`` is given)."""
     return render_torch(
         planes,

@@ -13,9 +13,9 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from lp3d.synthetic_data import DatasetKey, teacher_fingerprint
 from lp3d.teachers import Teacher
 from lp3d.training.config import TrainConfig
+from lp3d.training.synthetic_data import DatasetKey, teacher_fingerprint
 
 TEACHERS = ("procedural", "eg3d")
 
@@ -59,7 +59,7 @@ def build_teacher(
 
 
 #: The arguments of :func:`build_teacher` besides the name that a run records in its checkpoints, so
-#: that ``--resume`` and ``lp3d.eval`` rebuild the same teacher without being told again.
+#: that ``--resume`` and ``lp3d.training.eval`` rebuild the same teacher without being told again.
 TEACHER_ARGS = ("teacher_pkl", "eg3d_source", "conditioning")
 
 

@@ -23,22 +23,11 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from lp3d import distributed
 from lp3d.atomic import atomic_path
-from lp3d.camera_sampling import sample_cameras
-from lp3d.discriminator import DualDiscriminator
-from lp3d.losses import DistillationLoss
-from lp3d.run_dir import (
-    RunLock,
-    checkpoint_path,
-    checkpoints,
-    latest_checkpoint,
-    remove_stale_temporaries,
-    set_aside_checkpoints_after,
-)
-from lp3d.synthetic_data import SyntheticDataset, teacher_fingerprint
+from lp3d.nets.discriminator import DualDiscriminator
 from lp3d.teachers import Teacher
-from lp3d.tensorboard_log import TensorBoardLog
+from lp3d.training import distributed
+from lp3d.training.camera_sampling import sample_cameras
 from lp3d.training.checkpoint import (
     CHECKPOINT_FORMAT,
     CheckpointError,
@@ -50,9 +39,20 @@ from lp3d.training.checkpoint import (
     _set_rng_states,
 )
 from lp3d.training.config import TrainConfig, config_differences
+from lp3d.training.losses import DistillationLoss
+from lp3d.training.run_dir import (
+    RunLock,
+    checkpoint_path,
+    checkpoints,
+    latest_checkpoint,
+    remove_stale_temporaries,
+    set_aside_checkpoints_after,
+)
 from lp3d.training.steps import TrainingSteps
 from lp3d.training.student import SceneBounds, Student, principal_planes, render_teacher, render_views
+from lp3d.training.synthetic_data import SyntheticDataset, teacher_fingerprint
 from lp3d.training.teacher_factory import _recordable, resolve_teacher_args, teacher_superres_state
+from lp3d.training.tensorboard_log import TensorBoardLog
 
 LOG_COLUMNS = [
     "step",
@@ -80,15 +80,15 @@ class Trainer(TrainingSteps):
         out_dir: the run directory (``config.json``, ``log.csv``, ``checkpoints/``, ``samples/``).
         teacher: the frozen teacher; its name is recorded for evaluation.
         teacher_name: ``procedural`` or ``eg3d``.
-        perceptual: the perceptual loss module (see :func:`lp3d.losses.build_perceptual`).
+        perceptual: the perceptual loss module (see :func:`lp3d.training.losses.build_perceptual`).
         device: where to train.
         resume: a checkpoint file or run directory to continue from.
         category: optional category-loss hook (``LossWeights.category`` must be > 0 to use it).
         progress: progress bars (training, dataset synthesis).
         data_cache: where the CPU recipe's synthetic dataset is cached
-            (default :func:`lp3d.synthetic_data.default_cache_root`).
+            (default :func:`lp3d.training.synthetic_data.default_cache_root`).
         teacher_args: how the teacher was built (:data:`TEACHER_ARGS`), recorded in the checkpoints so
-            ``--resume`` and ``lp3d.eval`` can rebuild it (default: the resumed checkpoint's).
+            ``--resume`` and ``lp3d.training.eval`` can rebuild it (default: the resumed checkpoint's).
     """
 
     def __init__(
@@ -111,7 +111,7 @@ class Trainer(TrainingSteps):
         self.device = torch.device(device)
         self.teacher = teacher
         self.teacher_name = teacher_name
-        # Under torchrun (lp3d.distributed): this process's place, and its share of the global batch.
+        # Under torchrun (lp3d.training.distributed): this process's place, and its share of the global batch.
         self.world_size = distributed.world_size()
         self.rank = distributed.rank()
         self.is_main = self.rank == 0
@@ -429,8 +429,8 @@ class Trainer(TrainingSteps):
         identities (seeds from ``eval_seed_start``) against their own teacher and against the other
         held-out identities' teachers, and the difference (identity specificity, 0 dB for a student
         that ignores its input). Raw renders at ``raw_resolution`` from yaw -30° and +30° (pitch 10°);
-        the teacher is the training teacher (``python -m lp3d.eval`` scores against the native one)."""
-        from lp3d.camera import look_at_camera
+        the teacher is the training teacher (``lp3d eval`` scores against the native one)."""
+        from lp3d.render.camera import look_at_camera
 
         cfg = self.config
         if self.heldout is None:
@@ -509,8 +509,8 @@ class Trainer(TrainingSteps):
     ) -> Path:
         """``samples/step-NNNNNN.png``: per held-out identity, a teacher row (input, views at ``yaws``)
         and a student row (its input-view render, the same views)."""
-        from lp3d.camera import look_at_camera
         from lp3d.images import rgb_to_uint8, save_png, tile
+        from lp3d.render.camera import look_at_camera
 
         cfg = self.config
         seeds = list(seeds) if seeds is not None else [cfg.eval_seed_start, cfg.eval_seed_start + 1]

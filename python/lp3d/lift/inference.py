@@ -4,7 +4,7 @@
 (``image_size``) and what goes into its triplanes (decoder, scene bounds) and whose ``run`` maps
 images (B, 3, S, S) float32 in [-1, 1] to planes (B, 3, 32, T, T) float32.
 
-* ``onnx``: an ``.onnx`` file plus its ``MODEL.json`` sidecar (:mod:`lp3d.model_package`).
+* ``onnx``: an ``.onnx`` file plus its ``MODEL.json`` sidecar (:mod:`lp3d.lift.model_package`).
 * ``torch``: a plain state-dict checkpoint (``torch.load(weights_only=True)``, never unpickling
   code). Two layouts are understood: ``{"config": EncoderConfig dict, "encoder": state dict,
   "decoder": {w0, b0, w1, b1}, "bounds": {box_warp, ray_start, ray_end}}`` and the training
@@ -18,7 +18,7 @@ returns it as a :class:`LoadedSuperres` (or None when the package has none); the
 call::
 
     import lp3d_render
-    from lp3d.inference import load_superres
+    from lp3d.lift.inference import load_superres
 
     sr = load_superres()                        # the shipped model's, or load_superres("MODEL.onnx")
     out = lp3d_render.render(tri, camera, resolution=sr.input_resolution, outputs=["features"])
@@ -26,8 +26,9 @@ call::
 
 ``onnx``: the sidecar's ``superres`` entry (``MODEL.superres.onnx``, its SHA-256 checked on load).
 ``torch``: the checkpoint's ``superres`` (``{"config": SuperresConfig dict, "state": state dict}``,
-written by ``lp3d.export --weights``) or, for a training checkpoint of the paper recipe, its student's
-trained SR. The CPU recipe trains none; ``python -m lp3d.superres_fit`` fits one for such a model.
+written by ``lp3d export --weights``) or, for a training checkpoint of the paper recipe, its
+student's trained SR. The CPU recipe trains none; ``python -m lp3d.training.superres_fit`` fits one for
+such a model.
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from lp3d.model_package import (
+from lp3d.lift.model_package import (
     ModelPackage,
     ModelPackageError,
     SuperresEntry,
@@ -49,7 +50,7 @@ from lp3d.model_package import (
     sidecar_path,
     verify_superres_file,
 )
-from lp3d.settings import N_CHANNELS
+from lp3d.render.settings import N_CHANNELS
 
 __all__ = [
     "DEFAULT_MODEL",
@@ -282,9 +283,9 @@ def _torch_superres(
     ckpt: Mapping[str, Any], student: Mapping[str, Any] | None, train_cfg: Mapping[str, Any], p: Path
 ) -> tuple[Any, Any] | None:
     """``(SuperresConfig, state dict)`` of a checkpoint's trained SR, or None when it has none: the
-    ``superres`` entry of ``lp3d.export --weights`` files, or a paper-recipe training checkpoint's
+    ``superres`` entry of ``lp3d.training.export --weights`` files, or a paper-recipe training checkpoint's
     student SR (the CPU recipe's student carries an SR module it never trains: not used)."""
-    from lp3d.superres import SuperresConfig
+    from lp3d.nets.superres import SuperresConfig
 
     if ckpt.get("superres") is not None:
         entry = ckpt["superres"]
@@ -307,7 +308,7 @@ def _torch_superres(
 def _build_torch_superres(package: ModelPackage, found: tuple[Any, Any], p: Path) -> LoadedSuperres:
     import torch
 
-    from lp3d.superres import FoldedSuperResolution, SuperResolution
+    from lp3d.nets.superres import FoldedSuperResolution, SuperResolution
 
     config, state = found
     if config.in_channels != N_CHANNELS:
@@ -344,7 +345,7 @@ def _load_torch(path: Path, *, superres: bool = False) -> LoadedEncoder:
         import torch
     except ImportError as e:
         raise ModelPackageError(f"the torch backend needs PyTorch: {e}") from None
-    from lp3d.encoder import EncoderConfig, build_encoder
+    from lp3d.nets.encoder import EncoderConfig, build_encoder
 
     p = _checkpoint_file(path)
     try:
@@ -468,7 +469,7 @@ def load_encoder(
     With ``superres`` the package's super-resolution network is loaded too (``.superres``, None when
     the package has none).
 
-    Raises :class:`~lp3d.model_package.ModelPackageError` (a ValueError) with a clear message for a
+    Raises :class:`~lp3d.lift.model_package.ModelPackageError` (a ValueError) with a clear message for a
     missing file or sidecar, an unreadable model, or a layout that does not fit.
     """
     p = Path(path)
@@ -492,7 +493,7 @@ def load_superres(
     None when the package has none. ``backend`` as for :func:`load_encoder`. An ONNX package's encoder
     file is not loaded; a torch checkpoint is read whole.
 
-    Raises :class:`~lp3d.model_package.ModelPackageError` for a package or SR file that is missing,
+    Raises :class:`~lp3d.lift.model_package.ModelPackageError` for a package or SR file that is missing,
     altered (SHA-256) or does not fit its sidecar entry.
     """
     p = Path(path) if path is not None else DEFAULT_MODEL
@@ -513,13 +514,13 @@ def superresolve(
     ``model`` (default: the shipped model). Loads the network on every call: keep the result of
     :func:`load_superres` to run it many times.
 
-    Raises :class:`~lp3d.model_package.ModelPackageError` when the package has no such network.
+    Raises :class:`~lp3d.lift.model_package.ModelPackageError` when the package has no such network.
     """
     sr = load_superres(model, backend)
     if sr is None:
         where = Path(model) if model is not None else DEFAULT_MODEL
         raise ModelPackageError(
             f"{where}: the model package has no super-resolution network (its sidecar has no 'superres'); "
-            "render the raw image instead, or fit one with python -m lp3d.superres_fit"
+            "render the raw image instead, or fit one with python -m lp3d.training.superres_fit"
         )
     return sr(features)

@@ -15,8 +15,15 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from lp3d.camera import validate_camera
-from lp3d.settings import DEFAULT_BOX_WARP, DEFAULT_RAY_END, DEFAULT_RAY_START, HIDDEN, N_CHANNELS, N_OUT
+from lp3d.render.camera import validate_camera
+from lp3d.render.settings import (
+    DEFAULT_BOX_WARP,
+    DEFAULT_RAY_END,
+    DEFAULT_RAY_START,
+    HIDDEN,
+    N_CHANNELS,
+    N_OUT,
+)
 
 if TYPE_CHECKING:
     import lp3d_render

@@ -1,6 +1,6 @@
 """Hand-built triplanes with known geometry, for docs, demos and tests.
 
-Because of EG3D's plane quirk (``lp3d.triplane.PLANE_AXES``) a channel's value at a point is
+Because of EG3D's plane quirk (``lp3d.render.triplane.PLANE_AXES``) a channel's value at a point is
 ``(P0(x, y) + P1(x, z) + P2(z, x)) / 3``. A sphere ``|q|^2 < r^2`` has no y·z term, so it fits one
 channel exactly. Beyond the box some planes read zero (only P0 beyond it in z, only P1 and P2 beyond
 it in y, none beyond it in x), so each plane's term alone must stay below the inside threshold.
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lp3d.triplane import TriplaneData
+from lp3d.render.triplane import TriplaneData
 
 #: Inside threshold on channel 0 and the per-plane constants that keep single planes below it.
 _TAU, _A, _B = 0.5, 1.2, 0.6
@@ -36,7 +36,7 @@ def coloured_sphere(size: int = 128, radius: float = 0.3, box_warp: float = 1.0)
     c = _grid(size)
     u, v = np.meshgrid(c, c, indexing="xy")  # u: columns (first plane axis), v: rows (second axis)
     planes = np.zeros((3, 32, size, size), np.float64)
-    # Plane 0 samples (x, y); plane 1 (x, z); plane 2 (z, x). See lp3d.triplane.PLANE_AXES.
+    # Plane 0 samples (x, y); plane 1 (x, z); plane 2 (z, x). See lp3d.render.triplane.PLANE_AXES.
     planes[0, 0] = _A - k * (u**2 + v**2)
     planes[1, 0] = _B - k * v**2 / 2  # z is plane 1's v ...
     planes[2, 0] = _B - k * u**2 / 2  # ... and plane 2's u
@@ -65,5 +65,5 @@ def coloured_sphere(size: int = 128, radius: float = 0.3, box_warp: float = 1.0)
         w1=w1,
         b1=b1,
         box_warp=box_warp,
-        source=f"lp3d.sample_scenes.coloured_sphere(size={size}, radius={radius})",
+        source=f"lp3d.render.sample_scenes.coloured_sphere(size={size}, radius={radius})",
     )

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 from lp3d.errors import UserError
 
 if TYPE_CHECKING:
-    from lp3d.triplane import TriplaneData
+    from lp3d.render.triplane import TriplaneData
 
 __all__ = ["render_triplane", "renderer"]
 

@@ -34,7 +34,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from lp3d.discriminator import g_loss
+from lp3d.nets.discriminator import g_loss
 
 __all__ = [
     "LPIPS_BACKBONE_FILES",

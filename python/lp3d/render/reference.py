@@ -14,9 +14,9 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from lp3d.camera import validate_camera
-from lp3d.sampling_rng import coarse_jitter, sorted_importance_u
-from lp3d.settings import (
+from lp3d.render.camera import validate_camera
+from lp3d.render.sampling_rng import coarse_jitter, sorted_importance_u
+from lp3d.render.settings import (
     DENSITY_SHIFT,
     PDF_EPS,
     PDF_WEIGHT_FLOOR,
@@ -24,7 +24,7 @@ from lp3d.settings import (
     TRANSMITTANCE_EPS,
     RenderSettings,
 )
-from lp3d.triplane import PLANE_AXES, TriplaneData
+from lp3d.render.triplane import PLANE_AXES, TriplaneData
 
 #: Rays per chunk in render_reference: bounds the (rays, samples, 32) temporaries to a few tens of MB.
 _CHUNK_RAYS = 1024

@@ -40,7 +40,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from lp3d import array_cache
-from lp3d.camera_sampling import CameraDistribution, sample_cameras
+from lp3d.training.camera_sampling import CameraDistribution, sample_cameras
 
 __all__ = [
     "DATASET_FORMAT",

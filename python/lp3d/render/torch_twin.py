@@ -2,7 +2,7 @@
 
 Training needs gradients through the renderer, so this module re-implements, in torch, exactly the
 semantics of ``docs/eg3d-rendering.md`` that ``lp3d_render`` (WGSL) and the float64 NumPy
-reference (``lp3d.reference``) implement. The stages follow the data flow and have the reference's
+reference (``lp3d.render.reference``) implement. The stages follow the data flow and have the reference's
 names, arguments and quantities (``t`` depths, ``sigma_raw`` raw densities, ``feat`` features):
 
 ``rays_from_cameras`` → ``sample_stratified`` → ``sample_triplane`` → ``decode`` → ``march`` (coarse)
@@ -29,7 +29,7 @@ Where this twin knowingly differs from EG3D's code (values are identical):
   function, evaluated without cancellation, so float32 renders of faint rays agree with the float64
   reference (EG3D's float32 form can be off by several percent in the depth of nearly empty rays).
 * Deterministic mode (the lp3d default) uses no coarse jitter and EG3D's ``det=True`` importance draw;
-  jittered mode takes its random numbers from ``lp3d.sampling_rng`` (``docs/sampling-rng.md``) so that
+  jittered mode takes its random numbers from ``lp3d.render.sampling_rng`` (``docs/sampling-rng.md``) so that
   all lp3d renderers draw the same ones, rather than from ``torch.rand``.
 """
 
@@ -43,9 +43,9 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from lp3d import sampling_rng  # the counter-based RNG shared by every lp3d renderer
-from lp3d.camera import validate_camera
-from lp3d.settings import (
+from lp3d.render import sampling_rng  # the counter-based RNG shared by every lp3d renderer
+from lp3d.render.camera import validate_camera
+from lp3d.render.settings import (
     DEFAULT_BOX_WARP,
     DEFAULT_RAY_END,
     DEFAULT_RAY_START,
@@ -59,7 +59,7 @@ from lp3d.settings import (
     TRANSMITTANCE_EPS,
     RenderSettings,
 )
-from lp3d.triplane import PLANE_AXES, TriplaneData
+from lp3d.render.triplane import PLANE_AXES, TriplaneData
 
 __all__ = [
     "DEFAULT_RAY_CHUNK",
@@ -87,7 +87,7 @@ DEFAULT_RAY_CHUNK = 32768
 
 
 class TriplaneLike(Protocol):
-    """What ``render_triplane_torch`` reads from a triplane (e.g. ``lp3d.triplane.TriplaneData``).
+    """What ``render_triplane_torch`` reads from a triplane (e.g. ``lp3d.render.triplane.TriplaneData``).
 
     ``planes`` (3, 32, H, W) float16/float32; effective decoder weights ``w0`` (64, 32), ``b0`` (64,),
     ``w1`` (33, 64), ``b1`` (33,); scalars ``box_warp``, ``ray_start``, ``ray_end``.
@@ -104,7 +104,7 @@ class TriplaneLike(Protocol):
 
 
 # --------------------------------------------------------------------------------------------------
-# Data flow, one function per stage (names and arguments as in lp3d.reference).
+# Data flow, one function per stage (names and arguments as in lp3d.render.reference).
 # --------------------------------------------------------------------------------------------------
 
 
@@ -553,7 +553,8 @@ def _validate(
 def _random_draws(
     seed: int, n_rays: int, settings: RenderSettings, like: Tensor
 ) -> tuple[Tensor, Tensor | None]:
-    """The jittered mode's coarse U (n_rays, S) and sorted importance u (n_rays, N) (lp3d.sampling_rng)."""
+    """The jittered mode's coarse U (n_rays, S) and sorted importance u (n_rays, N)
+    (:mod:`lp3d.render.sampling_rng`)."""
     jitter = torch.as_tensor(sampling_rng.coarse_jitter(seed, n_rays, settings.depth_resolution))
     jitter = jitter.to(device=like.device, dtype=like.dtype)
     if settings.depth_resolution_importance == 0:
@@ -592,7 +593,7 @@ def render_torch(
         depth_resolution, depth_resolution_importance: S coarse and N fine samples (N = 0: coarse only).
         ray_start, ray_end, box_warp, white_back: EG3D's rendering_kwargs (FFHQ defaults).
         deterministic: no coarse jitter and ``det=True`` importance draw; otherwise the draws of
-            ``lp3d.sampling_rng`` for ``seed`` (ray index ``b * R * R + row * R + col``).
+            ``lp3d.render.sampling_rng`` for ``seed`` (ray index ``b * R * R + row * R + col``).
         ray_chunk: rays rendered at once (over all cameras), to bound memory; does not change results.
 
     Returns:
@@ -684,7 +685,7 @@ def render_triplane_torch(
 
     Args:
         triplane: planes (3, 32, H, W), effective decoder weights w0, b0, w1, b1, and the scene scalars
-            box_warp, ray_start, ray_end (e.g. ``lp3d.triplane.TriplaneData``); validated as one.
+            box_warp, ray_start, ray_end (e.g. ``lp3d.render.triplane.TriplaneData``); validated as one.
         camera: (25,) or (B, 25) EG3D label(s).
         resolution, depth_resolution, depth_resolution_importance, white_back, deterministic, seed:
             as in ``render_torch``.

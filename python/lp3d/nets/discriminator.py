@@ -27,7 +27,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from lp3d.stylegan_ops import FullyConnectedLayer, bias_lrelu, downsample2d, setup_filter, upfirdn2d
+from lp3d.nets.stylegan_ops import FullyConnectedLayer, bias_lrelu, downsample2d, setup_filter, upfirdn2d
 
 __all__ = [
     "DISCRIMINATOR_CONFIGS",

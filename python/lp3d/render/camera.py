@@ -263,3 +263,24 @@ def validate_camera(camera: ArrayLike) -> tuple[np.ndarray, bool]:
                 f"got last row {k[2].tolist()} and K[1][0] = {float(k[1, 0])}"
             )
     return np.ascontiguousarray(cams), was_batched
+
+
+def camera_summary(label: np.ndarray) -> dict[str, float]:
+    """A camera label as yaw/pitch of its centre about the origin (as ``look_at_camera`` takes them),
+    radius and focal length."""
+    c2w = np.asarray(label, np.float64)[:16].reshape(4, 4)
+    centre = c2w[:3, 3]
+    radius = float(np.linalg.norm(centre))
+    yaw = math.degrees(math.atan2(centre[0], centre[2]))
+    pitch = math.degrees(math.asin(max(-1.0, min(1.0, centre[1] / radius)))) if radius > 0 else 0.0
+    return {"yaw_deg": yaw, "pitch_deg": pitch, "radius": radius, "focal": float(label[16])}
+
+
+def orbit_angles(frames: int, yaw_range: float, pitch_range: float) -> list[tuple[float, float]]:
+    """(yaw, pitch offset) per frame of a closed loop, as EG3D's videos: ``yaw = R_y sin(2 pi t)``,
+    ``pitch = R_p cos(2 pi t)`` with ``t = i / frames`` (the last frame leads back to the first)."""
+    out = []
+    for i in range(frames):
+        t = 2.0 * math.pi * i / frames
+        out.append((yaw_range * math.sin(t), pitch_range * math.cos(t)))
+    return out

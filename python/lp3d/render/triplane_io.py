@@ -1,6 +1,6 @@
 """The ``.npz`` triplane file (spec: ``docs/triplane-format.md``), read and written safely.
 
-Reads never unpickle (a strict reader of our own, :mod:`lp3d.npz_reader`, checks every size the file
+Reads never unpickle (a strict reader of our own, :mod:`lp3d.render.npz_reader`, checks every size the file
 claims before allocating) and reject anything unexpected with a message naming the file and the key;
 writes are atomic (temp file in the same directory, then ``os.replace``), so a reader never sees a
 half-written file and a failed write leaves nothing behind.
@@ -13,15 +13,15 @@ import os
 import stat
 import zipfile
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 import numpy as np
 
-from lp3d import npz_reader
 from lp3d.atomic import atomic_path
-from lp3d.camera import validate_camera
-from lp3d.settings import HIDDEN, N_CHANNELS, N_OUT
-from lp3d.triplane import MAX_OCCUPANCY_RESOLUTION, TriplaneData, TriplaneError, occupancy_checksum
+from lp3d.render import npz_reader
+from lp3d.render.camera import camera_summary, validate_camera
+from lp3d.render.settings import HIDDEN, N_CHANNELS, N_OUT
+from lp3d.render.triplane import MAX_OCCUPANCY_RESOLUTION, TriplaneData, TriplaneError, occupancy_checksum
 
 #: Version written by :func:`save_triplane`; the only one :func:`load_triplane` accepts.
 FORMAT_VERSION = 1
@@ -42,7 +42,7 @@ REQUIRED_KEYS: dict[str, str] = {
 OPTIONAL_KEYS: dict[str, str] = {"camera": "camera", "occupancy": "occupancy", "source": "source"}
 
 #: Stored with ``occupancy`` (and only with it): the CRC-32 of the planes and decoder the grid was
-#: baked for (:func:`lp3d.triplane.occupancy_checksum`). Checked on load, not kept in TriplaneData.
+#: baked for (:func:`lp3d.render.triplane.occupancy_checksum`). Checked on load, not kept in TriplaneData.
 CHECKSUM_KEY = "occupancy_checksum"
 
 _FIELD_OF_KEY = {**REQUIRED_KEYS, **OPTIONAL_KEYS}
@@ -358,3 +358,57 @@ def _read_values(npz: npz_reader.NpzReader) -> tuple[dict[str, object], int | No
         values["camera"] = camera
     checksum = int(np.asarray(data[CHECKSUM_KEY])[()]) if CHECKSUM_KEY in data else None
     return values, checksum
+
+
+def triplane_info(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """What a triplane file holds, as plain data (``lp3d info`` prints it): the file, planes and
+    decoder statistics, bounds, camera (:func:`~lp3d.render.camera.camera_summary`), source, occupancy."""
+    path = Path(path)
+    tri = load_triplane(path)
+    with np.load(path, allow_pickle=False) as npz:
+        version = int(npz["format_version"])
+    planes = tri.planes.astype(np.float32)
+    info: dict[str, Any] = {
+        "file": str(path),
+        "file_size": path.stat().st_size,
+        "format_version": version,
+        "planes": {
+            "shape": list(tri.planes.shape),
+            "dtype": str(tri.planes.dtype),
+            "min": float(planes.min()),
+            "max": float(planes.max()),
+            "mean": float(planes.mean()),
+            "std": float(planes.std()),
+            "per_plane_std": [float(planes[p].std()) for p in range(3)],
+        },
+        "decoder": {
+            name: {
+                "shape": list(a.shape),
+                "min": float(a.min()),
+                "max": float(a.max()),
+                "mean": float(a.mean()),
+                "rms": float(np.sqrt(np.mean(np.square(a, dtype=np.float64)))),
+            }
+            for name, a in (("w0", tri.w0), ("b0", tri.b0), ("w1", tri.w1), ("b1", tri.b1))
+        },
+        "box_warp": tri.box_warp,
+        "box": [-tri.box_warp / 2.0, tri.box_warp / 2.0],
+        "ray_start": tri.ray_start,
+        "ray_end": tri.ray_end,
+        "camera": None if tri.camera is None else camera_summary(tri.camera),
+        "source": tri.source,
+        "occupancy": None,
+    }
+    # A hidden unit does nothing when its input row or its output column is all zeros.
+    used = np.abs(tri.w0).sum(axis=1) * np.abs(tri.w1).sum(axis=0)
+    info["decoder"]["hidden_units_used"] = int(np.count_nonzero(used))
+    info["decoder"]["density_bias"] = float(tri.b1[0])
+    if tri.occupancy is not None:
+        occ = tri.occupancy
+        info["occupancy"] = {
+            "shape": list(occ.shape),
+            "min": float(occ.min()),
+            "max": float(occ.max()),
+            "fraction_nonzero": float(np.count_nonzero(occ) / occ.size),
+        }
+    return info

@@ -1,6 +1,6 @@
 """Export a trained encoder to ONNX and check it against PyTorch with onnxruntime.
 
-``python -m lp3d.export runs/t/checkpoints/step-000200.pt -o model.onnx`` writes the encoder
+``lp3d export runs/t/checkpoints/step-000200.pt -o model.onnx`` writes the encoder
 ``image (B, 3, S, S) in [-1, 1] -> triplane (B, 3, 32, T, T)`` (dynamic batch, opset 17 by default),
 then runs it in onnxruntime on seeded random images and compares with the PyTorch encoder: the
 largest absolute difference on the triplane must be <= ``--tolerance`` (default 1e-3), else the
@@ -10,17 +10,18 @@ command fails (exit 1) and the file is not kept.
 beside the encoder as ``MODEL.superres.onnx`` (``features (B, 32, R, R) -> image (B, 3, R_out,
 R_out)``, dynamic batch), checked against PyTorch with onnxruntime the same way (the largest absolute
 difference on the image <= ``--tolerance``), and recorded in the sidecar's ``superres`` entry with its
-SHA-256. Its source: ``--superres FIT.pt`` (a network fitted by ``python -m lp3d.superres_fit``), else
-the checkpoint's own SR when the paper recipe trained one; the CPU recipe trains none. The exported
-graph is :class:`lp3d.superres.FoldedSuperResolution` (the constant-w styles folded into plain
+SHA-256. Its source: ``--superres FIT.pt`` (a network fitted by
+``python -m lp3d.training.superres_fit``), else the checkpoint's own SR when the paper recipe trained
+one; the CPU recipe trains none. The exported
+graph is :class:`lp3d.nets.superres.FoldedSuperResolution` (the constant-w styles folded into plain
 convolutions), compared with the unfolded network. An existing package gains an SR without
 re-exporting its encoder::
 
-    python -m lp3d.export --superres runs/sr/superres-fit.pt --package python/lp3d/models/small.onnx \\
+    lp3d export --superres runs/sr/superres-fit.pt --package python/lp3d/models/small.onnx \\
         --weights python/lp3d/models/small.pt
 
 The ONNX graph holds the encoder only. The decoder weights and scene bounds a renderer needs go into
-the model package's JSON sidecar, ``<model>.json`` (:mod:`lp3d.model_package`), written beside the
+the model package's JSON sidecar, ``<model>.json`` (:mod:`lp3d.lift.model_package`), written beside the
 ``.onnx``; ``lp3d encode --model <model>.onnx`` reads both.
 
 The TorchScript-based exporter is used (``dynamo=False``): it needs only the ``onnx`` package, while the
@@ -43,9 +44,8 @@ import torch
 from torch import Tensor, nn
 
 from lp3d.atomic import atomic_path
-from lp3d.encoder import LP3DEncoder
 from lp3d.errors import EXIT_ERROR, UsageError, run_command
-from lp3d.model_package import (
+from lp3d.lift.model_package import (
     ModelPackageError,
     decoder_digest,
     load_model_package,
@@ -54,7 +54,8 @@ from lp3d.model_package import (
     superres_entry,
     superres_path,
 )
-from lp3d.superres import FoldedSuperResolution, SuperResolution
+from lp3d.nets.encoder import LP3DEncoder
+from lp3d.nets.superres import FoldedSuperResolution, SuperResolution
 from lp3d.training.checkpoint import CheckpointError, load_checkpoint, student_from_checkpoint
 from lp3d.training.student import Student
 
@@ -289,9 +290,9 @@ def add_superres_to_weights(path: str | os.PathLike[str], sr: SuperResolution, d
 def _fitted_superres(
     path: str, decoder_sha256: str, allow_worse: bool
 ) -> tuple[SuperResolution, dict[str, Any]]:
-    """The SR of a finished ``lp3d.superres_fit`` checkpoint, checked against the model's decoder and
+    """The SR of a finished ``lp3d.training.superres_fit`` checkpoint, checked against the model's decoder and
     its own held-out score; ``(network, about)``."""
-    from lp3d.superres_fit import FitError, load_fit
+    from lp3d.training.superres_fit import FitError, load_fit
 
     try:
         fit = load_fit(path)
@@ -300,7 +301,7 @@ def _fitted_superres(
     if not fit.finished:
         raise ExportError(
             f"--superres {fit.path}: the fit stopped at step {fit.step} of {fit.config.steps}; run the same "
-            "python -m lp3d.superres_fit command again to finish it"
+            "python -m lp3d.training.superres_fit command again to finish it"
         )
     if fit.model.get("decoder_sha256") != decoder_sha256:
         raise ExportError(
@@ -316,7 +317,7 @@ def _fitted_superres(
             "to export it anyway)"
         )
     about = {
-        "source": "python -m lp3d.superres_fit",
+        "source": "python -m lp3d.training.superres_fit",
         "fit_checkpoint": str(fit.path),
         "fit_config": fit.config.to_dict(),
         "heldout": {k: v for k, v in report.items() if k != "per_pair"},
@@ -432,7 +433,7 @@ def check_rounding(reference: Student, rounded: Student, *, batch: int = 2, seed
 
 def _training_inputs(cfg: Any, teacher_name: str, data_cache: str | None, n: int = 256) -> Tensor:
     """The first ``n`` encoder inputs of the run's cached synthetic dataset (CPU recipe)."""
-    from lp3d.synthetic_data import SyntheticDataset, default_cache_root
+    from lp3d.training.synthetic_data import SyntheticDataset, default_cache_root
     from lp3d.training.teacher_factory import build_teacher, dataset_key
 
     if cfg.recipe != "cpu" or teacher_name != "procedural":
@@ -505,12 +506,12 @@ def _print_superres(entry: dict[str, Any], err: float, tolerance: float) -> None
         )
 
 
-#: ``--help``'s description (``python -m lp3d.export`` and ``lp3d export``).
+#: ``--help``'s description (``lp3d export`` and ``python -m lp3d.training.export``).
 DESCRIPTION = __doc__.splitlines()[0]
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The export options, shared by ``python -m lp3d.export`` and ``lp3d export``."""
+    """The export options, shared by ``lp3d export`` and ``python -m lp3d.training.export``."""
     p.add_argument(
         "checkpoint",
         nargs="?",
@@ -543,8 +544,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--superres",
         default=None,
         metavar="FIT.pt",
-        help="package this super-resolution network (a python -m lp3d.superres_fit checkpoint) instead of "
-        "the checkpoint's own",
+        help="package this super-resolution network (a python -m lp3d.training.superres_fit checkpoint) "
+        "instead of the checkpoint's own",
     )
     p.add_argument(
         "--no-superres", action="store_true", help="export no super-resolution network, even a trained one"
@@ -563,7 +564,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def build_parser(prog: str = "python -m lp3d.export") -> argparse.ArgumentParser:
+def build_parser(prog: str = "python -m lp3d.training.export") -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=prog, description=DESCRIPTION)
     add_arguments(p)
     p.set_defaults(func=run_cli)
@@ -571,7 +572,7 @@ def build_parser(prog: str = "python -m lp3d.export") -> argparse.ArgumentParser
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m lp3d.export`` (an alias of ``lp3d export``); exit status 0, 1 (an error, one line,
+    """``python -m lp3d.training.export`` (an alias of ``lp3d export``); exit status 0, 1 (an error, one line,
     including a failed parity check) or 2 (usage), as :mod:`lp3d.errors` says."""
     return run_command(build_parser(), argv)
 
@@ -617,7 +618,7 @@ def run_cli(args: argparse.Namespace) -> int:
         elif not args.no_superres:
             notes.append(
                 "no super-resolution network: the CPU recipe trains none (fit one with python -m "
-                "lp3d.superres_fit, then add it with --superres FIT.pt --package MODEL.onnx)"
+                "lp3d.training.superres_fit, then add it with --superres FIT.pt --package MODEL.onnx)"
             )
         if args.basis_components is not None:
             images = _training_inputs(student.config, ckpt["teacher"], args.data_cache)

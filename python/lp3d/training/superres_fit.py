@@ -4,16 +4,16 @@ The paper's recipe trains an SR with the encoder (EG3D's, paper Eq. 2); the CPU 
 (``python -m lp3d.train --config small``, the shipped model) renders its final image directly and
 trains none. This module gives such a model one, with the encoder and decoder frozen::
 
-    python -m lp3d.superres_fit [MODEL] --out runs/sr-small
-    python -m lp3d.export --superres runs/sr-small/superres-fit.pt --package MODEL.onnx [--weights MODEL.pt]
+    python -m lp3d.training.superres_fit [MODEL] --out runs/sr-small
+    lp3d export --superres runs/sr-small/superres-fit.pt --package MODEL.onnx [--weights MODEL.pt]
 
 ``MODEL`` is anything ``lp3d encode --model`` takes (default: the shipped model).
 
 1. **Pairs, made once.** For each of ``identities`` procedural-teacher identities (seeds from
    ``first_seed``, inside the training range but past any CPU dataset, and disjoint from
-   ``lp3d.eval``'s held-out seeds): the teacher renders the encoder's input from a reference camera
-   (:data:`~lp3d.camera_sampling.FFHQ_REFERENCE`), the model encodes it, and for ``views`` multiview
-   cameras (:data:`~lp3d.camera_sampling.FFHQ_MULTIVIEW`) ``lp3d_render`` draws the *student's* raw
+   ``lp3d.training.eval``'s held-out seeds): the teacher renders the encoder's input from a reference camera
+   (:data:`~lp3d.training.camera_sampling.FFHQ_REFERENCE`), the model encodes it, and for ``views`` multiview
+   cameras (:data:`~lp3d.training.camera_sampling.FFHQ_MULTIVIEW`) ``lp3d_render`` draws the *student's* raw
    feature image at ``raw_resolution``, the *teacher's* image at ``output_resolution``, and the
    teacher's own raw feature image at ``raw_resolution`` from its head at the student's plane
    resolution (the well-posed pairs EG3D's SR learns from: the same head, low and high). The pairs
@@ -22,7 +22,7 @@ trains none. This module gives such a model one, with the encoder and decoder fr
    fingerprint, seeds, sizes, samples, cameras); ``meta.json`` records each array's SHA-256, and a
    folder that does not match (edited, truncated, another key) is reported and rebuilt, never used.
 2. **Training.** Only the 2-D SR learns (EG3D's architecture with the paper's constant w,
-   :class:`lp3d.superres.SuperResolution`): random crops of ``crop``² raw pixels and their teacher
+   :class:`lp3d.nets.superres.SuperResolution`): random crops of ``crop``² raw pixels and their teacher
    crops, horizontal flips, L1 + ``ssim-grad`` (the CPU configurations' perceptual loss), Adam with a
    cosine decay. ``train_on`` picks the inputs: ``student`` (its raw renders, mapped to the teacher's
    image: the SR also learns to correct the student, which it mostly cannot), ``teacher`` (the
@@ -39,7 +39,7 @@ trains none. This module gives such a model one, with the encoder and decoder fr
 
 The checkpoint (``superres-fit.pt``, ``"format": "lp3d-superres-fit-v1"``) is a plain dict of
 tensors and JSON strings (``torch.load(weights_only=True)``); :func:`load_fit` reads it and
-``lp3d.export --superres`` packages it as ONNX beside the encoder.
+``lp3d.training.export --superres`` packages it as ONNX beside the encoder.
 """
 
 from __future__ import annotations
@@ -63,10 +63,10 @@ from torch import Tensor
 
 from lp3d import array_cache
 from lp3d.atomic import atomic_path
-from lp3d.camera_sampling import FFHQ_MULTIVIEW, FFHQ_REFERENCE, CameraDistribution, sample_cameras
 from lp3d.errors import EXIT_ERROR, run_command
-from lp3d.losses import SSIMGradientLoss, ssim
-from lp3d.superres import SuperresConfig, SuperResolution
+from lp3d.nets.superres import SuperresConfig, SuperResolution
+from lp3d.training.camera_sampling import FFHQ_MULTIVIEW, FFHQ_REFERENCE, CameraDistribution, sample_cameras
+from lp3d.training.losses import SSIMGradientLoss, ssim
 
 __all__ = [
     "FIT_FORMAT",
@@ -221,7 +221,7 @@ class FitConfig:
 def model_fingerprint(encoder: Any) -> str:
     """SHA-256 over what the student's renders depend on: the encoder's weights file(s), the decoder
     and the scene bounds (not the sidecar's other fields, so adding an SR entry keeps the cache)."""
-    from lp3d.model_package import decoder_digest, file_sha256
+    from lp3d.lift.model_package import decoder_digest, file_sha256
 
     pkg = encoder.package
     h = hashlib.sha256()
@@ -284,8 +284,8 @@ class PairKey:
 
 
 def default_pair_cache() -> Path:
-    """``superres-pairs`` inside :func:`lp3d.synthetic_data.default_cache_root`."""
-    from lp3d.synthetic_data import default_cache_root
+    """``superres-pairs`` inside :func:`lp3d.training.synthetic_data.default_cache_root`."""
+    from lp3d.training.synthetic_data import default_cache_root
 
     return default_cache_root() / "superres-pairs"
 
@@ -345,9 +345,9 @@ class PairSet:
     @staticmethod
     def build(key: PairKey, encoder: Any, teacher: Any, path: Path, *, progress: bool = True) -> Path:
         """Render the pairs of ``key`` into ``path`` (written whole or not at all)."""
-        from lp3d.native import render_triplane, renderer
-        from lp3d.synthetic_data import teacher_fingerprint
+        from lp3d.render.native import render_triplane, renderer
         from lp3d.teachers import ProceduralTeacher
+        from lp3d.training.synthetic_data import teacher_fingerprint
 
         if teacher_fingerprint(teacher, key.first_seed) != key.teacher_fingerprint:
             raise StalePairsError("the teacher's fingerprint differs from the pair key's")
@@ -409,7 +409,7 @@ class PairSet:
 
 def pair_keys(cfg: FitConfig, encoder: Any, teacher: Any) -> tuple[PairKey, PairKey]:
     """``(training, held-out)`` pair keys of a fit."""
-    from lp3d.synthetic_data import teacher_fingerprint
+    from lp3d.training.synthetic_data import teacher_fingerprint
 
     fingerprint = model_fingerprint(encoder)
 
@@ -637,8 +637,8 @@ def fit_superres(
 ) -> FitResult:
     """Fit an SR for ``model`` (default: the shipped model) into ``out``; see the module docstring.
     Resumes ``out/superres-fit.pt`` when it exists for the same configuration and model."""
-    from lp3d.inference import DEFAULT_MODEL, load_encoder
-    from lp3d.model_package import decoder_digest
+    from lp3d.lift.inference import DEFAULT_MODEL, load_encoder
+    from lp3d.lift.model_package import decoder_digest
     from lp3d.teachers import ProceduralTeacher
 
     cfg = cfg or FitConfig()
@@ -773,10 +773,7 @@ def fit_superres(
             "warning: the SR does not beat bilinear upsampling on the held-out pairs; do not ship it",
             file=sys.stderr,
         )
-    print(
-        f"wrote {ckpt_path}; package it with: python -m lp3d.export --superres {ckpt_path} "
-        "--package MODEL.onnx"
-    )
+    print(f"wrote {ckpt_path}; package it with: lp3d export --superres {ckpt_path} --package MODEL.onnx")
     return FitResult(sr.eval(), ckpt_path, report)
 
 
@@ -812,7 +809,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
             p.add_argument(flag, type=type(value), default=value, help=f"(default: {value})")
 
 
-def build_parser(prog: str = "python -m lp3d.superres_fit") -> argparse.ArgumentParser:
+def build_parser(prog: str = "python -m lp3d.training.superres_fit") -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0] if __doc__ else None)
     add_arguments(p)
     p.set_defaults(func=run_cli)
@@ -820,7 +817,7 @@ def build_parser(prog: str = "python -m lp3d.superres_fit") -> argparse.Argument
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m lp3d.superres_fit``; exit status 0, 1 (an error, one line) or 2 (usage), as
+    """``python -m lp3d.training.superres_fit``; exit status 0, 1 (an error, one line) or 2 (usage), as
     :mod:`lp3d.errors` says."""
     return run_command(build_parser(), argv)
 
@@ -829,7 +826,7 @@ def run_cli(args: argparse.Namespace) -> int:
     """Fit with parsed :func:`add_arguments` options; returns the exit status."""
     if args.threads:
         torch.set_num_threads(args.threads)
-    from lp3d.model_package import ModelPackageError
+    from lp3d.lift.model_package import ModelPackageError
 
     try:
         cfg = FitConfig.from_dict({f.name: getattr(args, f.name) for f in fields(FitConfig)})

@@ -41,9 +41,10 @@ from typing import Any
 
 import numpy as np
 
+from lp3d.array_cache import file_sha256
 from lp3d.atomic import atomic_path
-from lp3d.settings import HIDDEN, N_CHANNELS, N_OUT
-from lp3d.triplane import TriplaneData
+from lp3d.render.settings import HIDDEN, N_CHANNELS, N_OUT
+from lp3d.render.triplane import TriplaneData
 
 __all__ = [
     "PACKAGE_FORMAT",
@@ -156,19 +157,10 @@ def sidecar_path(model_path: str | os.PathLike[str]) -> Path:
 
 
 def superres_path(model_path: str | os.PathLike[str]) -> Path:
-    """Where ``lp3d.export`` writes the super-resolution network of ``MODEL.onnx``:
+    """Where ``lp3d.training.export`` writes the super-resolution network of ``MODEL.onnx``:
     ``MODEL.superres.onnx``."""
     p = Path(model_path)
     return p.with_name(p.with_suffix("").name + ".superres.onnx")
-
-
-def file_sha256(path: str | os.PathLike[str]) -> str:
-    """The SHA-256 of a file's bytes, as 64 lowercase hex digits."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        while chunk := f.read(1 << 22):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def decoder_digest(decoder: Any) -> str:
@@ -249,7 +241,7 @@ def _check_bounds(where: str, box_warp: float, ray_start: float, ray_end: float)
 def _config_dict(config: Any) -> dict[str, Any]:
     """The EncoderConfig as a dict: from an EncoderConfig, a dict, or a config name."""
     if isinstance(config, str):
-        from lp3d.encoder import EncoderConfig  # torch is only needed for a name
+        from lp3d.nets.encoder import EncoderConfig  # torch is only needed for a name
 
         try:
             return EncoderConfig.named(config).to_dict()
@@ -278,7 +270,7 @@ def save_model_package(
         onnx_path: the exported encoder, e.g. ``python/lp3d/models/small.onnx``.
         decoder: effective decoder weights ``(w0 (64, 32), b0 (64,), w1 (33, 64), b1 (33,))`` (numpy or
             torch), a mapping with those keys, or an object with those attributes (e.g. a TriplaneData).
-        config: the encoder's :class:`~lp3d.encoder.EncoderConfig` (or its dict, or a config name).
+        config: the encoder's :class:`~lp3d.nets.encoder.EncoderConfig` (or its dict, or a config name).
         bounds: ``box_warp``, ``ray_start``, ``ray_end`` (e.g. ``lp3d.train.SceneBounds``, a dict, a tuple).
         input_name / output_name: the ONNX graph's tensor names (informational; None to omit).
         superres: the ``superres`` entry (:func:`superres_entry`), or None for a package without one.
@@ -458,7 +450,7 @@ def load_model_package(path: str | os.PathLike[str]) -> ModelPackage:
     if not side.is_file():
         raise ModelPackageError(
             f"{side}: model package sidecar not found (a .onnx model needs its {side.name} beside it, "
-            "written by lp3d.model_package.save_model_package; see docs/model-package.md)"
+            "written by lp3d.lift.model_package.save_model_package; see docs/model-package.md)"
         )
     try:
         data = json.loads(side.read_text(encoding="utf-8"))

@@ -714,7 +714,7 @@ class LP3DEncoder(nn.Module):
     """E(I) -> T (paper Eq. 4). ``forward(image (B,3,S,S) in [-1,1]) -> triplane (B,3,32,T,T)``.
 
     The output is an EG3D triplane: plane p holds output channels p·32 … p·32+31, planes in EG3D order
-    (see ``lp3d.triplane.PLANE_AXES``). The image is expected in [-1, 1] (EG3D's image range); values
+    (see ``lp3d.render.triplane.PLANE_AXES``). The image is expected in [-1, 1] (EG3D's image range); values
     outside are not rejected (augmentations may overshoot slightly), but NaN/Inf are.
     """
 
@@ -855,7 +855,7 @@ def parameter_breakdown(encoder: LP3DEncoder) -> dict[str, int]:
 
 
 def _main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m lp3d.encoder", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m lp3d.nets.encoder", description=__doc__.splitlines()[0])
     parser.add_argument("--config", default="full", choices=sorted(CONFIGS), help="named configuration")
     parser.add_argument("--json", action="store_true", help="also print the configuration as JSON")
     parser.add_argument(

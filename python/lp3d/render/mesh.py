@@ -2,7 +2,8 @@
 
 The grid samples the decoder's raw density ``sigma_raw`` (EG3D's ``out[0]``, before the marcher's
 softplus) at ``grid``³ points spanning the triplane box ``[-box_warp/2, box_warp/2]³``, with the
-reference's semantics (:func:`lp3d.reference.grid_sample_bilinear`, :func:`lp3d.reference.decode`).
+reference's semantics (:func:`~lp3d.render.reference.grid_sample_bilinear`,
+:func:`~lp3d.render.reference.decode`).
 Because each plane depends on two axes only, the three planes are sampled on ``grid``² points each and
 broadcast-added, so only the decoder runs per grid point (float32, in slabs). The surface is
 ``skimage.measure.marching_cubes`` at ``threshold`` (EG3D's shape extraction uses level 10); a border
@@ -22,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from lp3d.reference import decode, grid_sample_bilinear, sample_triplane
-from lp3d.triplane import PLANE_AXES, TriplaneData
+from lp3d.render.reference import decode, grid_sample_bilinear, sample_triplane
+from lp3d.render.triplane import PLANE_AXES, TriplaneData
 
 __all__ = [
     "EG3D_MESH_THRESHOLD",

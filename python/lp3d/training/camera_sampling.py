@@ -4,7 +4,7 @@ Paper §3.2 ("On-the-fly augmentation") and supplement "Camera augmentation":
 
 * **Reference (input) cameras** ``P_ref``: EG3D's fixed camera is augmented with random focal length,
   radius, principal point and roll. FFHQ: FOV ~ N(18.83°, 1°) (EG3D's ``FOV_to_intrinsics`` degrees,
-  see :func:`lp3d.camera.fov_to_focal`), radius ~ N(2.7, 0.1), principal point ~ N(256, 14) px of a
+  see :func:`lp3d.render.camera.fov_to_focal`), radius ~ N(2.7, 0.1), principal point ~ N(256, 14) px of a
   512 px image, roll ~ N(0°, 2°); pose within ±26° pitch and ±49° yaw of the front of the face.
 * **Multiview cameras** ``P_mv``: "fixed values as in the EG3D model" (FFHQ intrinsics ``f = 4.2647``,
   ``c = 0.5``, radius 2.7, no roll); pose within ±26° pitch and ±36° yaw.
@@ -13,11 +13,11 @@ Choice where the paper is vague: pitch and yaw are drawn **uniformly** within th
 speaks of a pitch/yaw "range" and the supplement figure shows the "limits" of the pose distribution,
 i.e. a bounded support (a normal would have none); with no real-data pose prior to follow (the data
 is synthetic), uniform is the plain reading. The angles are true azimuth/elevation of the camera
-centre about the world origin (:func:`lp3d.camera.look_at_camera`), looking at the FFHQ pivot.
+centre about the world origin (:func:`lp3d.render.camera.look_at_camera`), looking at the FFHQ pivot.
 
 Every number is drawn vectorised from one generator (``numpy.random.Generator`` or
 ``torch.Generator``), so a batch is reproducible from the generator state; the labels themselves are
-built by :func:`lp3d.camera.look_at_camera`, the one definition of the camera convention.
+built by :func:`lp3d.render.camera.look_at_camera`, the one definition of the camera convention.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from lp3d.camera import FFHQ_FOCAL, FFHQ_PIVOT, FFHQ_RADIUS, fov_to_focal, look_at_camera
+from lp3d.render.camera import FFHQ_FOCAL, FFHQ_PIVOT, FFHQ_RADIUS, fov_to_focal, look_at_camera
 
 __all__ = [
     "AFHQ_REFERENCE",
@@ -181,7 +181,7 @@ def sample_cameras(
 
     The draws are made in a fixed order (yaw, pitch, fov, radius, cx, cy, roll; a quantity with zero
     spread draws nothing), each as one vectorised call, so the same generator state gives the same
-    batch. The labels are then built per camera by :func:`lp3d.camera.look_at_camera` (~0.1 ms each);
+    batch. The labels are then built per camera by :func:`lp3d.render.camera.look_at_camera` (~0.1 ms each);
     ``labels=False`` skips that (same draws), e.g. to study the distribution on millions of samples.
 
     Returns:

@@ -1,7 +1,7 @@
 """Evaluate a trained encoder on held-out teacher identities: does it follow its input, and how does it
 compare with the mean head, the teacher itself and a per-identity optimisation baseline?
 
-``python -m lp3d.eval runs/t/checkpoints/step-000200.pt`` writes ``report.json`` and ``comparison.png``
+``lp3d eval runs/t/checkpoints/step-000200.pt`` writes ``report.json`` and ``comparison.png``
 into ``--out`` (default: ``<run>/eval-step-NNNNNN``) and prints a short table.
 
 Protocol (paper §4 measures novel-view quality and depth on real data; here the teacher is the ground
@@ -77,15 +77,15 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from lp3d.atomic import atomic_path
-from lp3d.camera import FFHQ_FOCAL, look_at_camera
-from lp3d.camera_sampling import sample_cameras
 from lp3d.errors import EXIT_ERROR, UsageError, run_command
 from lp3d.images import rgb_to_uint8, save_png, tile
-from lp3d.losses import LPIPSLoss, LPIPSWeightsNotFound, build_perceptual, l1, ssim
+from lp3d.render.camera import FFHQ_FOCAL, look_at_camera
 from lp3d.teachers import ProceduralTeacher, Teacher
 from lp3d.teachers.procedural import RESOLUTION as PROCEDURAL_RESOLUTION
+from lp3d.training.camera_sampling import sample_cameras
 from lp3d.training.checkpoint import load_checkpoint, student_from_checkpoint
 from lp3d.training.config import TrainConfig
+from lp3d.training.losses import LPIPSLoss, LPIPSWeightsNotFound, build_perceptual, l1, ssim
 from lp3d.training.student import SceneBounds, Student, render_teacher, render_views
 from lp3d.training.teacher_factory import build_teacher, resolve_teacher_args
 
@@ -889,7 +889,7 @@ DESCRIPTION = CLI_DESCRIPTION
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The evaluation options, shared by ``python -m lp3d.eval`` and ``lp3d eval``."""
+    """The evaluation options, shared by ``lp3d eval`` and ``python -m lp3d.training.eval``."""
     p.add_argument("checkpoint", help="training checkpoint (.pt) or run directory (its latest checkpoint)")
     default = EvalSettings()
     p.add_argument(
@@ -925,7 +925,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
-def build_parser(prog: str = "python -m lp3d.eval") -> argparse.ArgumentParser:
+def build_parser(prog: str = "python -m lp3d.training.eval") -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=prog, description=CLI_DESCRIPTION)
     add_arguments(p)
     p.set_defaults(func=run_cli)
@@ -933,8 +933,8 @@ def build_parser(prog: str = "python -m lp3d.eval") -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m lp3d.eval`` (an alias of ``lp3d eval``); exit status 0, 1 (an error, one line) or 2
-    (usage), as :mod:`lp3d.errors` says."""
+    """``python -m lp3d.training.eval`` (an alias of ``lp3d eval``); exit status 0, 1 (an error, one
+    line) or 2 (usage), as :mod:`lp3d.errors` says."""
     return run_command(build_parser(), argv)
 
 

@@ -1,0 +1,158 @@
+"""The package's layout (docs/architecture.md): subpackages import only the layers below them, no
+module imports itself back through a cycle, and the old flat module names still import, with a
+DeprecationWarning, as the same module objects."""
+
+from __future__ import annotations
+
+import ast
+import importlib
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import pytest
+
+import lp3d
+from lp3d import _moved
+
+ROOT = Path(lp3d.__file__).parent
+
+#: What each part of the package may import from lp3d (function-local imports included). Plumbing
+#: (errors, atomic, array_cache, images, outputs) sits at the bottom; the command line at the top.
+ALLOWED = {
+    "errors": set(),
+    "atomic": set(),
+    "array_cache": {"atomic"},
+    "images": {"atomic"},
+    "outputs": {"atomic", "errors"},
+    "render": {"atomic", "errors"},
+    "photo": {"errors"},
+    "nets": set(),
+    "teachers": {"render", "nets", "images", "atomic", "errors"},
+    "lift": {"render", "nets", "array_cache", "atomic", "errors"},
+    "training": {"render", "nets", "lift", "teachers", "photo", "array_cache", "atomic", "errors", "images"},
+    "train": {"training"},
+    "cli": {"render", "photo", "lift", "teachers", "errors", "images", "outputs", "atomic", "__version__"},
+    "__init__": {"_moved"},
+    "_moved": set(),
+}
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT.parent).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+MODULES = {module_name(p): p for p in ROOT.rglob("*.py")}
+
+
+def lp3d_imports(path: Path, top_level_only: bool = False) -> set[str]:
+    """The lp3d modules (and ``lp3d.X`` names) that ``path`` imports, absolute imports only."""
+    tree = ast.parse(path.read_text())
+    nodes = tree.body if top_level_only else ast.walk(tree)
+    found: set[str] = set()
+    for node in nodes:
+        if isinstance(node, ast.Import):
+            found |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            assert node.level == 0, f"{path}: relative import (lp3d uses absolute imports)"
+            found |= {node.module} | {f"{node.module}.{a.name}" for a in node.names}
+    return {m for m in found if m == "lp3d" or m.startswith("lp3d.")}
+
+
+def part_of(name: str) -> str:
+    """``lp3d.render.camera`` -> ``render``; the top-level ``lp3d`` package itself -> ``__init__``."""
+    return name.split(".")[1] if "." in name else "__init__"
+
+
+def test_every_part_has_a_rule() -> None:
+    assert {part_of(m) for m in MODULES} <= set(ALLOWED)
+
+
+def layer_violations(modules: dict[str, Path]) -> list[str]:
+    """``"A imports B"`` for every import of a part that :data:`ALLOWED` does not list for A's part."""
+    found = []
+    for name, path in modules.items():
+        part = part_of(name)
+        for target in sorted(lp3d_imports(path)):
+            other = part_of(target)
+            if other not in (part, "__init__") and other not in ALLOWED[part]:
+                found.append(f"{name} imports {target}")
+    return found
+
+
+def test_each_part_imports_only_the_layers_below_it() -> None:
+    assert layer_violations(MODULES) == []
+
+
+def test_the_layer_check_catches_an_upward_import(tmp_path) -> None:
+    probe = tmp_path / "probe.py"
+    probe.write_text("def f():\n    from lp3d.cli.common import say\n")
+    assert layer_violations({"lp3d.render.probe": probe}) == [
+        "lp3d.render.probe imports lp3d.cli.common",
+        "lp3d.render.probe imports lp3d.cli.common.say",
+    ]
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in graph[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                found.append(sorted(comp))
+
+    for v in graph:
+        if v not in index:
+            visit(v)
+    return found
+
+
+@pytest.mark.parametrize("top_level_only", [True, False], ids=["module-level", "with-lazy-imports"])
+def test_no_import_cycle(top_level_only: bool) -> None:
+    graph = {
+        name: {m for m in lp3d_imports(path, top_level_only) if m in MODULES} - {name}
+        for name, path in MODULES.items()
+    }
+    assert _cycles(graph) == []
+
+
+@pytest.mark.parametrize("old", sorted(_moved.MOVED))
+def test_old_module_names_still_import(old: str) -> None:
+    new = _moved.MOVED[old]
+    sys.modules.pop(f"lp3d.{old}", None)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        module = importlib.import_module(f"lp3d.{old}")
+    assert module is importlib.import_module(new)
+    assert module.__spec__.name == new  # the shared module keeps its own spec
+    assert any(issubclass(w.category, DeprecationWarning) and new in str(w.message) for w in caught)
+
+
+def test_old_module_names_still_run_with_python_m() -> None:
+    done = subprocess.run(
+        [sys.executable, "-m", "lp3d.demo", "--help"], capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0 and done.stdout.startswith("usage: lp3d demo"), done.stderr
