@@ -1,6 +1,6 @@
 """Time the shipped encoder with onnxruntime: milliseconds per image, batch 1, on this machine.
 
-    python bench/encode_speed.py                       # the shipped python/lp3d/models/small.onnx
+    python bench/encode_speed.py                       # the shipped python/lp3d/lift/models/small.onnx
     python bench/encode_speed.py --model model.onnx --threads 2 --repeats 50
 
 Prints the median, minimum and maximum over ``--repeats`` runs after ``--warmup`` runs, the model's

@@ -12,7 +12,7 @@ evaluation (128², scored against the teacher at its native 256² planes) from:
 * ``ceiling + noise``: the ceiling's planes plus independent Gaussian noise whose per-channel RMS is
   the student's per-channel plane error: what an error of the student's size costs when it has no
   structure (how steep the decoder makes the render in the planes);
-* ``student``: the shipped model (``python/lp3d/models/small.pt``, torch backend);
+* ``student``: the shipped model (``python/lp3d/lift/models/small.pt``, torch backend);
 * ``mean head``: the encoder's mean triplane alone.
 
 and reports novel-view PSNR and the channel-normalised plane L1 (the CPU recipe's L_tri, channels
@@ -44,7 +44,7 @@ from lp3d.training.eval import (
 )
 
 METHODS = ("ceiling", "basis oracle", "ceiling + noise", "student", "mean head")
-MODEL = Path(__file__).resolve().parents[1] / "python" / "lp3d" / "models" / "small.pt"
+MODEL = Path(__file__).resolve().parents[1] / "python" / "lp3d" / "lift" / "models" / "small.pt"
 
 
 def basis_planes(state: dict[str, torch.Tensor], resolution: int) -> torch.Tensor:

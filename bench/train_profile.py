@@ -296,11 +296,8 @@ def cpu_pass(tr: Trainer, step: int, b: int) -> Times:
                     *decoder,
                     origins,
                     directions,
-                    ray_start=tr.scene.ray_start,
-                    ray_end=tr.scene.ray_end,
-                    box_warp=tr.scene.box_warp,
-                    depth_resolution=cfg.depth_resolution,
-                    depth_resolution_importance=cfg.depth_resolution_importance,
+                    bounds=tr.scene,
+                    settings=cfg.render_settings(),
                 )
                 return out["features"][..., :3]
 

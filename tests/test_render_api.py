@@ -146,18 +146,13 @@ def test_file_round_trips_across_languages(gpu, tmp_path: Path) -> None:
 def test_settings_agree_across_languages() -> None:
     sig = inspect.signature(lp3d_render.render)
     defaults = settings.RenderSettings()
-    for name in (
-        "resolution",
-        "depth_resolution",
-        "depth_resolution_importance",
-        "white_back",
-        "deterministic",
-        "transmittance_threshold",
-        "empty_threshold",
-        "occupancy_epsilon",
-        "occupancy_coarse",
-    ):
-        assert sig.parameters[name].default == getattr(defaults, name), name
+    # Every field of the Python settings (skips flattened) is a keyword of the native render, with the
+    # same default, and native_kwargs() spells exactly those keywords.
+    flat = {**dataclasses.asdict(defaults), **dataclasses.asdict(defaults.skips)}
+    del flat["skips"], flat["seed"]  # the native seed defaults to None: a fresh one per jittered call
+    for name, value in flat.items():
+        assert sig.parameters[name].default == value, name
+    assert set(defaults.native_kwargs()) == set(flat)
     assert lp3d_render.MAX_RESOLUTION == settings.MAX_RESOLUTION
     assert lp3d_render.MAX_SAMPLES == settings.MAX_SAMPLES
     assert [tuple(a) for a in lp3d_render.PLANE_AXES] == [tuple(a) for a in PLANE_AXES]

@@ -21,6 +21,7 @@ import torch.nn.functional as F
 
 from lp3d.render import reference
 from lp3d.render.camera import look_at_camera, stack_labels
+from lp3d.render.settings import RenderSettings, SceneBounds
 from lp3d.render.torch_twin import (
     rays_from_cameras,
     render_rays,
@@ -242,11 +243,8 @@ def _fixed_fine_render(
     """6+6 render with the importance draw held fixed at the current parameters' fine depths."""
     origins, directions = rays_from_cameras(cameras, 2)
     kw = {
-        "ray_start": 2.25,
-        "ray_end": 3.3,
-        "box_warp": 1.0,
-        "depth_resolution": 6,
-        "depth_resolution_importance": 6,
+        "bounds": SceneBounds(box_warp=1.0, ray_start=2.25, ray_end=3.3),
+        "settings": RenderSettings(depth_resolution=6, depth_resolution_importance=6),
     }
     with torch.no_grad():
         t_fine = render_rays(params[0][None], *params[1:], origins, directions, **kw)["t_fine"]

@@ -1,4 +1,4 @@
-"""The shipped model (python/lp3d/models): present in the installed package, within its size budget,
+"""The shipped model (python/lp3d/lift/models): present in the installed package, within its size budget,
 self-consistent across its ONNX and torch forms, and what ``lp3d demo`` and ``lp3d encode`` use."""
 
 from __future__ import annotations

@@ -30,7 +30,9 @@ from lp3d.outputs import (
     write_image,
 )
 from lp3d.render.camera import FFHQ_FOCAL, FFHQ_RADIUS
+from lp3d.render.native import render as native_render
 from lp3d.render.native import render_triplane, renderer
+from lp3d.render.settings import RenderSettings
 
 __all__ = [
     "IMAGE_SUFFIXES",
@@ -293,15 +295,10 @@ def render_views(
     """Render (B, 25) cameras at ``resolution`` (default ``args.resolution``); every output has a
     leading B axis."""
     coarse, fine = args.samples
-    out = renderer().render(
-        tri,
-        np.atleast_2d(cameras),
-        resolution=resolution or args.resolution,
-        depth_resolution=coarse,
-        depth_resolution_importance=fine,
-        outputs=list(outputs),
+    settings = RenderSettings(
+        resolution=resolution or args.resolution, depth_resolution=coarse, depth_resolution_importance=fine
     )
-    return dict(out)
+    return native_render(tri, np.atleast_2d(cameras), settings, outputs=outputs)
 
 
 def render_file_views(

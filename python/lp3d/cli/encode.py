@@ -46,7 +46,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=Path,
         default=None,
         help="MODEL.onnx (with MODEL.json beside it) or CHECKPOINT.pt (default: the shipped "
-        "lp3d/models/small.onnx in the package)",
+        "lp3d/lift/models/small.onnx in the package)",
     )
     p.add_argument(
         "--backend",

@@ -1,16 +1,22 @@
 """The native GPU renderer ``lp3d_render``, imported on first use (importing it creates the GPU device)
-with a one-line :class:`lp3d.errors.UserError` naming the fix when it is not installed."""
+with a one-line :class:`lp3d.errors.UserError` naming the fix when it is not installed, and
+:func:`render`, its call with the :class:`~lp3d.render.settings.RenderSettings` the other two renderers
+take."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from lp3d.errors import UserError
+from lp3d.render.settings import RenderSettings, resolve_settings
 
 if TYPE_CHECKING:
     from lp3d.render.triplane import TriplaneData
 
-__all__ = ["render_triplane", "renderer"]
+__all__ = ["render", "render_triplane", "renderer"]
 
 
 def renderer() -> Any:
@@ -29,3 +35,26 @@ def render_triplane(tri: TriplaneData) -> Any:
     one-line error naming the fix when the renderer is not installed."""
     renderer()
     return tri.to_native()
+
+
+def render(
+    triplane: Any,
+    camera: np.ndarray,
+    settings: RenderSettings | None = None,
+    *,
+    outputs: Sequence[str] | None = None,
+    **overrides: Any,
+) -> dict[str, np.ndarray]:
+    """``lp3d_render.render`` with a :class:`~lp3d.render.settings.RenderSettings` (skips included) and
+    keyword overrides, as :func:`~lp3d.render.reference.render_reference` and
+    :func:`~lp3d.render.torch_twin.render_torch` take them. ``triplane`` is an ``lp3d_render.Triplane``
+    or a :class:`~lp3d.render.triplane.TriplaneData`; its bounds are used (the GPU renderer reads them
+    from the triplane, so bounds cannot be overridden here)."""
+    if set(overrides) & {"box_warp", "ray_start", "ray_end"}:
+        raise TypeError("the GPU renderer takes the scene bounds from the triplane; set them there")
+    settings, _ = resolve_settings(settings, overrides)
+    native = triplane.to_native() if hasattr(triplane, "to_native") else triplane
+    kwargs = settings.native_kwargs()
+    if outputs is not None:
+        kwargs["outputs"] = list(outputs)
+    return dict(renderer().render(native, camera, **kwargs))

@@ -10,6 +10,7 @@ Everything is vectorised over rays; ``...`` in shapes means any leading ray axes
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -23,6 +24,7 @@ from lp3d.render.settings import (
     SIGMOID_MARGIN,
     TRANSMITTANCE_EPS,
     RenderSettings,
+    resolve_settings,
 )
 from lp3d.render.triplane import PLANE_AXES, TriplaneData
 
@@ -283,36 +285,26 @@ def _evaluate(tri: TriplaneData, planes: np.ndarray, o: np.ndarray, d: np.ndarra
 
 
 def render_reference(
-    triplane: Any,
-    camera: np.ndarray,
-    *,
-    resolution: int = 128,
-    depth_resolution: int = 48,
-    depth_resolution_importance: int = 48,
-    white_back: bool = False,
-    deterministic: bool = True,
-    seed: int = 0,
+    triplane: Any, camera: np.ndarray, settings: RenderSettings | None = None, **overrides: Any
 ) -> dict[str, np.ndarray]:
     """Render a triplane with EG3D's renderer semantics in float64.
 
-    ``camera`` (25,) or (B, 25). Returns float64 ``features`` (32, R, R) (in ~[-1, 1]), ``rgb`` (3, R, R)
-    (= ``features[:3]``), ``depth`` (R, R) and ``weights_sum`` (R, R), each with a leading B axis when
-    ``camera`` is 2-D. Coarse pass (S samples), then, unless ``depth_resolution_importance`` is 0, an
-    importance pass (N samples) and one march over the merged sorted S + N samples. Depth: NaN (no
+    ``camera`` (25,) or (B, 25); ``settings`` a :class:`~lp3d.render.settings.RenderSettings` (default
+    ``RenderSettings()``, exact: no skips), which keyword arguments override (``resolution=64``; a
+    :class:`~lp3d.render.settings.SceneBounds` field overrides the triplane's bounds). Returns float64
+    ``features`` (32, R, R) (in ~[-1, 1]), ``rgb`` (3, R, R) (= ``features[:3]``), ``depth`` (R, R) and
+    ``weights_sum`` (R, R), each with a leading B axis when ``camera`` is 2-D. Coarse pass (S samples),
+    then, unless ``depth_resolution_importance`` is 0, an importance pass (N samples) and one march over
+    the merged sorted S + N samples. Depth: NaN (no
     opacity) -> +inf, then clamped to [min, max] of every sample depth in the whole batch (EG3D).
     ``deterministic``: no jitter and ``u = linspace(0, 1, N)``; otherwise ``docs/sampling-rng.md`` with
     ``seed`` and global ray index ``b * R * R + row * R + col``.
     """
-    settings = RenderSettings(
-        resolution=resolution,
-        depth_resolution=depth_resolution,
-        depth_resolution_importance=depth_resolution_importance,
-        white_back=white_back,
-        deterministic=deterministic,
-        seed=seed,
-    )
-    settings.validate()
     tri = _as_triplane(triplane)
+    settings, bounds = resolve_settings(settings, overrides, tri.bounds)
+    settings.require_exact("the float64 reference")
+    if bounds != tri.bounds:  # rendered with other bounds than the triplane's own
+        tri = dataclasses.replace(tri, **dataclasses.asdict(bounds))
     cams, batched = validate_camera(camera)
     B, R = cams.shape[0], settings.resolution
     S, N = settings.depth_resolution, settings.depth_resolution_importance

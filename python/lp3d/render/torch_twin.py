@@ -36,7 +36,7 @@ Where this twin knowingly differs from EG3D's code (values are identical):
 from __future__ import annotations
 
 import math
-from typing import NamedTuple, Protocol
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 import torch
@@ -46,9 +46,6 @@ from torch import Tensor
 from lp3d.render import sampling_rng  # the counter-based RNG shared by every lp3d renderer
 from lp3d.render.camera import validate_camera
 from lp3d.render.settings import (
-    DEFAULT_BOX_WARP,
-    DEFAULT_RAY_END,
-    DEFAULT_RAY_START,
     DENSITY_SHIFT,
     HIDDEN,
     N_CHANNELS,
@@ -58,6 +55,8 @@ from lp3d.render.settings import (
     SIGMOID_MARGIN,
     TRANSMITTANCE_EPS,
     RenderSettings,
+    SceneBounds,
+    resolve_settings,
 )
 from lp3d.render.triplane import PLANE_AXES, TriplaneData
 
@@ -388,12 +387,8 @@ def render_rays(
     ray_origins: Tensor,
     ray_directions: Tensor,
     *,
-    ray_start: float,
-    ray_end: float,
-    box_warp: float,
-    depth_resolution: int,
-    depth_resolution_importance: int,
-    white_back: bool = False,
+    bounds: SceneBounds,
+    settings: RenderSettings,
     coarse_jitter: Tensor | None = None,
     importance_u: Tensor | None = None,
     t_fine: Tensor | None = None,
@@ -405,8 +400,9 @@ def render_rays(
         planes: (P, 3, 32, H, W), P = B (one triplane per camera) or 1 (shared).
         w0, b0, w1, b1: effective decoder weights, (64, 32), (64,), (33, 64), (33,).
         ray_origins, ray_directions: (B, M, 3), unit directions.
-        ray_start, ray_end, box_warp, depth_resolution, depth_resolution_importance, white_back: as in
-            EG3D's ``rendering_kwargs``; ``depth_resolution_importance = 0`` renders coarse samples only.
+        bounds: the scene (``box_warp``, ``ray_start``, ``ray_end``).
+        settings: ``depth_resolution``, ``depth_resolution_importance`` (0: coarse samples only) and
+            ``white_back`` are used; resolution and sampling mode are the caller's (rays, jitter, u).
         coarse_jitter: U (B, M, S) in [0, 1), or None (no jitter).
         importance_u: u (B, M, N) in [0, 1], or None (EG3D's ``det=True``: linspace(0, 1, N)).
         t_fine: (B, M, N) fine depths to use instead of drawing them from the coarse pass, e.g. to hold
@@ -422,11 +418,12 @@ def render_rays(
     def points_at(t: Tensor) -> Tensor:  # (B, M, K) depths → (B, M, K, 3) world points
         return ray_origins.unsqueeze(-2) + t.unsqueeze(-1) * ray_directions.unsqueeze(-2)
 
+    box_warp, depth_resolution_importance = bounds.box_warp, settings.depth_resolution_importance
     t = sample_stratified(
         ray_origins.shape[:2],
-        depth_resolution=depth_resolution,
-        ray_start=ray_start,
-        ray_end=ray_end,
+        depth_resolution=settings.depth_resolution,
+        ray_start=bounds.ray_start,
+        ray_end=bounds.ray_end,
         jitter=coarse_jitter,
         dtype=ray_origins.dtype,
         device=ray_origins.device,
@@ -444,13 +441,13 @@ def render_rays(
         t, sigma_raw, feat = unify_samples(t, sigma_raw, feat, t_fine, sigma_fine, feat_fine)
         out["t_fine"] = t_fine
 
-    result = march(t, sigma_raw, feat, white_back=white_back)
-    bounds = t.detach()
+    result = march(t, sigma_raw, feat, white_back=settings.white_back)
+    t_all = t.detach()
     out.update(
         features=result.features,
         depth=clamp_depth(result.depth, t) if clamp else result.depth,
         weights_sum=result.weights_sum,
-        t_range=torch.stack([bounds.min(), bounds.max()]),
+        t_range=torch.stack([t_all.min(), t_all.max()]),
     )
     return out
 
@@ -476,16 +473,6 @@ def _check_tensor(name: str, value: object, shape: tuple[int, ...], like: Tensor
     return value
 
 
-def _check_scalar(name: str, value: object) -> float:
-    try:
-        scalar = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a real number, got {value!r}") from None
-    if not math.isfinite(scalar):
-        raise ValueError(f"{name} must be finite, got {scalar!r}")
-    return scalar
-
-
 def _validate(
     planes: object,
     w0: object,
@@ -493,12 +480,9 @@ def _validate(
     w1: object,
     b1: object,
     cameras: object,
-    ray_start: object,
-    ray_end: object,
-    box_warp: object,
     ray_chunk: object,
-) -> tuple[Tensor, Tensor, float, float, float]:
-    """Checks every input; returns planes as (P, 3, 32, H, W), cameras as (B, 25) and the scalars."""
+) -> tuple[Tensor, Tensor]:
+    """Checks every tensor input; returns planes as (P, 3, 32, H, W) and cameras as (B, 25)."""
     if not isinstance(planes, Tensor):
         raise TypeError(f"planes must be a torch.Tensor, got {type(planes).__name__}")
     if planes.dtype not in (torch.float32, torch.float64):
@@ -536,18 +520,9 @@ def _validate(
             "triplane per camera, or planes of shape (3, 32, H, W) shared by all cameras"
         )
 
-    start = _check_scalar("ray_start", ray_start)
-    end = _check_scalar("ray_end", ray_end)
-    if start < 0:
-        raise ValueError(f"ray_start must be >= 0, got {start}")
-    if not start < end:
-        raise ValueError(f"ray_start must be smaller than ray_end, got {start} and {end}")
-    warp = _check_scalar("box_warp", box_warp)
-    if warp <= 0:
-        raise ValueError(f"box_warp must be positive, got {warp}")
     if isinstance(ray_chunk, bool) or not isinstance(ray_chunk, int) or ray_chunk < 1:
         raise ValueError(f"ray_chunk must be a positive int, got {ray_chunk!r}")
-    return tri, cams, start, end, warp
+    return tri, cams
 
 
 def _random_draws(
@@ -570,17 +545,11 @@ def render_torch(
     w1: Tensor,
     b1: Tensor,
     cameras: Tensor,
+    settings: RenderSettings | None = None,
     *,
-    resolution: int = 128,
-    depth_resolution: int = 48,
-    depth_resolution_importance: int = 48,
-    ray_start: float = DEFAULT_RAY_START,
-    ray_end: float = DEFAULT_RAY_END,
-    box_warp: float = DEFAULT_BOX_WARP,
-    white_back: bool = False,
-    deterministic: bool = True,
-    seed: int = 0,
+    bounds: SceneBounds | None = None,
     ray_chunk: int = DEFAULT_RAY_CHUNK,
+    **overrides: Any,
 ) -> dict[str, Tensor]:
     """Render triplanes from EG3D cameras, differentiably, with EG3D's renderer semantics.
 
@@ -589,12 +558,14 @@ def render_torch(
             all cameras; float32 or float64. Its dtype and device are those of the render.
         w0, b0, w1, b1: effective decoder weights (64, 32), (64,), (33, 64), (33,), same dtype/device.
         cameras: (B, 25) or (25,) EG3D labels; cast to the planes' dtype and device.
-        resolution: R, rays per side.
-        depth_resolution, depth_resolution_importance: S coarse and N fine samples (N = 0: coarse only).
-        ray_start, ray_end, box_warp, white_back: EG3D's rendering_kwargs (FFHQ defaults).
-        deterministic: no coarse jitter and ``det=True`` importance draw; otherwise the draws of
+        settings: :class:`~lp3d.render.settings.RenderSettings` (default ``RenderSettings()``; exact, no
+            skips): R = ``resolution`` rays per side, S = ``depth_resolution`` coarse and N =
+            ``depth_resolution_importance`` fine samples (N = 0: coarse only), ``white_back``;
+            ``deterministic``: no coarse jitter and ``det=True`` importance draw, otherwise the draws of
             ``lp3d.render.sampling_rng`` for ``seed`` (ray index ``b * R * R + row * R + col``).
+        bounds: :class:`~lp3d.render.settings.SceneBounds` (default: EG3D's FFHQ scene).
         ray_chunk: rays rendered at once (over all cameras), to bound memory; does not change results.
+        **overrides: fields of either, e.g. ``resolution=64`` or ``ray_start=2.0``.
 
     Returns:
         ``features`` (B, 32, R, R) in about [-1, 1], ``rgb`` (B, 3, R, R) (= features[:, :3]),
@@ -605,25 +576,17 @@ def render_torch(
     Raises:
         ValueError: naming the offending input (shape, dtype, device, finiteness, settings).
     """
-    settings = RenderSettings(
-        resolution=resolution,
-        depth_resolution=depth_resolution,
-        depth_resolution_importance=depth_resolution_importance,
-        white_back=white_back,
-        deterministic=deterministic,
-        seed=seed,
-    )
-    settings.validate()
-    tri, cams, start, end, warp = _validate(
-        planes, w0, b0, w1, b1, cameras, ray_start, ray_end, box_warp, ray_chunk
-    )
+    settings, bounds = resolve_settings(settings, overrides, bounds)
+    settings.require_exact("the torch twin")
+    tri, cams = _validate(planes, w0, b0, w1, b1, cameras, ray_chunk)
+    resolution = settings.resolution
     n_cams, n_rays = cams.shape[0], resolution * resolution
-    s, n = depth_resolution, depth_resolution_importance
+    s, n = settings.depth_resolution, settings.depth_resolution_importance
 
     ray_origins, ray_directions = rays_from_cameras(cams, resolution)
     jitter = u = None
-    if not deterministic:
-        flat_jitter, flat_u = _random_draws(seed, n_cams * n_rays, settings, tri)
+    if not settings.deterministic:
+        flat_jitter, flat_u = _random_draws(settings.seed, n_cams * n_rays, settings, tri)
         jitter = flat_jitter.reshape(n_cams, n_rays, s)
         u = None if flat_u is None else flat_u.reshape(n_cams, n_rays, n)
 
@@ -639,12 +602,8 @@ def render_torch(
             b1,
             ray_origins[:, part],
             ray_directions[:, part],
-            ray_start=start,
-            ray_end=end,
-            box_warp=warp,
-            depth_resolution=s,
-            depth_resolution_importance=n,
-            white_back=white_back,
+            bounds=bounds,
+            settings=settings,
             coarse_jitter=None if jitter is None else jitter[:, part],
             importance_u=None if u is None else u[:, part],
             clamp=False,
@@ -671,15 +630,11 @@ def render_torch(
 def render_triplane_torch(
     triplane: TriplaneLike,
     camera: np.ndarray,
+    settings: RenderSettings | None = None,
     *,
-    resolution: int = 128,
-    depth_resolution: int = 48,
-    depth_resolution_importance: int = 48,
-    white_back: bool = False,
-    deterministic: bool = True,
-    seed: int = 0,
     device: str | torch.device | None = None,
     ray_chunk: int = DEFAULT_RAY_CHUNK,
+    **overrides: Any,
 ) -> dict[str, np.ndarray]:
     """NumPy in, NumPy out: render a triplane object with the twin in float32, without autograd.
 
@@ -687,8 +642,7 @@ def render_triplane_torch(
         triplane: planes (3, 32, H, W), effective decoder weights w0, b0, w1, b1, and the scene scalars
             box_warp, ray_start, ray_end (e.g. ``lp3d.render.triplane.TriplaneData``); validated as one.
         camera: (25,) or (B, 25) EG3D label(s).
-        resolution, depth_resolution, depth_resolution_importance, white_back, deterministic, seed:
-            as in ``render_torch``.
+        settings, **overrides: as in ``render_torch``; the bounds are the triplane's (overridable too).
         device: where to render (default CPU).
         ray_chunk: rays rendered at once.
 
@@ -717,16 +671,10 @@ def render_triplane_torch(
             tensor(tri.w1),
             tensor(tri.b1),
             tensor(cams if batched else cams[0]),
-            resolution=resolution,
-            depth_resolution=depth_resolution,
-            depth_resolution_importance=depth_resolution_importance,
-            ray_start=tri.ray_start,
-            ray_end=tri.ray_end,
-            box_warp=tri.box_warp,
-            white_back=white_back,
-            deterministic=deterministic,
-            seed=seed,
+            settings,
+            bounds=tri.bounds,
             ray_chunk=ray_chunk,
+            **overrides,
         )
     return {key: np.ascontiguousarray(value.cpu().numpy(), dtype=np.float32) for key, value in result.items()}
 

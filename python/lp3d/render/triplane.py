@@ -23,6 +23,7 @@ from lp3d.render.settings import (
     HIDDEN,
     N_CHANNELS,
     N_OUT,
+    SceneBounds,
 )
 
 if TYPE_CHECKING:
@@ -160,6 +161,11 @@ class TriplaneData:
         )
 
     @property
+    def bounds(self) -> SceneBounds:
+        """The scene bounds this triplane is rendered with (``box_warp``, ``ray_start``, ``ray_end``)."""
+        return SceneBounds(self.box_warp, self.ray_start, self.ray_end)
+
+    @property
     def resolution(self) -> tuple[int, int]:
         """``(H, W)`` of each plane."""
         return int(self.planes.shape[2]), int(self.planes.shape[3])
@@ -187,14 +193,9 @@ class TriplaneData:
                 raise TriplaneError(name, f"shape must be {shape}, got {arr.shape}")
             if not np.all(np.isfinite(arr)):
                 raise TriplaneError(name, "contains NaN/Inf")
-        if not (math.isfinite(self.box_warp) and self.box_warp > 0.0):
-            raise TriplaneError("box_warp", f"must be finite and > 0, got {self.box_warp!r}")
-        if not (math.isfinite(self.ray_start) and self.ray_start >= 0.0):
-            raise TriplaneError("ray_start", f"must be finite and >= 0, got {self.ray_start!r}")
-        if not (math.isfinite(self.ray_end) and self.ray_end > self.ray_start):
-            raise TriplaneError(
-                "ray_end", f"must be finite and > ray_start ({self.ray_start!r}), got {self.ray_end!r}"
-            )
+        bad = self.bounds.problem()
+        if bad is not None:
+            raise TriplaneError(*bad)
         if self.camera is not None and (
             not isinstance(self.camera, np.ndarray)
             or self.camera.shape != (25,)

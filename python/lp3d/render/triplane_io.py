@@ -8,7 +8,6 @@ half-written file and a failed write leaves nothing behind.
 
 from __future__ import annotations
 
-import math
 import os
 import stat
 import zipfile
@@ -20,7 +19,7 @@ import numpy as np
 from lp3d.atomic import atomic_path
 from lp3d.render import npz_reader
 from lp3d.render.camera import camera_summary, validate_camera
-from lp3d.render.settings import HIDDEN, N_CHANNELS, N_OUT
+from lp3d.render.settings import HIDDEN, N_CHANNELS, N_OUT, SceneBounds
 from lp3d.render.triplane import MAX_OCCUPANCY_RESOLUTION, TriplaneData, TriplaneError, occupancy_checksum
 
 #: Version written by :func:`save_triplane`; the only one :func:`load_triplane` accepts.
@@ -197,32 +196,12 @@ def _check_header(key: str, h: npz_reader.NpyHeader) -> None:
             )
 
 
-def _as_float32(value: float) -> float:
-    with np.errstate(over="ignore"):
-        return float(np.float32(value))
-
-
 def _check_bounds(box_warp: float, ray_start: float, ray_end: float) -> None:
-    """The scene bounds, checked as stored (float64) and as the renderer uses them (float32), so a
-    value that overflows float32 (``ray_end = 1e300``) is an error here and in Rust alike."""
-    b32, s32, e32 = _as_float32(box_warp), _as_float32(ray_start), _as_float32(ray_end)
-    for key, v, v32 in (
-        ("box_warp", box_warp, b32),
-        ("ray_start", ray_start, s32),
-        ("ray_end", ray_end, e32),
-    ):
-        if math.isfinite(v) and not math.isfinite(v32):
-            raise npz_reader.NpzError(key, f"{v:e} is not finite as float32 (the renderer's precision)")
-    if not (math.isfinite(box_warp) and box_warp > 0.0 and b32 > 0.0):
-        raise npz_reader.NpzError("box_warp", f"must be finite and > 0 (also as float32), got {box_warp:e}")
-    if not (math.isfinite(ray_start) and ray_start >= 0.0 and s32 >= 0.0):
-        raise npz_reader.NpzError(
-            "ray_start", f"must be finite and >= 0 (also as float32), got {ray_start:e}"
-        )
-    if not (math.isfinite(ray_end) and ray_end > ray_start and e32 > s32):
-        raise npz_reader.NpzError(
-            "ray_end", f"must be finite and > ray_start ({ray_start:e}) (also as float32), got {ray_end:e}"
-        )
+    """The scene bounds as stored, with :class:`~lp3d.render.settings.SceneBounds`' checks (as float64
+    and as the renderer's float32, so ``ray_end = 1e300`` is an error here and in Rust alike)."""
+    bad = SceneBounds(box_warp, ray_start, ray_end).problem()
+    if bad is not None:
+        raise npz_reader.NpzError(*bad)
 
 
 def _open_regular_file(path: Path) -> tuple[IO[bytes], int]:

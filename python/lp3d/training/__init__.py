@@ -70,7 +70,7 @@ the encoder instead:
   student rendered on the same rays; :func:`lp3d.render.torch_twin.render_rays`). ``small`` and ``tiny``
   regress for their whole schedule: with the procedural teacher's step-like decoder the ray loss
   made things worse (the shipped run, steps 500-600 with rays: held-out PSNR 18.4 -> 18.1 dB and
-  identity specificity 3.8 -> 3.2 dB, L_tri 0.125 -> 0.143; ``python/lp3d/models/README.md``).
+  identity specificity 3.8 -> 3.2 dB, L_tri 0.125 -> 0.143; ``python/lp3d/lift/models/README.md``).
 * **A plane basis.** The teacher's triplanes span its identities in about a hundred dimensions (the
   principal components of 512 heads and their mirrors leave 3 % of the held-out L1 at 128
   components), so the CPU encoders carry :class:`lp3d.nets.encoder.PlaneBasis`, started from those

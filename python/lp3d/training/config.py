@@ -16,6 +16,7 @@ from lp3d.nets.discriminator import DISCRIMINATOR_CONFIGS, DiscriminatorConfig
 from lp3d.nets.encoder import CONFIGS as ENCODER_CONFIGS
 from lp3d.nets.encoder import EncoderConfig
 from lp3d.nets.superres import SUPERRES_CONFIGS, SuperresConfig
+from lp3d.render.settings import RenderSettings
 from lp3d.training.camera_sampling import FFHQ_MULTIVIEW, FFHQ_REFERENCE, CameraDistribution
 from lp3d.training.losses import PERCEPTUAL_KINDS, LossWeights
 
@@ -128,6 +129,15 @@ class TrainConfig:
     @property
     def triplane_resolution(self) -> int:
         return self.encoder.triplane_resolution
+
+    def render_settings(self, resolution: int | None = None) -> RenderSettings:
+        """The renderer settings of this configuration's renders (at ``raw_resolution`` unless
+        ``resolution`` is given): its sample counts, deterministic, exact."""
+        return RenderSettings(
+            resolution=resolution or self.raw_resolution,
+            depth_resolution=self.depth_resolution,
+            depth_resolution_importance=self.depth_resolution_importance,
+        )
 
     def stage(self, step: int) -> int:
         """1 (warm-up) or 2 for the 0-based ``step``."""

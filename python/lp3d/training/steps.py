@@ -332,11 +332,8 @@ class TrainingSteps:
                 *decoder,
                 origins,
                 directions,
-                ray_start=self.scene.ray_start,
-                ray_end=self.scene.ray_end,
-                box_warp=self.scene.box_warp,
-                depth_resolution=cfg.depth_resolution,
-                depth_resolution_importance=cfg.depth_resolution_importance,
+                bounds=self.scene,
+                settings=cfg.render_settings(),
             )
             return out["features"][..., :3]
 

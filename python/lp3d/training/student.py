@@ -1,13 +1,13 @@
-"""The student: :class:`Student` (encoder, decoder and SR), the scene bounds it shares with its
-teacher (:class:`SceneBounds`), the renders of both (:func:`render_views`, :func:`render_teacher`) and
-the start of its plane basis (:func:`principal_planes`).
+"""The student: :class:`Student` (encoder, decoder and SR), the renders of it and its teacher
+(:func:`render_views`, :func:`render_teacher`) and the start of its plane basis
+(:func:`principal_planes`). The scene bounds it shares with its teacher are a
+:class:`lp3d.render.settings.SceneBounds` (re-exported here as ``SceneBounds``).
 
 Imports :mod:`lp3d.training.config` only."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -16,25 +16,13 @@ from torch import Tensor, nn
 
 from lp3d.nets.encoder import LP3DEncoder
 from lp3d.nets.superres import SuperResolution
+from lp3d.render.settings import SceneBounds
 from lp3d.render.torch_twin import render_torch
 from lp3d.render.triplane import TriplaneData, mirror_planes
 from lp3d.teachers import Teacher
 from lp3d.training import distributed
 from lp3d.training.config import TrainConfig
 from lp3d.training.losses import ViewRenders
-
-
-@dataclass(frozen=True)
-class SceneBounds:
-    """The teacher's box and ray range, shared by all its triplanes (and the student's)."""
-
-    box_warp: float
-    ray_start: float
-    ray_end: float
-
-    @classmethod
-    def of(cls, tri: TriplaneData) -> SceneBounds:
-        return cls(float(tri.box_warp), float(tri.ray_start), float(tri.ray_end))
 
 
 @torch.no_grad()
@@ -85,17 +73,7 @@ def render_views(
 ) -> dict[str, Tensor]:
     """:func:`~lp3d.render.torch_twin.render_torch` of planes (B, 3, 32, T, T) from cameras (B, 25) with a
     training configuration's sample counts (at ``raw_resolution`` unless ``resolution`` is given)."""
-    return render_torch(
-        planes,
-        *decoder,
-        cameras,
-        resolution=resolution or config.raw_resolution,
-        depth_resolution=config.depth_resolution,
-        depth_resolution_importance=config.depth_resolution_importance,
-        ray_start=scene.ray_start,
-        ray_end=scene.ray_end,
-        box_warp=scene.box_warp,
-    )
+    return render_torch(planes, *decoder, cameras, config.render_settings(resolution), bounds=scene)
 
 
 class TriplaneDecoder(nn.Module):
