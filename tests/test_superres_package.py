@@ -318,9 +318,9 @@ def test_render_is_super_resolved_unless_raw(capsys, package, tmp_path) -> None:
 
 def test_render_image_is_the_network_applied_to_the_raw_features(capsys, package, tmp_path) -> None:
     import lp3d_render
-    from lp3d.cli import render_triplane
     from lp3d.images import rgb_to_uint8
     from lp3d.render.camera import look_at_camera
+    from lp3d.render.native import native_triplane
     from lp3d.render.triplane_io import load_triplane
 
     code, _, err = run(
@@ -328,7 +328,7 @@ def test_render_image_is_the_network_applied_to_the_raw_features(capsys, package
     )
     assert code == 0, err
     raw = lp3d_render.render(
-        render_triplane(load_triplane(package["sphere"])),
+        native_triplane(load_triplane(package["sphere"])),
         look_at_camera(),
         resolution=SR_IN,
         depth_resolution=8,

@@ -32,7 +32,7 @@ __all__ = [
     "write_image",
 ]
 
-#: Output formats per kind of output (``lp3d.photo.IMAGE_SUFFIXES`` are the images it reads).
+#: Output formats per kind of output (``lp3d.photo.PHOTO_SUFFIXES`` are the photos it reads).
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 VIDEO_SUFFIXES = (".mp4", ".gif")
 MESH_SUFFIXES = (".ply", ".obj", ".glb")

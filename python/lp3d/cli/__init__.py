@@ -52,12 +52,12 @@ from lp3d.cli.common import (
     final_images,
     load_triplane_file,
     make_camera,
+    native_triplane,
     parse_samples,
     progress,
     render_file_views,
-    render_triplane,
+    render_gpu_views,
     render_triplane_file,
-    render_views,
     renderer,
     resize_image,
     write_image,
@@ -67,6 +67,11 @@ from lp3d.photo import prepare_photo
 from lp3d.photo.video import VIDEO_CROP_SMOOTHING, count_video_frames, read_video
 from lp3d.render.camera import camera_summary, orbit_angles
 from lp3d.render.triplane_io import triplane_info
+
+# Old names, removed in lp3d 0.2: render_triplane converts (it does not render), and render_views
+# meant a torch render in lp3d.training.
+render_triplane = native_triplane
+render_views = render_gpu_views
 
 # The names ``from lp3d.cli import X`` has always given, kept working.
 __all__ = [
@@ -95,6 +100,8 @@ __all__ = [
     "progress",
     "read_video",
     "render_file_views",
+    "native_triplane",
+    "render_gpu_views",
     "render_triplane",
     "render_triplane_file",
     "render_views",

@@ -30,8 +30,8 @@ from lp3d.outputs import (
     write_image,
 )
 from lp3d.render.camera import FFHQ_FOCAL, FFHQ_RADIUS
+from lp3d.render.native import native_triplane, renderer
 from lp3d.render.native import render as native_render
-from lp3d.render.native import render_triplane, renderer
 from lp3d.render.settings import RenderSettings
 
 __all__ = [
@@ -63,9 +63,9 @@ __all__ = [
     "progress",
     "render_args",
     "render_file_views",
-    "render_triplane",
+    "native_triplane",
     "render_triplane_file",
-    "render_views",
+    "render_gpu_views",
     "renderer",
     "resize_image",
     "resolve_model",
@@ -284,7 +284,7 @@ def make_camera(
     )
 
 
-def render_views(
+def render_gpu_views(
     tri: Any,
     cameras: np.ndarray,
     args: argparse.Namespace,
@@ -292,7 +292,7 @@ def render_views(
     *,
     resolution: int | None = None,
 ) -> dict[str, np.ndarray]:
-    """Render (B, 25) cameras at ``resolution`` (default ``args.resolution``); every output has a
+    """Render (B, 25) cameras on the GPU at ``resolution`` (default ``args.resolution``); every output has a
     leading B axis."""
     coarse, fine = args.samples
     settings = RenderSettings(
@@ -310,10 +310,10 @@ def render_file_views(
     *,
     resolution: int | None = None,
 ) -> dict[str, np.ndarray]:
-    """:func:`render_views` of the triplane read from ``path``; the renderer's checks of its contents
+    """:func:`render_gpu_views` of the triplane read from ``path``; the renderer's checks of its contents
     (such as values that overflow float32 in the decoder) become errors naming the file."""
     try:
-        return render_views(tri, cameras, args, outputs, resolution=resolution)
+        return render_gpu_views(tri, cameras, args, outputs, resolution=resolution)
     except ValueError as e:
         raise CLIError(f"{path}: {e}") from None
 
@@ -347,7 +347,7 @@ def final_images(
     if path is not None:
         out = render_file_views(path, tri, cameras, args, outputs, resolution=resolution)
     else:
-        out = render_views(tri, cameras, args, outputs, resolution=resolution)
+        out = render_gpu_views(tri, cameras, args, outputs, resolution=resolution)
     rgb = sr(out["features"]) if sr is not None else out["rgb"]
     return [resize_image(rgb_to_uint8(x), size) for x in rgb], out
 

@@ -36,9 +36,9 @@ from lp3d.cli.common import (
     final_images,
     image_side,
     int_in,
+    native_triplane,
     parse_samples,
     progress,
-    render_triplane,
     renderer,
     resolve_model,
 )
@@ -106,7 +106,7 @@ def teacher_portrait(size: int, samples: tuple[int, int]) -> Portrait:
 
     truth = ProceduralTeacher().sample(TEACHER_SEED)
     out = lp3d_render.render(
-        render_triplane(truth),
+        native_triplane(truth),
         look_at_camera(),
         resolution=size,
         depth_resolution=samples[0],
@@ -201,7 +201,7 @@ def run(args: argparse.Namespace) -> int:
     # Side by side: input | student views; the teacher's own views under the teacher portrait's row.
     cams = np.stack([look_at_camera(yaw_deg=y) for y in VIEW_YAWS])
     t0 = time.perf_counter()
-    native = [render_triplane(tri) for tri in lifted]  # uploaded once, rendered many times
+    native = [native_triplane(tri) for tri in lifted]  # uploaded once, rendered many times
     rows: list[np.ndarray] = []
     for p, tri in zip(portraits, native, strict=True):
         views = final_images(tri, cams, args, sr, r)[0]
@@ -209,7 +209,7 @@ def run(args: argparse.Namespace) -> int:
         rows += [_label(v, f"lp3d {y:+.0f}°") for v, y in zip(views, VIEW_YAWS, strict=True)]
         if p.truth is not None:
             rows += [_label(np.full((r, r, 3), 255, np.uint8), "teacher's own")]
-            truth = _views(render_triplane(p.truth), cams, r, samples)
+            truth = _views(native_triplane(p.truth), cams, r, samples)
             rows += [_label(v, f"teacher {y:+.0f}°") for v, y in zip(truth, VIEW_YAWS, strict=True)]
     sheet = tile(rows, columns=1 + len(VIEW_YAWS))
     print(

@@ -70,7 +70,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def _collect_images(inputs: Sequence[Path]) -> list[Path]:
     """Files as given; folders expand to their images (non-recursive, sorted)."""
-    from lp3d.photo import IMAGE_SUFFIXES as PHOTO_SUFFIXES
+    from lp3d.photo import PHOTO_SUFFIXES
 
     found: list[Path] = []
     for item in inputs:

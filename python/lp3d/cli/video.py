@@ -22,9 +22,9 @@ from lp3d.cli.common import (
     float_in,
     int_in,
     make_camera,
+    native_triplane,
     progress,
     render_args,
-    render_triplane,
     resize_image,
     resolve_model,
     say,
@@ -146,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
                 t_enc += time.perf_counter() - t0
                 state = planes if state is None else args.smooth * state + (1.0 - args.smooth) * planes
                 t0 = time.perf_counter()
-                image = final_images(render_triplane(pkg.triplane(state)), camera, args, sr, size)[0][0]
+                image = final_images(native_triplane(pkg.triplane(state)), camera, args, sr, size)[0][0]
                 t_render += time.perf_counter() - t0
                 if args.side_by_side:
                     image = np.concatenate([resize_image(face, size), image], axis=1)

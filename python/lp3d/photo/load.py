@@ -14,7 +14,16 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["IMAGE_SUFFIXES", "MAX_PIXELS", "MAX_SIDE", "MIN_SIDE", "NoFaceError", "PhotoError", "load_image"]
+__all__ = [
+    "IMAGE_SUFFIXES",
+    "MAX_PIXELS",
+    "PHOTO_SUFFIXES",
+    "MAX_SIDE",
+    "MIN_SIDE",
+    "NoFaceError",
+    "PhotoError",
+    "load_image",
+]
 
 # --------------------------------------------------------------------------------------- limits
 #: Larger images are rejected (decoding one would need gigabytes).
@@ -24,7 +33,10 @@ MIN_SIDE = 16
 #: Longer sides are rejected: OpenCV's warpAffine (the crop) asserts on sides of 32767 px and more.
 MAX_SIDE = 32766
 #: File suffixes taken from a folder of photos.
-IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".webp", ".tif", ".tiff")
+PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".webp", ".tif", ".tiff")
+#: The old name of :data:`PHOTO_SUFFIXES` (``lp3d.outputs.IMAGE_SUFFIXES`` are output formats); removed
+#: in lp3d 0.2.
+IMAGE_SUFFIXES = PHOTO_SUFFIXES
 
 
 class PhotoError(ValueError):

@@ -16,7 +16,7 @@ from lp3d.render.settings import RenderSettings, resolve_settings
 if TYPE_CHECKING:
     from lp3d.render.triplane import TriplaneData
 
-__all__ = ["render", "render_triplane", "renderer"]
+__all__ = ["native_triplane", "render", "render_triplane", "renderer"]
 
 
 def renderer() -> Any:
@@ -30,11 +30,15 @@ def renderer() -> Any:
     return lp3d_render
 
 
-def render_triplane(tri: TriplaneData) -> Any:
+def native_triplane(tri: TriplaneData) -> Any:
     """The ``lp3d_render.Triplane`` of a TriplaneData (:meth:`TriplaneData.to_native`), with a
     one-line error naming the fix when the renderer is not installed."""
     renderer()
     return tri.to_native()
+
+
+#: The old name of :func:`native_triplane` (it converts, it does not render); removed in lp3d 0.2.
+render_triplane = native_triplane
 
 
 def render(

@@ -330,18 +330,19 @@ def render_reference(
             ray_end=tri.ray_end,
             jitter=None if jitter is None else jitter[sl],
         )
-        sigma, feat = _evaluate(tri, planes, o, d, t)
+        sigma_raw, feat = _evaluate(tri, planes, o, d, t)
         if N > 0:
-            coarse = march(t, sigma, feat, white_back=settings.white_back)
+            coarse = march(t, sigma_raw, feat, white_back=settings.white_back)
             t_fine = sample_importance(t, coarse.weights, N, None if u_all is None else u_all[sl])
-            sigma_fine, feat_fine = _evaluate(tri, planes, o, d, t_fine)
+            sigma_raw_fine, feat_fine = _evaluate(tri, planes, o, d, t_fine)
             # Merge coarse then fine and sort by depth; the coarse samples are reused, not recomputed.
             t = np.concatenate([t, t_fine], axis=-1)
             order = np.argsort(t, axis=-1, kind="stable")
             t = np.take_along_axis(t, order, axis=-1)
-            sigma = np.take_along_axis(np.concatenate([sigma, sigma_fine], axis=-1), order, axis=-1)
+            both = np.concatenate([sigma_raw, sigma_raw_fine], axis=-1)
+            sigma_raw = np.take_along_axis(both, order, axis=-1)
             feat = np.take_along_axis(np.concatenate([feat, feat_fine], axis=-2), order[..., None], axis=-2)
-        result = march(t, sigma, feat, white_back=settings.white_back)
+        result = march(t, sigma_raw, feat, white_back=settings.white_back)
         t_min, t_max = min(t_min, float(t.min())), max(t_max, float(t.max()))
         features[sl], depth[sl], weights_sum[sl] = result.features, result.depth, result.weights_sum
 

@@ -437,8 +437,8 @@ def render_rays(
             with torch.no_grad():
                 coarse = march(t, sigma_raw, feat)
             t_fine = sample_importance(t, coarse.weights, depth_resolution_importance, importance_u)
-        sigma_fine, feat_fine = _evaluate(planes, w0, b0, w1, b1, points_at(t_fine), box_warp=box_warp)
-        t, sigma_raw, feat = unify_samples(t, sigma_raw, feat, t_fine, sigma_fine, feat_fine)
+        sigma_raw_fine, feat_fine = _evaluate(planes, w0, b0, w1, b1, points_at(t_fine), box_warp=box_warp)
+        t, sigma_raw, feat = unify_samples(t, sigma_raw, feat, t_fine, sigma_raw_fine, feat_fine)
         out["t_fine"] = t_fine
 
     result = march(t, sigma_raw, feat, white_back=settings.white_back)
