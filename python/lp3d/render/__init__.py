@@ -8,7 +8,8 @@ What is here, along the data flow:
   ``PLANE_AXES``), :mod:`~lp3d.render.sampling_rng` (the jitter RNG);
 * the triplane file: :mod:`~lp3d.render.triplane_io` and :mod:`~lp3d.render.npz_reader` (no pickle);
 * renderers: :mod:`~lp3d.render.reference` (float64 NumPy, the ground truth),
-  :mod:`~lp3d.render.torch_twin` (differentiable, for training), :mod:`~lp3d.render.native` (the
+  :mod:`~lp3d.render.torch_twin` (differentiable, for training; its stages in
+  :mod:`~lp3d.render.torch_stages`), :mod:`~lp3d.render.native` (the
   WGSL renderer ``lp3d_render``, imported lazily);
 * things made from a triplane: :mod:`~lp3d.render.mesh` (marching cubes), and
   :mod:`~lp3d.render.sample_scenes` (hand-built test triplanes).
