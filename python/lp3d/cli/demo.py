@@ -42,8 +42,8 @@ from lp3d.cli.common import (
     renderer,
     resolve_model,
 )
-from lp3d.cli.orbit import orbit_angles
 from lp3d.photo import prepare_photo
+from lp3d.render.camera import orbit_angles
 
 HELP = "photo in, 3D out: lift a teacher portrait and a real photo with the shipped model"
 DESCRIPTION = (
@@ -158,9 +158,37 @@ def _label(image: np.ndarray, text: str) -> np.ndarray:
     return np.asarray(canvas)
 
 
+def _side_by_side(
+    portraits: list[Portrait], native: list[Any], args: argparse.Namespace, sr: Any, r: int
+) -> np.ndarray:
+    """The contact sheet: input | lp3d's views of each portrait, and the teacher's own views under the
+    teacher portrait's row."""
+    from lp3d.images import tile
+    from lp3d.render.camera import look_at_camera
+
+    samples = args.samples
+    cams = np.stack([look_at_camera(yaw_deg=y) for y in VIEW_YAWS])
+    t0 = time.perf_counter()
+    rows: list[np.ndarray] = []
+    for p, tri in zip(portraits, native, strict=True):
+        views = final_images(tri, cams, args, sr, r)[0]
+        rows += [_label(_fit(p.crop, r), "input")]
+        rows += [_label(v, f"lp3d {y:+.0f}°") for v, y in zip(views, VIEW_YAWS, strict=True)]
+        if p.truth is not None:
+            rows += [_label(np.full((r, r, 3), 255, np.uint8), "teacher's own")]
+            truth = _views(native_triplane(p.truth), cams, r, samples)
+            rows += [_label(v, f"teacher {y:+.0f}°") for v, y in zip(truth, VIEW_YAWS, strict=True)]
+    sheet = tile(rows, columns=1 + len(VIEW_YAWS))
+    print(
+        f"rendered the views in {time.perf_counter() - t0:.1f} s ({describe_size(sr, r)}, "
+        f"{samples[0]}+{samples[1]} samples)"
+    )
+    return sheet
+
+
 def run(args: argparse.Namespace) -> int:
     """The demo; raises :class:`lp3d.errors.UserError` (or a ValueError) with a clear message."""
-    from lp3d.images import save_png, tile
+    from lp3d.images import save_png
     from lp3d.lift.inference import load_encoder
     from lp3d.photo import to_encoder_input
     from lp3d.render.camera import look_at_camera
@@ -198,24 +226,8 @@ def run(args: argparse.Namespace) -> int:
         for p, plane in zip(portraits, planes, strict=True)
     ]
 
-    # Side by side: input | student views; the teacher's own views under the teacher portrait's row.
-    cams = np.stack([look_at_camera(yaw_deg=y) for y in VIEW_YAWS])
-    t0 = time.perf_counter()
     native = [native_triplane(tri) for tri in lifted]  # uploaded once, rendered many times
-    rows: list[np.ndarray] = []
-    for p, tri in zip(portraits, native, strict=True):
-        views = final_images(tri, cams, args, sr, r)[0]
-        rows += [_label(_fit(p.crop, r), "input")]
-        rows += [_label(v, f"lp3d {y:+.0f}°") for v, y in zip(views, VIEW_YAWS, strict=True)]
-        if p.truth is not None:
-            rows += [_label(np.full((r, r, 3), 255, np.uint8), "teacher's own")]
-            truth = _views(native_triplane(p.truth), cams, r, samples)
-            rows += [_label(v, f"teacher {y:+.0f}°") for v, y in zip(truth, VIEW_YAWS, strict=True)]
-    sheet = tile(rows, columns=1 + len(VIEW_YAWS))
-    print(
-        f"rendered the views in {time.perf_counter() - t0:.1f} s ({describe_size(sr, r)}, "
-        f"{samples[0]}+{samples[1]} samples)"
-    )
+    sheet = _side_by_side(portraits, native, args, sr, r)
 
     args.out.mkdir(parents=True, exist_ok=True)
     with Staged() as staged:

@@ -65,73 +65,23 @@ def _no_frames(path: Path, meta: dict[str, Any]) -> str:
     return f"{path}: no frame{held} could be decoded"
 
 
-def run(args: argparse.Namespace) -> int:
-    from lp3d.lift.inference import load_encoder
-    from lp3d.photo import (
-        DETECT_MAX_SIDE,
-        NoFaceError,
-        centre_crop,
-        crop_image,
-        detect_face,
-        to_encoder_input,
-    )
-    from lp3d.photo.video import (
-        VIDEO_CROP_SMOOTHING,
-        expected_frames,
-        nearest_hits,
-        read_video,
-        smooth_crops,
-    )
+def _lift_frames(
+    args: argparse.Namespace,
+    encoder: Any,
+    crops: list[Any],
+    meta: dict[str, Any],
+    out_path: Path,
+    fps: float,
+    size: int,
+) -> tuple[int, float, float]:
+    """Pass 2 of ``lp3d video``: each frame cropped, encoded, smoothed over time and rendered from the
+    new view into ``out_path`` (written whole or not at all). Returns (frames, encode s, render s)."""
+    from lp3d.photo import centre_crop, crop_image, to_encoder_input
+    from lp3d.photo.video import expected_frames, read_video
 
-    out_path = check_output(args.output, VIDEO_SUFFIXES)
-    check_distinct([("input video", args.input)], [("-o", out_path)])
-    encoder = load_encoder(resolve_model(args.model), args.backend, superres=not args.raw)
     pkg, sr = encoder.package, encoder.superres
-    size = args.resolution or (sr.output_resolution if sr is not None else 128)
-    meta, _ = read_video(args.input, 0)  # fail fast on an unreadable file
-    fps = float(args.fps or meta.get("fps") or 25.0)
-    w, h = meta["size"]
-    if args.raw:
-        how = "raw volume render (--raw)"
-    elif sr is not None:
-        how = f"super-resolved by {sr.description}"
-    else:
-        how = "raw volume render (the model has no super-resolution network)"
-    say(f"video: {args.input} {w}x{h} at {fps:g} fps; model {encoder.description}")
-    say(f"frames: {describe_size(sr, size)}; {how}")
-    if max(w, h) > 4 * DETECT_MAX_SIDE:
-        warn(f"{w}x{h} frames are large; detection runs on downscaled copies")
-
-    # Pass 1: where the face is in each frame (gaps filled from the nearest detection, then smoothed).
-    crops: list[Any] = []
-    if args.no_detect:
-        crops = []
-    else:
-        _, frames = read_video(args.input, args.max_frames)
-        bar = progress(expected_frames(meta, args.max_frames), "detect")
-        try:
-            for frame in frames:
-                found = detect_face(frame)
-                crops.append(None if found is None else found.crop)
-                bar.update()
-        finally:
-            bar.close()
-        if not crops:
-            raise CLIError(_no_frames(args.input, meta))
-        hits = [i for i, c in enumerate(crops) if c is not None]
-        if not hits:
-            raise NoFaceError(
-                f"{args.input}: no face found in any frame; for a centred portrait video pass --no-detect"
-            )
-        if len(hits) < len(crops):
-            warn(f"no face in {len(crops) - len(hits)} of {len(crops)} frames; using the nearest detection")
-        crops = [crops[j] for j in nearest_hits(np.asarray(hits), len(crops))]
-        crops = smooth_crops(crops, VIDEO_CROP_SMOOTHING)
-
-    # Pass 2: crop, encode, smooth the triplane over time, render the new view.
     camera = make_camera(args)[None]
     _, frames = read_video(args.input, args.max_frames)
-    start = time.perf_counter()
     t_enc = t_render = 0.0
     state: np.ndarray | None = None
     with Staged() as staged:
@@ -159,7 +109,50 @@ def run(args: argparse.Namespace) -> int:
             writer.abort()
             bar.close()
         staged.commit()
-    n = writer.count
+    return writer.count, t_enc, t_render
+
+
+def run(args: argparse.Namespace) -> int:
+    from lp3d.lift.inference import load_encoder
+    from lp3d.photo import DETECT_MAX_SIDE
+    from lp3d.photo.video import VideoError, expected_frames, face_crops, read_video
+
+    out_path = check_output(args.output, VIDEO_SUFFIXES)
+    check_distinct([("input video", args.input)], [("-o", out_path)])
+    encoder = load_encoder(resolve_model(args.model), args.backend, superres=not args.raw)
+    sr = encoder.superres
+    size = args.resolution or (sr.output_resolution if sr is not None else 128)
+    meta, _ = read_video(args.input, 0)  # fail fast on an unreadable file
+    fps = float(args.fps or meta.get("fps") or 25.0)
+    w, h = meta["size"]
+    if args.raw:
+        how = "raw volume render (--raw)"
+    elif sr is not None:
+        how = f"super-resolved by {sr.description}"
+    else:
+        how = "raw volume render (the model has no super-resolution network)"
+    say(f"video: {args.input} {w}x{h} at {fps:g} fps; model {encoder.description}")
+    say(f"frames: {describe_size(sr, size)}; {how}")
+    if max(w, h) > 4 * DETECT_MAX_SIDE:
+        warn(f"{w}x{h} frames are large; detection runs on downscaled copies")
+
+    # Pass 1: where the face is in each frame (gaps filled from the nearest detection, then smoothed).
+    crops: list[Any] = []
+    if not args.no_detect:
+        _, frames = read_video(args.input, args.max_frames)
+        bar = progress(expected_frames(meta, args.max_frames), "detect")
+        try:
+            crops, missing = face_crops(frames, str(args.input), on_frame=bar.update)
+        except VideoError:
+            raise CLIError(_no_frames(args.input, meta)) from None
+        finally:
+            bar.close()
+        if missing:
+            warn(f"no face in {missing} of {len(crops)} frames; using the nearest detection")
+
+    # Pass 2: crop, encode, smooth the triplane over time, render the new view.
+    start = time.perf_counter()
+    n, t_enc, t_render = _lift_frames(args, encoder, crops, meta, out_path, fps, size)
     declared = meta["frames_declared"]
     expected = declared if declared is None or args.max_frames is None else min(declared, args.max_frames)
     if expected is not None and n < expected:

@@ -8,18 +8,20 @@ detection (:func:`nearest_hits`) and :func:`smooth_crops` damps the Haar box's j
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from lp3d.photo.detect import detect_face
 from lp3d.photo.framing import Crop
-from lp3d.photo.load import MAX_PIXELS, MAX_SIDE, PhotoError
+from lp3d.photo.load import MAX_PIXELS, MAX_SIDE, NoFaceError, PhotoError
 
 __all__ = [
     "VIDEO_CROP_SMOOTHING",
+    "face_crops",
     "VIDEO_SCAN_TIMEOUT_S",
     "VideoError",
     "count_video_frames",
@@ -162,3 +164,31 @@ def smooth_crops(crops: list[Crop], alpha: float) -> list[Crop]:
     return [
         replace(c, **dict(zip(keys, map(float, v), strict=True))) for c, v in zip(crops, vals, strict=True)
     ]
+
+
+def face_crops(
+    frames: Iterable[np.ndarray],
+    name: str,
+    *,
+    smoothing: float = VIDEO_CROP_SMOOTHING,
+    on_frame: Callable[[], object] | None = None,
+) -> tuple[list[Crop], int]:
+    """``(crop per frame, frames without a face)``: the face found in each frame (:func:`detect_face`),
+    frames without one taking the nearest detection, then :func:`smooth_crops`. ``on_frame`` is called
+    after each frame (a progress bar). Raises :class:`VideoError` when no frame decodes and
+    :class:`NoFaceError` when no frame has a face; ``name`` (the file) leads both messages."""
+    found: list[Crop | None] = []
+    for frame in frames:
+        face = detect_face(frame)
+        found.append(None if face is None else face.crop)
+        if on_frame is not None:
+            on_frame()
+    if not found:
+        raise VideoError(f"{name}: no frame could be decoded")
+    hits = [i for i, c in enumerate(found) if c is not None]
+    if not hits:
+        raise NoFaceError(
+            f"{name}: no face found in any frame; for a centred portrait video pass --no-detect"
+        )
+    crops = [found[j] for j in nearest_hits(np.asarray(hits), len(found))]
+    return smooth_crops(crops, smoothing), len(found) - len(hits)  # type: ignore[arg-type]
