@@ -33,13 +33,13 @@ import torch.nn.functional as F
 
 from lp3d.lift.inference import load_encoder
 from lp3d.train import TRAIN_CONFIGS, SceneBounds, build_teacher
-from lp3d.training.eval import (
+from lp3d.training.eval_metrics import psnr
+from lp3d.training.eval_setup import (
     EvalSettings,
     _render_truth,
     _views,
     input_camera,
     input_yaws,
-    psnr,
     reference_teachers,
 )
 

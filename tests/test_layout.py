@@ -156,3 +156,58 @@ def test_old_module_names_still_run_with_python_m() -> None:
         [sys.executable, "-m", "lp3d.demo", "--help"], capture_output=True, text=True, timeout=120
     )
     assert done.returncode == 0 and done.stdout.startswith("usage: lp3d demo"), done.stderr
+
+
+#: Longest module, and longest function body (docstring excluded), that need no written reason.
+MAX_MODULE_LINES = 500
+MAX_FUNCTION_LINES = 80
+
+
+def test_modules_stay_small() -> None:
+    long = {
+        name: n
+        for name, path in MODULES.items()
+        if (n := len(path.read_text().splitlines())) > MAX_MODULE_LINES
+    }
+    assert not long, f"modules over {MAX_MODULE_LINES} lines: {long}"
+
+
+def _function_lengths(path: Path) -> list[tuple[str, int, bool]]:
+    """``(name, lines without the docstring, a '# Long because:' comment above it)`` per function."""
+    lines = path.read_text().splitlines()
+    found = []
+    for node in ast.walk(ast.parse("\n".join(lines))):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            length = node.end_lineno - node.lineno + 1
+            first = node.body[0]
+            if (
+                isinstance(first, ast.Expr)
+                and isinstance(first.value, ast.Constant)
+                and isinstance(first.value.value, str)
+            ):
+                length -= first.end_lineno - first.lineno + 1
+            top = min([d.lineno for d in node.decorator_list] + [node.lineno])
+            reason = any("# Long because:" in lines[i] for i in range(max(0, top - 4), top - 1))
+            found.append((node.name, length, reason))
+    return found
+
+
+def test_long_functions_say_why() -> None:
+    unexplained = [
+        f"{name}.{fn} ({n} lines)"
+        for name, path in MODULES.items()
+        for fn, n, reason in _function_lengths(path)
+        if n > MAX_FUNCTION_LINES and not reason
+    ]
+    assert not unexplained, (
+        f"functions over {MAX_FUNCTION_LINES} lines without '# Long because:': {unexplained}"
+    )
+
+
+def test_the_length_check_reads_reasons(tmp_path) -> None:
+    body = "".join(f"    x{i} = {i}\n" for i in range(MAX_FUNCTION_LINES + 1))
+    plain, explained = tmp_path / "a.py", tmp_path / "b.py"
+    plain.write_text(f'def f():\n    """Doc."""\n{body}')
+    explained.write_text(f"# Long because: one table, read top to bottom.\ndef f():\n{body}")
+    assert _function_lengths(plain) == [("f", MAX_FUNCTION_LINES + 2, False)]  # def line + body
+    assert _function_lengths(explained) == [("f", MAX_FUNCTION_LINES + 2, True)]
