@@ -1,0 +1,43 @@
+"""The plane basis (:class:`PlaneBasis`, CPU configurations; not in the paper): a learned basis of
+planes, mixed by coefficients regressed from DeepLab's features and added to the head's output.
+
+Imports lp3d.nets.encoder_config.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from lp3d.nets.encoder_config import EncoderConfig
+
+
+class PlaneBasis(nn.Module):
+    """``forward(aspp features (B, C_a, R, R)) -> planes (B, 3·32, T, T)``: Σ_k c_k · component_k.
+
+    The coefficients c (B, K) come from an MLP on the features average-pooled to ``basis_pool``²
+    (keeping a coarse layout); ``components`` (K, 3·32, R_b, R_b) is learnt, and bilinearly
+    upsampled to T. The last layer starts at zero, so an untrained branch adds nothing.
+    """
+
+    def __init__(self, cfg: EncoderConfig) -> None:
+        super().__init__()
+        k, r = cfg.basis_components, cfg.basis_resolution
+        self.pool = cfg.basis_pool
+        self.triplane_resolution = cfg.triplane_resolution
+        self.coefficients = nn.Sequential(
+            nn.Flatten(),
+            nn.Linear(cfg.aspp_channels * cfg.basis_pool**2, cfg.basis_hidden),
+            nn.LeakyReLU(0.01),
+            nn.Linear(cfg.basis_hidden, k),
+        )
+        self.components = nn.Parameter(torch.zeros(k, 3 * cfg.plane_channels, r, r))
+
+    def forward(self, features: Tensor) -> Tensor:
+        c = self.coefficients(F.adaptive_avg_pool2d(features, self.pool))
+        planes = torch.einsum("bk,kchw->bchw", c, self.components)
+        t = self.triplane_resolution
+        if planes.shape[-1] != t:
+            planes = F.interpolate(planes, size=(t, t), mode="bilinear", align_corners=False)
+        return planes
