@@ -162,7 +162,7 @@ class PairSet:
     @staticmethod
     def build(key: PairKey, encoder: Any, teacher: Any, path: Path, *, progress: bool = True) -> Path:
         """Render the pairs of ``key`` into ``path`` (written whole or not at all)."""
-        from lp3d.render.native import render_triplane, renderer
+        from lp3d.render.native import native_triplane, renderer
         from lp3d.teachers import ProceduralTeacher
         from lp3d.training.synthetic_data import teacher_fingerprint
 
@@ -181,7 +181,7 @@ class PairSet:
                 bar = tqdm(total=key.identities, desc="rendering SR pairs", unit="identity", file=sys.stderr)
             for i in range(key.identities):
                 seed = key.first_seed + i
-                truth = render_triplane(teacher.sample(seed))
+                truth = native_triplane(teacher.sample(seed))
                 ref = _camera(ref_dist, key.camera_seed, 0, seed)
                 image = render(
                     truth,
@@ -192,7 +192,7 @@ class PairSet:
                     outputs=["rgb"],
                 )["rgb"]
                 planes = encoder.run(image[None].astype(np.float32))[0]
-                student = render_triplane(pkg.triplane(planes))
+                student = native_triplane(pkg.triplane(planes))
                 cams = np.stack([_camera(mv_dist, key.camera_seed, 1 + v, seed) for v in range(key.views)])
                 samples = {
                     "depth_resolution": key.depth_resolution,
@@ -200,7 +200,7 @@ class PairSet:
                 }
                 raw = render(student, cams, resolution=key.raw_resolution, outputs=["features"], **samples)
                 own = render(
-                    render_triplane(low.sample(seed)),
+                    native_triplane(low.sample(seed)),
                     cams,
                     resolution=key.raw_resolution,
                     outputs=["features"],
