@@ -116,10 +116,10 @@ def test_superres_onnx_matches_torch(tmp_path, config) -> None:
 
 def test_export_refuses_a_network_that_disagrees(tmp_path, monkeypatch) -> None:
     """When onnxruntime and torch disagree beyond the tolerance: ParityError, and no file left behind."""
-    import lp3d.training.export
+    import lp3d.training.export_superres
     from lp3d.training.export import ParityError
 
-    monkeypatch.setattr(lp3d.training.export, "check_superres_onnx", lambda sr, path: 0.5)
+    monkeypatch.setattr(lp3d.training.export_superres, "check_superres_onnx", lambda sr, path: 0.5)
     with pytest.raises(ParityError, match="max abs error 0.5 > 0.001"):
         package_superres(random_sr(cli_sr_config()), tmp_path / "m.onnx")
     assert not superres_path(tmp_path / "m.onnx").exists()
@@ -180,7 +180,7 @@ def weights_file(encoder: torch.nn.Module, path: Path, **extra: object) -> dict[
 
 def test_torch_backend_reads_the_network_from_weights(package, tmp_path) -> None:
     """``lp3d.training.export --weights`` files carry the network for ``--backend torch``; same images."""
-    from lp3d.training.export import _superres_weights
+    from lp3d.training.export_superres import _superres_weights
 
     weights = tmp_path / "tiny.pt"
     data = weights_file(package["encoder"], weights)

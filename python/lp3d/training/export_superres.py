@@ -1,0 +1,186 @@
+"""A super-resolution network in a model package: exported to ONNX (:func:`export_superres`), checked
+(:func:`check_superres_onnx`), recorded in the sidecar (:func:`package_superres`) and in the weights file
+(:func:`add_superres_to_weights`). Used by :mod:`lp3d.training.export`.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from lp3d.atomic import atomic_path
+from lp3d.lift.model_package import (
+    ModelPackageError,
+    decoder_digest,
+    superres_entry,
+    superres_path,
+)
+from lp3d.nets.superres import FoldedSuperResolution, SuperResolution
+from lp3d.training.export_onnx import (
+    MIN_OPSET,
+    ExportError,
+    ParityError,
+)
+
+
+class _FeaturesToImage(nn.Module):
+    """``features -> image`` of a folded SR (a module of its own so the exporter sees one input)."""
+
+    def __init__(self, sr: SuperResolution) -> None:
+        super().__init__()
+        self.folded = FoldedSuperResolution(sr.eval())
+
+    def forward(self, features: Tensor) -> Tensor:
+        return self.folded(features)
+
+
+def export_superres(sr: SuperResolution, path: str | os.PathLike[str], *, opset: int = MIN_OPSET) -> Path:
+    """Write ``sr`` as ONNX: input ``features`` (B, C, R, R), output ``image`` (B, 3, R_out, R_out),
+    dynamic batch, atomically. The graph is the folded form (plain convolutions; same outputs)."""
+    if opset < MIN_OPSET:
+        raise ValueError(f"opset must be >= {MIN_OPSET}, got {opset}")
+    path = Path(path)
+    module = _FeaturesToImage(sr).eval()
+    cfg = sr.config
+    example = torch.zeros(1, cfg.in_channels, cfg.input_resolution, cfg.input_resolution)
+    with atomic_path(path) as tmp, warnings.catch_warnings(), torch.no_grad():
+        warnings.simplefilter("ignore")  # legacy-exporter deprecation and tracer warnings
+        torch.onnx.export(
+            module,
+            (example,),
+            str(tmp),
+            dynamo=False,
+            opset_version=opset,
+            input_names=["features"],
+            output_names=["image"],
+            dynamic_axes={"features": {0: "batch"}, "image": {0: "batch"}},
+        )
+    return path
+
+
+def check_superres_onnx(
+    sr: SuperResolution, path: str | os.PathLike[str], *, batch: int = 2, seed: int = 0
+) -> float:
+    """Max absolute difference between onnxruntime and the (unfolded) PyTorch SR on seeded features
+    uniform in [-1, 1] (the range of the renderer's features), (batch, C, R, R)."""
+    import onnxruntime as ort
+
+    cfg = sr.config
+    g = torch.Generator().manual_seed(seed)
+    r = cfg.input_resolution
+    features = torch.rand(batch, cfg.in_channels, r, r, generator=g) * 2 - 1
+    with torch.no_grad():
+        expected = sr.eval()(features).float().numpy()
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    (got,) = session.run(["image"], {"features": features.numpy()})
+    if got.shape != expected.shape:
+        raise ExportError(f"SR ONNX output shape {got.shape} != PyTorch {expected.shape}")
+    return float(np.max(np.abs(got - expected)))
+
+
+def package_superres(
+    sr: SuperResolution,
+    model_path: str | os.PathLike[str],
+    *,
+    about: dict[str, Any] | None = None,
+    opset: int = MIN_OPSET,
+    tolerance: float = 1e-3,
+) -> tuple[dict[str, Any], float]:
+    """Export ``sr`` to ``MODEL.superres.onnx`` beside ``model_path`` and check it with onnxruntime.
+
+    Returns ``(the sidecar's superres entry, max abs error)``. Raises :class:`ParityError` (and removes
+    the file) when the error exceeds ``tolerance``."""
+    path = export_superres(sr, superres_path(model_path), opset=opset)
+    err = check_superres_onnx(sr, path)
+    if not err <= tolerance:
+        path.unlink(missing_ok=True)
+        raise ParityError(
+            f"super-resolution ONNX vs PyTorch max abs error {err:.3g} > {tolerance:g}; removed {path}"
+        )
+    cfg = sr.config
+    entry = superres_entry(
+        path,
+        input_resolution=cfg.input_resolution,
+        output_resolution=cfg.output_resolution,
+        in_channels=cfg.in_channels,
+        about={**(about or {}), "config": cfg.to_dict(), "onnx_max_abs_error": err},
+    )
+    return entry, err
+
+
+def _superres_weights(sr: SuperResolution) -> dict[str, Any]:
+    """The ``superres`` entry of an inference-weights file (float32: the network is small)."""
+    return {
+        "config": sr.config.to_dict(),
+        "state": {k: v.detach().cpu().float().clone() for k, v in sr.state_dict().items()},
+    }
+
+
+def add_superres_to_weights(path: str | os.PathLike[str], sr: SuperResolution, decoder_sha256: str) -> Path:
+    """Add (or replace) the ``superres`` entry of an existing inference-weights file written by
+    :func:`save_weights`, atomically; its decoder must be the one the SR was made for."""
+    path = Path(path)
+    try:
+        data = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:  # torch raises many types for non-checkpoints
+        raise ExportError(
+            f"--weights {path}: cannot be read as a plain state-dict checkpoint ({e})"
+        ) from None
+    if not isinstance(data, dict) or data.get("format") != "lp3d-encoder-weights-v1":
+        raise ExportError(f"--weights {path}: not an lp3d inference-weights file (lp3d-encoder-weights-v1)")
+    try:
+        same = decoder_digest(data.get("decoder", {})) == decoder_sha256
+    except ModelPackageError as e:
+        raise ExportError(f"--weights {path}: {e}") from None
+    if not same:
+        raise ExportError(
+            f"--weights {path}: its decoder is not the one the super-resolution network was fit for"
+        )
+    data["superres"] = _superres_weights(sr)
+    with atomic_path(path) as tmp:
+        torch.save(data, tmp)
+    return path
+
+
+def _fitted_superres(
+    path: str, decoder_sha256: str, allow_worse: bool
+) -> tuple[SuperResolution, dict[str, Any]]:
+    """The SR of a finished ``lp3d.training.superres_fit`` checkpoint, checked against the model's decoder and
+    its own held-out score; ``(network, about)``."""
+    from lp3d.training.superres_fit import FitError, load_fit
+
+    try:
+        fit = load_fit(path)
+    except FitError as e:
+        raise ExportError(f"--superres: {e}") from None
+    if not fit.finished:
+        raise ExportError(
+            f"--superres {fit.path}: the fit stopped at step {fit.step} of {fit.config.steps}; run the same "
+            "python -m lp3d.training.superres_fit command again to finish it"
+        )
+    if fit.model.get("decoder_sha256") != decoder_sha256:
+        raise ExportError(
+            f"--superres {fit.path}: fitted for a model with another decoder ({fit.model.get('path')}); its "
+            "feature images are not this model's"
+        )
+    report = fit.report or {}
+    if not report.get("gain_db", 0.0) > 0 and not allow_worse:
+        ours, bilinear = (float(report.get(k, float("nan"))) for k in ("superres_psnr", "bilinear_psnr"))
+        raise ExportError(
+            f"--superres {fit.path}: on its held-out pairs the SR ({ours:.2f} dB) does not beat bilinear "
+            f"upsampling of the raw render ({bilinear:.2f} dB); not worth shipping (--allow-worse-superres "
+            "to export it anyway)"
+        )
+    about = {
+        "source": "python -m lp3d.training.superres_fit",
+        "fit_checkpoint": str(fit.path),
+        "fit_config": fit.config.to_dict(),
+        "heldout": {k: v for k, v in report.items() if k != "per_pair"},
+    }
+    return fit.superres, about
