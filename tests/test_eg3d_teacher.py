@@ -13,6 +13,7 @@ import pytest
 import torch
 
 import lp3d.teachers.eg3d as eg3d_mod
+import lp3d.teachers.eg3d_loading
 from eg3d_standin import NUM_WS, PLANE_RES, W_DIM, Z_DIM, StandInGenerator
 from lp3d.render.camera import look_at_camera
 from lp3d.render.triplane import TriplaneData
@@ -166,8 +167,11 @@ def test_sample_batch_matches_sample() -> None:
     seeds = [7, 1, 7, 30]
     batch = teacher.sample_batch(seeds)
     assert [t.source for t in batch] == [f"eg3d seed {s}" for s in seeds]
+    # Equal up to float32 summation order: a batch of 2 and a batch of 1 go through different BLAS
+    # kernels (gemm vs gemv), which sum in another order. torch 2.15 on an AVX-512 CPU differs by
+    # 1.0e-6 on a value of 0.87 (about 10 float32 ulps), so the bound is relative as well.
     for s, tri in zip(seeds, batch, strict=True):
-        np.testing.assert_allclose(tri.planes, teacher.sample(s).planes, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(tri.planes, teacher.sample(s).planes, rtol=2e-6, atol=1e-6)
     assert teacher.sample_batch([]) == []
 
 
@@ -362,7 +366,7 @@ def test_missing_source_says_what_to_pass(tmp_path: Path, monkeypatch: pytest.Mo
     with pytest.raises(EG3DLoadError, match=r"missing dnnlib/, training/") as e:
         load_eg3d_generator(pkl, eg3d_source=tmp_path / "empty")
     assert "--eg3d-source" in str(e.value)
-    monkeypatch.setattr(eg3d_mod, "_eg3d_source_importable", lambda: False)
+    monkeypatch.setattr(lp3d.teachers.eg3d_loading, "_eg3d_source_importable", lambda: False)
     with pytest.raises(EG3DLoadError, match="not importable") as e:
         load_eg3d_generator(pkl)
     assert EG3D_HINT in str(e.value)

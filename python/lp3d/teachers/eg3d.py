@@ -52,14 +52,9 @@ on the user's explicit request; load only files you trust.
 
 from __future__ import annotations
 
-import contextlib
-import importlib.util
 import math
 import os
-import pickle
-import sys
-from collections.abc import Iterator, Sequence
-from pathlib import Path
+from collections.abc import Sequence
 from typing import Any, Literal
 
 import numpy as np
@@ -76,7 +71,17 @@ from lp3d.render.camera import (
     validate_camera,
 )
 from lp3d.render.settings import RenderSettings
-from lp3d.render.triplane import TriplaneData, effective_decoder_weights
+from lp3d.render.triplane import TriplaneData
+from lp3d.teachers.eg3d_decoder import (
+    _decoder_effective_weights,
+    _get,
+)
+from lp3d.teachers.eg3d_loading import (
+    EG3D_HINT,
+    EG3D_SOURCE_PACKAGES,
+    EG3DLoadError,
+    load_eg3d_generator,
+)
 
 __all__ = [
     "CONDITIONING_CAMERAS",
@@ -89,12 +94,6 @@ __all__ = [
     "default_conditioning_pose",
     "load_eg3d_generator",
 ]
-
-#: What to tell a user who has no (usable) EG3D generator.
-EG3D_HINT = (
-    "pass --teacher-pkl PATH to an EG3D FFHQ generator pickle (e.g. ffhqrebalanced512-128.pkl) "
-    "and --eg3d-source PATH to a checkout of NVlabs/eg3d/eg3d"
-)
 
 
 def _eg3d_fov_to_focal(fov_degrees: float) -> float:
@@ -116,134 +115,14 @@ CONDITIONING_CAMERAS: dict[str, tuple[float, float, float]] = {
 #: The focal length alone of each script's conditioning camera (:data:`CONDITIONING_CAMERAS`).
 CONDITIONING_FOCALS: dict[str, float] = {name: cam[2] for name, cam in CONDITIONING_CAMERAS.items()}
 Conditioning = Literal["gen_videos", "gen_samples"]
-#: Top-level packages of EG3D's source tree that its pickles import while being unpickled.
-EG3D_SOURCE_PACKAGES = ("torch_utils", "dnnlib", "training")
 
 NoiseMode = Literal["const", "none", "random"]
 #: The super-resolution w: "ones" (the paper), "mean" (``w_avg``) or an explicit (w_dim,) vector.
 SrW = Literal["ones", "mean"] | np.ndarray | Tensor
 
 
-class EG3DLoadError(RuntimeError):
-    """The EG3D pickle or EG3D's source tree is missing or unusable; the message says what to pass."""
-
-
 # --------------------------------------------------------------------------------------------------
 # Loading
-
-
-@contextlib.contextmanager
-def _on_sys_path(directory: Path | None) -> Iterator[None]:
-    """Put ``directory`` first on ``sys.path`` for the duration only (modules imported stay imported)."""
-    if directory is None:
-        yield
-        return
-    entry = str(directory)
-    sys.path.insert(0, entry)
-    try:
-        yield
-    finally:
-        with contextlib.suppress(ValueError):
-            sys.path.remove(entry)
-
-
-def _eg3d_source_importable() -> bool:
-    """Whether EG3D's source packages are already importable without ``eg3d_source``."""
-    return all(
-        name in sys.modules or importlib.util.find_spec(name) is not None for name in EG3D_SOURCE_PACKAGES
-    )
-
-
-def _check_not_shadowed(source: Path) -> None:
-    """Refuse when a package named like EG3D's is already imported from elsewhere.
-
-    Unpickling imports ``training`` etc. by name; a different, already imported ``training`` (another
-    project's) would be used silently instead of EG3D's.
-    """
-    src = source.resolve()
-    for name in EG3D_SOURCE_PACKAGES:
-        mod = sys.modules.get(name)
-        if mod is None:
-            continue
-        locations = [Path(p).resolve() for p in getattr(mod, "__path__", None) or []]
-        file = getattr(mod, "__file__", None)
-        if file:
-            locations.append(Path(file).resolve().parent)
-        if locations and not any(loc.is_relative_to(src) for loc in locations):
-            raise EG3DLoadError(
-                f"a module named {name!r} is already imported from {str(locations[0])!r}, which would shadow "
-                f"EG3D's in {str(src)!r}; load the EG3D pickle in a fresh process (or before importing it)"
-            )
-
-
-def _resolve_eg3d_source(eg3d_source: str | os.PathLike[str]) -> Path:
-    """The directory holding ``torch_utils/``, ``dnnlib/`` and ``training/``.
-
-    Accepts the ``eg3d/eg3d`` folder itself or the repository root above it (a common slip).
-    """
-    root = Path(eg3d_source).expanduser()
-    if not root.is_dir():
-        raise EG3DLoadError(f"EG3D source directory not found: {str(root)!r}; {EG3D_HINT}")
-    for candidate in (root, root / "eg3d"):
-        if all((candidate / pkg).is_dir() for pkg in EG3D_SOURCE_PACKAGES):
-            return candidate
-    missing = [pkg for pkg in EG3D_SOURCE_PACKAGES if not (root / pkg).is_dir()]
-    raise EG3DLoadError(
-        f"{str(root)!r} is not EG3D's source tree "
-        f"(missing {', '.join(p + '/' for p in missing)}); {EG3D_HINT}"
-    )
-
-
-def load_eg3d_generator(
-    path: str | os.PathLike[str] | None, *, eg3d_source: str | os.PathLike[str] | None = None
-) -> Any:
-    """Unpickle an official EG3D network pickle and return its ``G_ema`` (as ``legacy.load_network_pkl``).
-
-    **This executes code from the pickle** (EG3D pickles carry their classes' source and run it); only
-    call it on a file you trust, at the user's request. ``eg3d_source`` (a checkout of NVlabs/eg3d's
-    ``eg3d/`` folder, or the repository root) is put on ``sys.path`` while unpickling only; without it,
-    EG3D's ``torch_utils``, ``dnnlib`` and ``training`` must already be importable. Raises
-    :class:`EG3DLoadError` naming what to provide when the pickle or the source is missing, when
-    unpickling fails, or when the file is not a dict with ``G_ema``. The module is returned as
-    unpickled (on the CPU, in whatever train/eval mode it was saved).
-    """
-    if path is None:
-        raise EG3DLoadError(f"no EG3D generator pickle given; {EG3D_HINT}")
-    pkl = Path(path).expanduser()
-    if not pkl.is_file():
-        raise EG3DLoadError(f"EG3D generator pickle not found: {str(pkl)!r}; {EG3D_HINT}")
-    source: Path | None = None
-    if eg3d_source is not None:
-        source = _resolve_eg3d_source(eg3d_source)
-        _check_not_shadowed(source)
-    elif not _eg3d_source_importable():
-        raise EG3DLoadError(
-            f"unpickling {str(pkl)!r} needs EG3D's source tree ({', '.join(EG3D_SOURCE_PACKAGES)}), "
-            f"which is not importable; {EG3D_HINT}"
-        )
-    try:
-        with _on_sys_path(source), open(pkl, "rb") as f:
-            data = pickle.load(f)
-    except ModuleNotFoundError as e:
-        top = (e.name or "").split(".")[0]
-        if top in EG3D_SOURCE_PACKAGES:
-            where = f"not found in {str(source)!r}" if source is not None else "not importable"
-            raise EG3DLoadError(
-                f"unpickling {str(pkl)!r} needs module {e.name!r} from EG3D's source tree, {where}; "
-                f"{EG3D_HINT}"
-            ) from e
-        raise EG3DLoadError(
-            f"unpickling {str(pkl)!r} needs the Python package {e.name!r} (an EG3D dependency): install it"
-        ) from e
-    except Exception as e:  # a corrupt file or a source tree of another version: say which file
-        raise EG3DLoadError(f"could not unpickle {str(pkl)!r} ({type(e).__name__}: {e}); {EG3D_HINT}") from e
-    if not isinstance(data, dict) or "G_ema" not in data:
-        got = f"a dict with keys {sorted(map(str, data))}" if isinstance(data, dict) else type(data).__name__
-        raise EG3DLoadError(
-            f"{str(pkl)!r} is not an EG3D network pickle: expected a dict with key 'G_ema' "
-            f"(as written by EG3D's training loop), got {got}; {EG3D_HINT}"
-        )
-    return data["G_ema"]
 
 
 # --------------------------------------------------------------------------------------------------
@@ -267,79 +146,6 @@ def default_conditioning_pose(
     radius = float(rk.get("avg_camera_radius", FFHQ_RADIUS))
     h, v, focal = CONDITIONING_CAMERAS[conditioning]
     return pack_label(lookat_pose(h, v, radius=radius, lookat=pivot), intrinsics(focal))
-
-
-def _get(obj: Any, dotted: str) -> Any:
-    """``obj.a.b`` for ``"a.b"``, or a TypeError naming the missing attribute."""
-    cur = obj
-    for i, part in enumerate(dotted.split(".")):
-        if not hasattr(cur, part):
-            have = ".".join(dotted.split(".")[:i]) or "the generator"
-            raise TypeError(
-                f"generator does not have EG3D's TriPlaneGenerator interface: {have} has no {part!r} "
-                f"(needed: generator.{dotted})"
-            )
-        cur = getattr(cur, part)
-    return cur
-
-
-def _fc_lr_multiplier(layer: Any, name: str) -> float:
-    """The ``lr_multiplier`` of a StyleGAN2 ``FullyConnectedLayer``, checked against its gains.
-
-    EG3D's layer stores ``weight_gain = lr_multiplier / sqrt(in_features)`` and ``bias_gain =
-    lr_multiplier`` (no ``lr_multiplier`` attribute); accept any of the three.
-    """
-    in_features = int(layer.weight.shape[1])
-    weight_gain = getattr(layer, "weight_gain", None)
-    lr: Any = getattr(layer, "bias_gain", None)
-    if lr is None:
-        lr = getattr(layer, "lr_multiplier", None)
-    if lr is None and weight_gain is not None:
-        lr = float(weight_gain) * math.sqrt(in_features)
-    if lr is None:
-        raise TypeError(
-            f"{name} does not look like StyleGAN2's FullyConnectedLayer (no weight_gain, bias_gain or "
-            "lr_multiplier), so its effective weights are unknown"
-        )
-    lr = float(lr)
-    if weight_gain is not None and not math.isclose(
-        float(weight_gain), lr / math.sqrt(in_features), rel_tol=1e-6
-    ):
-        raise ValueError(
-            f"{name}: weight_gain {float(weight_gain)!r} != lr_multiplier / sqrt(in_features) = "
-            f"{lr / math.sqrt(in_features)!r}; not a StyleGAN2 FullyConnectedLayer"
-        )
-    if getattr(layer, "activation", "linear") != "linear":
-        raise ValueError(f"{name}: activation must be 'linear' (EG3D's OSGDecoder), got {layer.activation!r}")
-    return lr
-
-
-def _decoder_effective_weights(decoder: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """EG3D ``OSGDecoder`` -> effective ``(w0 (64, 32), b0 (64,), w1 (33, 64), b1 (33,))`` float32."""
-    net = _get(decoder, "net")
-    if len(net) != 3:
-        raise ValueError(
-            f"decoder.net must be [FC, Softplus, FC] (EG3D's OSGDecoder), got {len(net)} modules"
-        )
-    act = net[1]
-    # lp3d's renderers hard-code torch's default softplus (beta 1, threshold 20), as EG3D uses.
-    if not isinstance(act, torch.nn.Softplus) or act.beta != 1 or act.threshold != 20:
-        raise ValueError(
-            f"decoder.net[1] must be torch.nn.Softplus() with default beta/threshold, got {act!r}"
-        )
-    lr0 = _fc_lr_multiplier(net[0], "decoder.net[0]")
-    lr2 = _fc_lr_multiplier(net[2], "decoder.net[2]")
-    if lr0 != lr2:  # OSGDecoder builds both layers with the same decoder_lr_mul
-        raise ValueError(f"decoder layers have different lr_multipliers ({lr0} and {lr2})")
-
-    def arrays(layer: Any) -> tuple[np.ndarray, np.ndarray]:
-        w = layer.weight.detach().to("cpu", torch.float32).numpy()
-        b = layer.bias
-        b = np.zeros(w.shape[0], np.float32) if b is None else b.detach().to("cpu", torch.float32).numpy()
-        return w, b
-
-    (w0, b0), (w1, b1) = arrays(net[0]), arrays(net[2])
-    return effective_decoder_weights(w0, b0, w1, b1, lr_multiplier=lr0)
 
 
 def _check_seed(seed: int) -> int:
