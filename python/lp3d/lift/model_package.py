@@ -25,15 +25,15 @@ the encoder was trained with and the scene bounds. The sidecar carries exactly t
 :func:`save_model_package` writes the sidecar (atomically) next to an ``.onnx`` file;
 :func:`load_model_package` reads it back, given either the ``.onnx`` or the ``.json`` path;
 :func:`set_package_superres` adds (or replaces) the super-resolution entry of an existing sidecar.
+The format constants, :class:`ModelPackageError` and the checks of each field are in
+:mod:`lp3d.lift.sidecar` (and importable from here).
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-import math
 import os
-import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,7 +43,21 @@ import numpy as np
 
 from lp3d.array_cache import file_sha256
 from lp3d.atomic import atomic_path
-from lp3d.render.settings import HIDDEN, N_CHANNELS, N_OUT
+from lp3d.lift.sidecar import (
+    _DECODER_SHAPES,
+    PACKAGE_FORMAT,
+    PACKAGE_FORMAT_VERSION,
+    ModelPackageError,
+    SuperresEntry,
+    _check_array,
+    _check_bounds,
+    _parse_superres,
+    _read_sidecar,
+    _sidecar_decoder,
+    _sidecar_field,
+    verify_superres_file,
+)
+from lp3d.render.settings import N_CHANNELS
 from lp3d.render.triplane import TriplaneData
 
 __all__ = [
@@ -62,45 +76,6 @@ __all__ = [
     "superres_path",
     "verify_superres_file",
 ]
-
-#: The ``format`` string every sidecar carries.
-PACKAGE_FORMAT = "lp3d-model-package"
-#: The only ``format_version`` this reader accepts (bump on incompatible changes).
-PACKAGE_FORMAT_VERSION = 1
-
-_DECODER_SHAPES: dict[str, tuple[int, ...]] = {
-    "w0": (HIDDEN, N_CHANNELS),
-    "b0": (HIDDEN,),
-    "w1": (N_OUT, HIDDEN),
-    "b1": (N_OUT,),
-}
-
-
-class ModelPackageError(ValueError):
-    """A missing, unreadable or inconsistent model package; the message names the file and the field."""
-
-
-@dataclass(frozen=True)
-class SuperresEntry:
-    """A package's super-resolution network (the sidecar's ``superres`` object).
-
-    ``path`` is the ONNX file (beside the sidecar; it may not exist: :func:`verify_superres_file`
-    checks it and its ``sha256`` when it is loaded). The network maps a raw feature render
-    ``features (B, in_channels, input_resolution, input_resolution)`` (the renderer's ``features``
-    output, rgb = its first 3 channels, values in about [-1, 1]) to ``image (B, 3, output_resolution,
-    output_resolution)`` in about [-1, 1]. ``about`` is informational (how it was made, its scores).
-    """
-
-    path: Path
-    input_resolution: int
-    output_resolution: int
-    in_channels: int
-    sha256: str
-    about: dict[str, Any] | None = None
-
-    @property
-    def scale(self) -> int:
-        return self.output_resolution // self.input_resolution
 
 
 @dataclass(frozen=True, eq=False)
@@ -202,14 +177,6 @@ def _decoder_arrays(decoder: Any) -> dict[str, np.ndarray]:
     return out
 
 
-def _check_array(where: str, arr: np.ndarray) -> None:
-    name = where.rsplit(".", 1)[-1]
-    if arr.shape != _DECODER_SHAPES[name]:
-        raise ModelPackageError(f"{where}: shape must be {_DECODER_SHAPES[name]}, got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ModelPackageError(f"{where}: contains NaN/Inf")
-
-
 def _bounds_of(bounds: Any) -> tuple[float, float, float]:
     """``(box_warp, ray_start, ray_end)`` from a mapping, an object with attributes or a 3-sequence."""
     keys = ("box_warp", "ray_start", "ray_end")
@@ -227,15 +194,6 @@ def _bounds_of(bounds: Any) -> tuple[float, float, float]:
         raise ModelPackageError(f"bounds must be numbers: {e}") from None
     _check_bounds("bounds", box_warp, ray_start, ray_end)
     return box_warp, ray_start, ray_end
-
-
-def _check_bounds(where: str, box_warp: float, ray_start: float, ray_end: float) -> None:
-    if not (math.isfinite(box_warp) and box_warp > 0):
-        raise ModelPackageError(f"{where}: box_warp must be finite and > 0, got {box_warp!r}")
-    if not (math.isfinite(ray_start) and ray_start >= 0):
-        raise ModelPackageError(f"{where}: ray_start must be finite and >= 0, got {ray_start!r}")
-    if not (math.isfinite(ray_end) and ray_end > ray_start):
-        raise ModelPackageError(f"{where}: ray_end must be finite and > ray_start, got {ray_end!r}")
 
 
 def _config_dict(config: Any) -> dict[str, Any]:
@@ -365,77 +323,6 @@ def set_package_superres(path: str | os.PathLike[str], superres: Mapping[str, An
     return side
 
 
-_SHA256 = re.compile(r"[0-9a-f]{64}")
-
-
-def _parse_superres(where: str, entry: Any, folder: Path) -> SuperresEntry:
-    """Validate a ``superres`` object; errors name the sidecar (``where``) and the field."""
-    if not isinstance(entry, dict):
-        raise ModelPackageError(f"{where}: field 'superres' must be an object, got {type(entry).__name__}")
-
-    def field(name: str, kind: type) -> Any:
-        if name not in entry:
-            raise ModelPackageError(f"{where}: missing field 'superres.{name}'")
-        value = entry[name]
-        if isinstance(value, bool) or not isinstance(value, kind):
-            raise ModelPackageError(
-                f"{where}: field 'superres.{name}' has the wrong type ({type(value).__name__})"
-            )
-        return value
-
-    model = field("model", str)
-    if Path(model).name != model or not model.lower().endswith(".onnx"):
-        raise ModelPackageError(
-            f"{where}: field 'superres.model' must be an .onnx file name beside the sidecar, got {model!r}"
-        )
-    r_in = field("input_resolution", int)
-    r_out = field("output_resolution", int)
-    channels = field("in_channels", int)
-    if not 8 <= r_in <= 4096:
-        raise ModelPackageError(
-            f"{where}: field 'superres.input_resolution' must be in [8, 4096], got {r_in}"
-        )
-    ratio = r_out // r_in if r_out > 0 else 0
-    if r_out % r_in or ratio < 2 or ratio & (ratio - 1) or r_out > 8192:
-        raise ModelPackageError(
-            f"{where}: field 'superres.output_resolution' ({r_out}) must be input_resolution ({r_in}) "
-            "times a power of two >= 2 (and at most 8192)"
-        )
-    if channels != N_CHANNELS:
-        raise ModelPackageError(
-            f"{where}: field 'superres.in_channels' must be {N_CHANNELS} (the renderer's feature image), "
-            f"got {channels}"
-        )
-    digest = field("sha256", str)
-    if not _SHA256.fullmatch(digest):
-        raise ModelPackageError(f"{where}: field 'superres.sha256' must be 64 lowercase hex digits")
-    about = entry.get("about")
-    if about is not None and not isinstance(about, dict):
-        raise ModelPackageError(f"{where}: field 'superres.about' must be an object")
-    return SuperresEntry(
-        path=folder / model,
-        input_resolution=r_in,
-        output_resolution=r_out,
-        in_channels=channels,
-        sha256=digest,
-        about=about,
-    )
-
-
-def verify_superres_file(entry: SuperresEntry) -> None:
-    """The SR file exists and has the recorded SHA-256 (:class:`ModelPackageError` naming it if not)."""
-    if not entry.path.is_file():
-        raise ModelPackageError(
-            f"{entry.path}: no such file (the package's field 'superres.model' names it beside the sidecar)"
-        )
-    digest = file_sha256(entry.path)
-    if digest != entry.sha256:
-        raise ModelPackageError(
-            f"{entry.path}: its SHA-256 ({digest[:12]}…) differs from the package's field 'superres.sha256' "
-            f"({entry.sha256[:12]}…): the file was changed or replaced after export"
-        )
-
-
 # ------------------------------------------------------------------------------------------ reading
 
 
@@ -447,33 +334,10 @@ def load_model_package(path: str | os.PathLike[str]) -> ModelPackage:
     """
     p = Path(path)
     side = p if p.suffix.lower() == ".json" else sidecar_path(p)
-    if not side.is_file():
-        raise ModelPackageError(
-            f"{side}: model package sidecar not found (a .onnx model needs its {side.name} beside it, "
-            "written by lp3d.lift.model_package.save_model_package; see docs/model-package.md)"
-        )
-    try:
-        data = json.loads(side.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise ModelPackageError(f"{side}: unreadable model package sidecar ({e})") from None
-    if not isinstance(data, dict) or data.get("format") != PACKAGE_FORMAT:
-        got = data.get("format") if isinstance(data, dict) else type(data).__name__
-        raise ModelPackageError(
-            f"{side}: not an lp3d model package (format {got!r}, expected {PACKAGE_FORMAT!r})"
-        )
-    if data.get("format_version") != PACKAGE_FORMAT_VERSION:
-        raise ModelPackageError(
-            f"{side}: format_version {data.get('format_version')!r} is not supported "
-            f"(this reader supports {PACKAGE_FORMAT_VERSION})"
-        )
+    data = _read_sidecar(side)
 
     def field(name: str, kind: type | tuple[type, ...]) -> Any:
-        if name not in data:
-            raise ModelPackageError(f"{side}: missing field {name!r}")
-        value = data[name]
-        if isinstance(value, bool) or not isinstance(value, kind):
-            raise ModelPackageError(f"{side}: field {name!r} has the wrong type ({type(value).__name__})")
-        return value
+        return _sidecar_field(side, data, name, kind)
 
     image_size = field("image_size", int)
     triplane_resolution = field("triplane_resolution", int)
@@ -483,20 +347,7 @@ def load_model_package(path: str | os.PathLike[str]) -> ModelPackage:
         float(field(k, (int, float))) for k in ("box_warp", "ray_start", "ray_end")
     )
     _check_bounds(str(side), box_warp, ray_start, ray_end)
-    dec = field("decoder", dict)
-    arrays: dict[str, np.ndarray] = {}
-    for name in _DECODER_SHAPES:
-        if name not in dec:
-            raise ModelPackageError(f"{side}: decoder.{name} missing")
-        try:
-            arr = np.asarray(dec[name], dtype=np.float32)
-        except (TypeError, ValueError) as e:
-            raise ModelPackageError(f"{side}: decoder.{name} is not a numeric array ({e})") from None
-        try:
-            _check_array(f"decoder.{name}", arr)
-        except ModelPackageError as e:
-            raise ModelPackageError(f"{side}: {e}") from None
-        arrays[name] = arr
+    arrays = _sidecar_decoder(side, field("decoder", dict))
     model_name = field("model", str) if "model" in data else p.with_suffix(".onnx").name
     if Path(model_name).name != model_name:
         raise ModelPackageError(

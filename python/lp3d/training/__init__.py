@@ -100,13 +100,21 @@ record N and every rank's RNG states: a resume on N processes is exact; on anoth
 allowed, with a note, and continues the same training up to float rounding. Without torchrun nothing
 of this runs and one process trains exactly as described above.
 
-The package, in import order (each module imports only those before it): :mod:`~lp3d.training.config`
-(:class:`TrainConfig`, :data:`TRAIN_CONFIGS`), :mod:`~lp3d.training.teacher_factory`
-(:func:`build_teacher`), :mod:`~lp3d.training.student` (:class:`Student`, :class:`SceneBounds`),
-:mod:`~lp3d.training.checkpoint` (:func:`load_checkpoint`, RNG states),
-:mod:`~lp3d.training.steps` (the per-step data and losses), :mod:`~lp3d.training.trainer`
-(:class:`Trainer`) and :mod:`~lp3d.training.cli` (``main``). ``lp3d.train`` re-exports these names
-for ``python -m lp3d.train`` and older imports.
+The training loop, in import order (each module imports only those before it):
+:mod:`~lp3d.training.config` (:class:`TrainConfig`, :data:`TRAIN_CONFIGS`),
+:mod:`~lp3d.training.teacher_factory` (:func:`build_teacher`), :mod:`~lp3d.training.student`
+(:class:`Student`, :class:`SceneBounds`), :mod:`~lp3d.training.checkpoint` (:func:`load_checkpoint`,
+RNG states), :mod:`~lp3d.training.steps` (the per-step data and losses), :mod:`~lp3d.training.optim`
+(the optimisers), :mod:`~lp3d.training.run_log` (``log.csv``), :mod:`~lp3d.training.resume` (what a
+resumed run must share with its checkpoint), :mod:`~lp3d.training.heldout` (the held-out curve and
+samples), :mod:`~lp3d.training.trainer` (:class:`Trainer`) and :mod:`~lp3d.training.cli` (``main``).
+Beside it: ``eval*`` (``lp3d eval``), ``export*`` (``lp3d export``), ``superres_fit*`` (a
+super-resolution network for a recipe without one), ``camera_sampling``, ``synthetic_data``,
+``run_dir``, ``distributed`` and ``tensorboard_log``. ``lp3d.train`` re-exports the public names
+below for ``python -m lp3d.train`` and older imports.
+
+May import: :mod:`lp3d.teachers`, :mod:`lp3d.nets`, :mod:`lp3d.render`, :mod:`lp3d.lift` and the
+plumbing modules. Not the command line (:mod:`lp3d.cli`).
 """
 
 import importlib
@@ -119,7 +127,7 @@ _EXPORTS = {
     "CHECKPOINT_FORMAT": "checkpoint",
     "CheckpointError": "checkpoint",
     "DESCRIPTION": "cli",
-    "LOG_COLUMNS": "trainer",
+    "LOG_COLUMNS": "run_log",
     "MAIN_WEIGHTS": "config",
     "NonFiniteError": "steps",
     "RECIPES": "config",

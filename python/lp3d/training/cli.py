@@ -10,6 +10,7 @@ import dataclasses
 import math
 import sys
 from pathlib import Path
+from typing import Any
 
 from lp3d.errors import EXIT_ERROR, EXIT_INTERRUPTED, run_command
 from lp3d.training import distributed
@@ -125,73 +126,26 @@ def run_cli(args: argparse.Namespace) -> int:
         distributed.shutdown()  # leaves torchrun's process group (a no-op for one process)
 
 
-def _main(args: argparse.Namespace) -> int:
-    # Errors are printed by every process (one rank may fail alone); under torchrun they name the rank.
-    def error(e: BaseException | str) -> None:
-        where = f" (rank {distributed.rank()})" if distributed.world_size() > 1 else ""
-        print(f"error{where}: {e}", file=sys.stderr)
+def _error(e: BaseException | str) -> None:
+    """Print an error; every process does (one rank may fail alone), and under torchrun names its rank."""
+    where = f" (rank {distributed.rank()})" if distributed.world_size() > 1 else ""
+    print(f"error{where}: {e}", file=sys.stderr)
 
+
+def _main(args: argparse.Namespace) -> int:
     try:
         if not (math.isfinite(args.dist_timeout) and args.dist_timeout > 0):
             raise ValueError(f"--dist-timeout must be a positive number of minutes, got {args.dist_timeout}")
         device = distributed.setup(args.device, timeout_minutes=args.dist_timeout).device
         ckpt = _load_shared_checkpoint(args.resume) if args.resume else None
-        if ckpt is not None:
-            cfg: TrainConfig = ckpt["train_config"]
-            if args.config is not None and args.config != cfg.name:
-                raise CheckpointError(
-                    f"--resume {args.resume}: the checkpoint was trained with configuration {cfg.name!r}, "
-                    f"not {args.config!r}; omit --config to resume it"
-                )
-            teacher_name = args.teacher or ckpt["teacher"]
-            out = Path(args.out) if args.out else Path(ckpt["path"]).parent.parent
-        else:
-            cfg = TRAIN_CONFIGS[args.config or "tiny"]
-            teacher_name = args.teacher or "procedural"
-            out = Path(args.out) if args.out else Path("runs") / cfg.name
-        if args.batch is not None:
-            cfg = dataclasses.replace(cfg, batch_size=args.batch)
-        if args.total_steps is not None:
-            if ckpt is not None and args.total_steps != cfg.total_steps:
-                raise CheckpointError(
-                    f"--total-steps {args.total_steps}: the checkpoint's schedule has {cfg.total_steps} "
-                    "steps; a resumed run keeps its schedule"
-                )
-            if args.total_steps < 1:
-                raise ValueError(f"--total-steps must be >= 1, got {args.total_steps}")
-            cfg = dataclasses.replace(cfg, **_scaled_schedule(args.total_steps, cfg))
-        if args.perceptual is not None:
-            cfg = dataclasses.replace(cfg, perceptual=args.perceptual)
-        if args.checkpoint_every is not None:
-            if args.checkpoint_every < 1:
-                raise ValueError(f"--checkpoint-every must be >= 1, got {args.checkpoint_every}")
-            cfg = dataclasses.replace(cfg, checkpoint_every=args.checkpoint_every)
-        if args.dataset_identities is not None:
-            if ckpt is not None and args.dataset_identities != cfg.dataset_identities:
-                raise CheckpointError(
-                    f"--dataset-identities {args.dataset_identities}: the checkpoint was trained on "
-                    f"{cfg.dataset_identities}; a resumed run keeps its dataset"
-                )
-            cfg = dataclasses.replace(cfg, dataset_identities=args.dataset_identities)
+        cfg, teacher_name, out = _run_of(args, ckpt)
+        cfg = _with_overrides(args, cfg, ckpt)
         perceptual = build_perceptual(
             cfg.perceptual, lpips_net=cfg.lpips_net, lpips_weights=args.lpips_weights
         )
         if perceptual is not None:
             perceptual = perceptual.to(device)
-        targs = resolve_teacher_args(
-            ckpt if ckpt is not None and teacher_name == ckpt["teacher"] else None,
-            teacher_pkl=args.teacher_pkl,
-            eg3d_source=args.eg3d_source,
-            conditioning=args.eg3d_conditioning,
-        )
-        recorded = resolve_teacher_args(ckpt) if ckpt is not None else None
-        if recorded is not None and _recordable(targs) != recorded:  # recorded paths are absolute
-            if targs["conditioning"] != recorded["conditioning"]:
-                raise CheckpointError(
-                    f"--eg3d-conditioning {targs['conditioning']}: the run was trained with "
-                    f"{recorded['conditioning']!r}; a resumed run keeps its teacher"
-                )
-            distributed.note(f"note: teacher arguments differ from the run's recorded ones: {targs}")
+        targs = _teacher_args(args, ckpt, teacher_name)
         teacher = build_teacher(
             teacher_name,
             triplane_resolution=cfg.triplane_resolution,
@@ -213,16 +167,91 @@ def _main(args: argparse.Namespace) -> int:
             teacher_args=targs,
         )
     except (ValueError, RuntimeError, FileNotFoundError) as e:
-        error(e)
+        _error(e)
         return EXIT_ERROR
     distributed.note(
         f"training {cfg.name!r} on {device} with the {teacher_name} teacher, batch {cfg.batch_size}, "
         f"from step {trainer.step} to {args.max_steps or cfg.total_steps}; run directory {out}"
     )
+    return _train(trainer, args.max_steps, out)
+
+
+def _run_of(args: argparse.Namespace, ckpt: dict[str, Any] | None) -> tuple[TrainConfig, str, Path]:
+    """``(config, teacher name, run directory)``: the checkpoint's on ``--resume``, else the options'."""
+    if ckpt is not None:
+        cfg: TrainConfig = ckpt["train_config"]
+        if args.config is not None and args.config != cfg.name:
+            raise CheckpointError(
+                f"--resume {args.resume}: the checkpoint was trained with configuration {cfg.name!r}, "
+                f"not {args.config!r}; omit --config to resume it"
+            )
+        teacher_name = args.teacher or ckpt["teacher"]
+        out = Path(args.out) if args.out else Path(ckpt["path"]).parent.parent
+    else:
+        cfg = TRAIN_CONFIGS[args.config or "tiny"]
+        teacher_name = args.teacher or "procedural"
+        out = Path(args.out) if args.out else Path("runs") / cfg.name
+    return cfg, teacher_name, out
+
+
+def _with_overrides(args: argparse.Namespace, cfg: TrainConfig, ckpt: dict[str, Any] | None) -> TrainConfig:
+    """``cfg`` with the options that override it (``--batch``, ``--total-steps``, ...); a resumed run
+    may not change its schedule or dataset."""
+    if args.batch is not None:
+        cfg = dataclasses.replace(cfg, batch_size=args.batch)
+    if args.total_steps is not None:
+        if ckpt is not None and args.total_steps != cfg.total_steps:
+            raise CheckpointError(
+                f"--total-steps {args.total_steps}: the checkpoint's schedule has {cfg.total_steps} "
+                "steps; a resumed run keeps its schedule"
+            )
+        if args.total_steps < 1:
+            raise ValueError(f"--total-steps must be >= 1, got {args.total_steps}")
+        cfg = dataclasses.replace(cfg, **_scaled_schedule(args.total_steps, cfg))
+    if args.perceptual is not None:
+        cfg = dataclasses.replace(cfg, perceptual=args.perceptual)
+    if args.checkpoint_every is not None:
+        if args.checkpoint_every < 1:
+            raise ValueError(f"--checkpoint-every must be >= 1, got {args.checkpoint_every}")
+        cfg = dataclasses.replace(cfg, checkpoint_every=args.checkpoint_every)
+    if args.dataset_identities is not None:
+        if ckpt is not None and args.dataset_identities != cfg.dataset_identities:
+            raise CheckpointError(
+                f"--dataset-identities {args.dataset_identities}: the checkpoint was trained on "
+                f"{cfg.dataset_identities}; a resumed run keeps its dataset"
+            )
+        cfg = dataclasses.replace(cfg, dataset_identities=args.dataset_identities)
+    return cfg
+
+
+def _teacher_args(
+    args: argparse.Namespace, ckpt: dict[str, Any] | None, teacher_name: str
+) -> dict[str, str | None]:
+    """How to build the teacher: the options, else (for the same teacher) the run's recorded ones; a
+    resumed run may not change the EG3D conditioning."""
+    targs = resolve_teacher_args(
+        ckpt if ckpt is not None and teacher_name == ckpt["teacher"] else None,
+        teacher_pkl=args.teacher_pkl,
+        eg3d_source=args.eg3d_source,
+        conditioning=args.eg3d_conditioning,
+    )
+    recorded = resolve_teacher_args(ckpt) if ckpt is not None else None
+    if recorded is not None and _recordable(targs) != recorded:  # recorded paths are absolute
+        if targs["conditioning"] != recorded["conditioning"]:
+            raise CheckpointError(
+                f"--eg3d-conditioning {targs['conditioning']}: the run was trained with "
+                f"{recorded['conditioning']!r}; a resumed run keeps its teacher"
+            )
+        distributed.note(f"note: teacher arguments differ from the run's recorded ones: {targs}")
+    return targs
+
+
+def _train(trainer: Trainer, max_steps: int | None, out: Path) -> int:
+    """Run the trainer to ``max_steps``; the exit status, with where to continue an interrupted run."""
     try:
-        trainer.train(args.max_steps)
+        trainer.train(max_steps)
     except NonFiniteError as e:
-        error(e)
+        _error(e)
         return EXIT_ERROR
     except KeyboardInterrupt:
         distributed.note(f"aborted; the last checkpoint is {latest_checkpoint(out)}")

@@ -1,20 +1,17 @@
 """The :class:`Trainer` of one run: models, optimisers, the run directory (log, checkpoints, samples),
-resuming, the held-out learning curve and the training loop. Its per-step methods are in
-:class:`lp3d.training.steps.TrainingSteps`.
+resuming and the training loop. Its per-step methods are in :class:`lp3d.training.steps.TrainingSteps`,
+the held-out learning curve and sample sheets in :class:`lp3d.training.heldout.HeldoutViews`, the
+optimisers in :mod:`lp3d.training.optim`, ``log.csv`` in :mod:`lp3d.training.run_log`.
 
-Imports the modules of :mod:`lp3d.training` before it (``config`` to ``steps``), not ``cli``."""
+Imports the modules of :mod:`lp3d.training` before it (``config`` to ``steps``, ``heldout``, ``optim``,
+``resume``, ``run_log``), not ``cli``."""
 
 from __future__ import annotations
 
-import csv
-import dataclasses
 import json
-import math
 import os
 import signal
-import statistics
 import threading
-from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -23,11 +20,9 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from lp3d.atomic import atomic_path
 from lp3d.nets.discriminator import DualDiscriminator
 from lp3d.teachers import Teacher
 from lp3d.training import distributed
-from lp3d.training.camera_sampling import sample_cameras
 from lp3d.training.checkpoint import (
     CHECKPOINT_FORMAT,
     CheckpointError,
@@ -38,8 +33,11 @@ from lp3d.training.checkpoint import (
     _rng_states,
     _set_rng_states,
 )
-from lp3d.training.config import TrainConfig, config_differences
+from lp3d.training.config import TrainConfig
+from lp3d.training.heldout import HeldoutViews
 from lp3d.training.losses import DistillationLoss
+from lp3d.training.optim import build_optimisers, student_lr_factor
+from lp3d.training.resume import check_resumable
 from lp3d.training.run_dir import (
     RunLock,
     checkpoint_path,
@@ -48,31 +46,16 @@ from lp3d.training.run_dir import (
     remove_stale_temporaries,
     set_aside_checkpoints_after,
 )
+from lp3d.training.run_log import LOG_COLUMNS as LOG_COLUMNS  # re-exported for older imports
+from lp3d.training.run_log import append_log, start_log
 from lp3d.training.steps import TrainingSteps
-from lp3d.training.student import SceneBounds, Student, principal_planes, render_teacher, render_views
-from lp3d.training.synthetic_data import SyntheticDataset, teacher_fingerprint
+from lp3d.training.student import SceneBounds, Student, principal_planes
+from lp3d.training.synthetic_data import SyntheticDataset
 from lp3d.training.teacher_factory import _recordable, resolve_teacher_args, teacher_superres_state
 from lp3d.training.tensorboard_log import TensorBoardLog
 
-LOG_COLUMNS = [
-    "step",
-    "stage",
-    "reference",
-    "seconds",
-    "loss",
-    "tri",
-    *[f"mv_{t}" for t in ("col_raw", "col_high", "perc_raw", "perc_high", "feat", "depth", "adv", "cate")],
-    *[f"ref_{t}" for t in ("col_raw", "col_high", "perc_raw", "perc_high", "feat", "depth", "adv", "cate")],
-    "sr_col_high",
-    "sr_perc_high",
-    "ray",
-    "d_loss",
-    "r1",
-    "lr",
-]
 
-
-class Trainer(TrainingSteps):
+class Trainer(TrainingSteps, HeldoutViews):
     """Owns the models, optimisers, data stream and run directory of one training run.
 
     Args:
@@ -130,20 +113,7 @@ class Trainer(TrainingSteps):
             teacher_args if teacher_args is not None else resolve_teacher_args(ckpt)
         )
         if ckpt is not None:
-            diff = config_differences(ckpt["train_config"], cfg)
-            if diff:
-                shown = "\n  ".join(diff[:12]) + ("\n  ..." if len(diff) > 12 else "")
-                raise CheckpointError(
-                    f"checkpoint {ckpt['path']!r} was trained with configuration "
-                    f"{ckpt['train_config'].name!r}, which differs from the requested {cfg.name!r}:\n"
-                    f"  {shown}\nresume with the checkpoint's own configuration (omit --config/--batch) "
-                    "or start a new run"
-                )
-            if ckpt["teacher"] != teacher_name:
-                raise CheckpointError(
-                    f"checkpoint {ckpt['path']!r} was trained with teacher {ckpt['teacher']!r}, "
-                    f"not {teacher_name!r}"
-                )
+            check_resumable(ckpt, cfg, teacher_name)
 
         self.data_cache = data_cache
         self._perceptual, self._category = perceptual, category
@@ -164,6 +134,26 @@ class Trainer(TrainingSteps):
 
     def _build(self, ckpt: dict[str, Any] | None) -> None:
         """Models, data, optimisers and run directory (``ckpt``: the checkpoint to continue from)."""
+        self._build_models()
+        self._open_data()
+        if ckpt is None:
+            self._start_student()
+        self._build_optimisers()
+        if ckpt is not None:
+            self._restore(ckpt)
+            if self.is_main:
+                set_aside_checkpoints_after(self.out_dir, self.step)
+        else:
+            self._start_fresh()
+        self._set_trainable(self.step)
+        if self.world_size > 1:
+            self._note_world()
+        if self.is_main:
+            self._write_run_dir(fresh=ckpt is None)
+
+    def _build_models(self) -> None:
+        """The student, the discriminator and the teacher's decoder; the student's SR starts from the
+        teacher's where it fits."""
         cfg, teacher = self.config, self.teacher
         # Initial weights come from the config's seed (resume overwrites them).
         torch.manual_seed(cfg.seed)
@@ -185,6 +175,10 @@ class Trainer(TrainingSteps):
                     "the student's SR starts from scratch and trains from stage 1"
                 )
 
+    def _open_data(self) -> None:
+        """The CPU recipe's synthetic dataset and the channel scales of its triplanes (the paper recipe
+        synthesises its batches as it goes)."""
+        cfg = self.config
         self.dataset: SyntheticDataset | None = None
         self.heldout: SyntheticDataset | None = None
         self._heldout_truth: list[Tensor] | None = None
@@ -197,7 +191,11 @@ class Trainer(TrainingSteps):
             self.plane_scale = sample.transpose(0, 2).reshape(sample.shape[2], -1).std(dim=1).clamp_min(1e-3)
             self.plane_scale = self.plane_scale.to(self.device)
 
-        if cfg.recipe == "cpu" and ckpt is None:
+    def _start_student(self) -> None:
+        """A new run's student starts from the dataset's principal planes (CPU recipe) or, with
+        ``mean_triplane_offset``, from the teacher's mean triplane."""
+        cfg = self.config
+        if cfg.recipe == "cpu":
             assert self.dataset is not None
             mean, components = principal_planes(
                 self.dataset.planes,
@@ -209,47 +207,13 @@ class Trainer(TrainingSteps):
             self.student.start_from_mean(mean.to(self.device))
             if self.student.encoder.basis is not None:
                 self.student.encoder.basis.components.data.copy_(components)
-        elif cfg.mean_triplane_offset and ckpt is None:
+        elif cfg.mean_triplane_offset:
             self.student.start_from_mean(self.mean_teacher_planes(cfg.mean_triplane_identities))
 
-        enc = self.student.encoder
-        basis_ids = {id(q) for q in enc.basis.parameters()} if enc.basis is not None else set()
-        offset = [] if self.student.plane_offset is None else [self.student.plane_offset]
-        betas = tuple(cfg.adam_betas)
-        self.opt_g = torch.optim.Adam(
-            [
-                {
-                    "params": [*(q for q in enc.other_parameters() if id(q) not in basis_ids), *offset],
-                    "lr": cfg.lr_encoder,
-                    "name": "encoder",
-                },
-                {
-                    "params": [q for q in enc.other_parameters() if id(q) in basis_ids],
-                    "lr": cfg.lr_basis,
-                    "name": "basis",
-                },
-                {
-                    "params": list(enc.transformer_parameters()),
-                    "lr": cfg.lr_transformer,
-                    "name": "transformer",
-                },
-                {"params": list(self.student.decoder.parameters()), "lr": cfg.lr_decoder, "name": "decoder"},
-                {
-                    "params": list(self.student.superres.parameters()),
-                    "lr": cfg.lr_superres,
-                    "name": "superres",
-                },
-            ],
-            betas=betas,  # type: ignore[arg-type]
-        )
-        # EG3D's lazy regularisation: R1 every r1_interval steps, with lr and betas adjusted.
-        ratio = cfg.r1_interval / (cfg.r1_interval + 1)
-        self.opt_d = torch.optim.Adam(
-            self.discriminator.parameters(),
-            lr=cfg.lr_discriminator * ratio,
-            betas=(cfg.discriminator_betas[0] ** ratio, cfg.discriminator_betas[1] ** ratio),
-            eps=1e-8,
-        )
+    def _build_optimisers(self) -> None:
+        """Optimisers, schedules, the AMP scaler, the losses and the data stream, at step 0."""
+        cfg = self.config
+        self.opt_g, self.opt_d = build_optimisers(cfg, self.student, self.discriminator)
         self.sched_g = torch.optim.lr_scheduler.LambdaLR(self.opt_g, self.lr_factor)
         self.sched_d = torch.optim.lr_scheduler.LambdaLR(self.opt_d, lambda s: 1.0)
         self.scaler = torch.amp.GradScaler("cuda", enabled=self.amp)
@@ -258,31 +222,30 @@ class Trainer(TrainingSteps):
         self.step = 0
         self.interrupted = False
 
-        if ckpt is not None:
-            self._restore(ckpt)
-            if self.is_main:
-                set_aside_checkpoints_after(self.out_dir, self.step)
-        else:
-            if self.is_main and latest_checkpoint(self.out_dir) is not None:
-                raise CheckpointError(
-                    f"{str(self.out_dir)!r} already holds checkpoints; pass --resume {self.out_dir} to "
-                    "continue that run, or choose another --out"
-                )
-            if self.world_size > 1:
-                # Every rank starts from rank 0's weights (built from the same seed, but a start
-                # computed from data, e.g. the principal planes, may round differently elsewhere),
-                # and the other ranks draw their own dropout masks.
-                distributed.broadcast_module(self.student)
-                distributed.broadcast_module(self.discriminator)
-                if cfg.recipe == "cpu":
-                    distributed.broadcast_tensor(self.plane_scale)
-                if not self.is_main:
-                    torch.manual_seed(_rank_seed(cfg.seed, self.rank, 0))
-        self._set_trainable(self.step)
+    def _start_fresh(self) -> None:
+        """A new run: refuse a run directory that holds checkpoints; under torchrun, every rank takes
+        rank 0's starting weights."""
+        cfg = self.config
+        if self.is_main and latest_checkpoint(self.out_dir) is not None:
+            raise CheckpointError(
+                f"{str(self.out_dir)!r} already holds checkpoints; pass --resume {self.out_dir} to "
+                "continue that run, or choose another --out"
+            )
         if self.world_size > 1:
-            self._note_world()
-        if not self.is_main:
-            return
+            # Every rank starts from rank 0's weights (built from the same seed, but a start
+            # computed from data, e.g. the principal planes, may round differently elsewhere),
+            # and the other ranks draw their own dropout masks.
+            distributed.broadcast_module(self.student)
+            distributed.broadcast_module(self.discriminator)
+            if cfg.recipe == "cpu":
+                distributed.broadcast_tensor(self.plane_scale)
+            if not self.is_main:
+                torch.manual_seed(_rank_seed(cfg.seed, self.rank, 0))
+
+    def _write_run_dir(self, *, fresh: bool) -> None:
+        """Rank 0 writes ``config.json``, ``world.json`` and the log's header (keeping a resumed run's
+        earlier rows); a new CPU-recipe run logs the untrained student's held-out point."""
+        cfg = self.config
         self.out_dir.mkdir(parents=True, exist_ok=True)
         _atomic_write_text(self.out_dir / "config.json", cfg.to_json() + "\n")
         world = {
@@ -292,8 +255,8 @@ class Trainer(TrainingSteps):
             "batch_per_process": self.local_batch,
         }
         _atomic_write_text(self.out_dir / "world.json", json.dumps(world, indent=2) + "\n")
-        self._init_log()
-        if cfg.recipe == "cpu" and ckpt is None:
+        start_log(self.out_dir, self.step)
+        if cfg.recipe == "cpu" and fresh:
             self.log_heldout()  # the learning curve starts at the untrained student
 
     def _note_world(self) -> None:
@@ -313,14 +276,8 @@ class Trainer(TrainingSteps):
             )
 
     def lr_factor(self, step: int) -> float:
-        """The student's learning-rate multiplier: a linear ramp over ``lr_rampup_steps``, then 1 (the
-        paper), or with ``lr_cosine_decay`` a cosine to ``lr_final_factor`` at ``total_steps``."""
-        cfg = self.config
-        ramp = min(1.0, (step + 1) / cfg.lr_rampup_steps) if cfg.lr_rampup_steps > 0 else 1.0
-        if not cfg.lr_cosine_decay:
-            return ramp
-        t = min(1.0, step / cfg.total_steps)
-        return ramp * (cfg.lr_final_factor + (1 - cfg.lr_final_factor) * 0.5 * (1 + math.cos(math.pi * t)))
+        """The student's learning-rate multiplier (:func:`lp3d.training.optim.student_lr_factor`)."""
+        return student_lr_factor(self.config, step)
 
     # -- state -------------------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
@@ -401,154 +358,6 @@ class Trainer(TrainingSteps):
         self.student.decoder.requires_grad_(stage2)
         self.student.superres.requires_grad_(stage2 or not self.pretrained_sr)
 
-    # -- logging -----------------------------------------------------------------------------------
-    def _init_log(self) -> None:
-        """Keep the rows of steps before ``self.step`` (a resumed run rewrites what came after)."""
-        path = self.out_dir / "log.csv"
-        rows: list[dict[str, str]] = []
-        if path.exists() and self.step > 0:
-            with open(path, newline="") as f:
-                rows = [
-                    r for r in csv.DictReader(f) if r.get("step", "").isdigit() and int(r["step"]) < self.step
-                ]
-        with open(path, "w", newline="") as f:
-            w = csv.DictWriter(f, LOG_COLUMNS)
-            w.writeheader()
-            w.writerows(rows)
-
-    def _log(self, row: dict[str, Any]) -> None:
-        with open(self.out_dir / "log.csv", "a", newline="") as f:
-            csv.DictWriter(f, LOG_COLUMNS, extrasaction="ignore").writerow(
-                {k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()}
-            )
-
-    # -- held-out curve ----------------------------------------------------------------------------
-    @torch.no_grad()
-    def heldout_metrics(self) -> dict[str, float]:
-        """The learning curve's point: novel-view RGB PSNR of ``heldout_identities`` held-out
-        identities (seeds from ``eval_seed_start``) against their own teacher and against the other
-        held-out identities' teachers, and the difference (identity specificity, 0 dB for a student
-        that ignores its input). Raw renders at ``raw_resolution`` from yaw -30° and +30° (pitch 10°);
-        the teacher is the training teacher (``lp3d eval`` scores against the native one)."""
-        from lp3d.render.camera import look_at_camera
-
-        cfg = self.config
-        if self.heldout is None:
-            key = dataclasses.replace(
-                self.dataset_key(),
-                first_seed=cfg.eval_seed_start,
-                n_identities=cfg.heldout_identities,
-                teacher_fingerprint=teacher_fingerprint(self.teacher, cfg.eval_seed_start),
-            )
-            self.heldout = SyntheticDataset.open(
-                key, self.teacher, self._input_renderer(), root=self.data_cache, progress=False
-            )
-        ds = self.heldout
-        n = len(ds)
-        cams = torch.tensor(
-            np.stack([look_at_camera(yaw_deg=y, pitch_deg=10.0) for y in (-30.0, 30.0)]), dtype=torch.float32
-        ).to(self.device)
-        v = cams.shape[0]
-        was_training = self.student.training
-        self.student.eval()
-        if self._heldout_truth is None:  # the teacher's views never change: render them once per run
-            self._heldout_truth = [
-                render_views(
-                    torch.from_numpy(ds.planes[i : i + 1].astype(np.float32))
-                    .to(self.device)
-                    .expand(v, -1, -1, -1, -1),
-                    self.teacher_decoder,
-                    cams,
-                    cfg,
-                    self.scene,
-                )["rgb"]
-                for i in range(n)
-            ]
-        teacher = self._heldout_truth
-        student = []
-        dec = self.student.decoder.weights()
-        for i in range(n):
-            image = torch.from_numpy(ds.ref_image[i : i + 1].astype(np.float32)).to(self.device)
-            pred = self.student.encode(image)
-            student.append(render_views(pred.expand(v, -1, -1, -1, -1), dec, cams, cfg, self.scene)["rgb"])
-        self.student.train(was_training)
-
-        def psnr(a: Tensor, b: Tensor) -> float:  # images in [-1, 1]: peak-to-peak 2
-            return float(10 * torch.log10(4.0 / (a - b).square().mean().clamp_min(1e-12)))
-
-        own = [psnr(student[i], teacher[i]) for i in range(n)]
-        other = [statistics.fmean(psnr(student[i], teacher[j]) for j in range(n) if j != i) for i in range(n)]
-        return {
-            "psnr_own": statistics.fmean(own),
-            "psnr_other": statistics.fmean(other),
-            "specificity_db": statistics.fmean(own) - statistics.fmean(other),
-        }
-
-    def log_heldout(self) -> dict[str, float]:
-        """Append :meth:`heldout_metrics` at the current step to ``heldout.csv`` (the learning curve)."""
-        m = self.heldout_metrics()
-        path = self.out_dir / "heldout.csv"
-        rows: list[dict[str, str]] = []
-        if path.exists():
-            with open(path, newline="") as f:
-                rows = [
-                    r for r in csv.DictReader(f) if r.get("step", "").isdigit() and int(r["step"]) < self.step
-                ]
-        rows.append({"step": str(self.step), **{k: f"{v:.4f}" for k, v in m.items()}})
-        self._tensorboard().heldout(self.step, m)
-        with atomic_path(path) as tmp, open(tmp, "w", newline="") as f:
-            w = csv.DictWriter(f, ["step", "psnr_own", "psnr_other", "specificity_db"])
-            w.writeheader()
-            w.writerows(rows)
-        return m
-
-    # -- previews ----------------------------------------------------------------------------------
-    @torch.no_grad()
-    def save_samples(
-        self, seeds: Sequence[int] | None = None, yaws: Sequence[float] = (-30.0, 0.0, 30.0)
-    ) -> Path:
-        """``samples/step-NNNNNN.png``: per held-out identity, a teacher row (input, views at ``yaws``)
-        and a student row (its input-view render, the same views)."""
-        from lp3d.images import rgb_to_uint8, save_png, tile
-        from lp3d.render.camera import look_at_camera
-
-        cfg = self.config
-        seeds = list(seeds) if seeds is not None else [cfg.eval_seed_start, cfg.eval_seed_start + 1]
-        rng = np.random.Generator(np.random.PCG64(12345))  # fixed preview cameras, independent of training
-        self.student.eval()
-        images: list[np.ndarray] = []
-        views = torch.tensor(np.stack([look_at_camera(yaw_deg=y) for y in yaws]), dtype=torch.float32)
-        views = views.to(self.device)
-        for seed in seeds:
-            planes = self._teacher_planes([self.teacher.sample(seed)])
-            cam = (
-                torch.from_numpy(sample_cameras(cfg.reference_cameras, 1, rng).labels).float().to(self.device)
-            )
-            _, _, image = render_teacher(
-                self.teacher, planes, self.teacher_decoder, cam, cfg, self.scene, raw=False
-            )
-            _, _, t_views = render_teacher(
-                self.teacher,
-                planes.expand(len(yaws), -1, -1, -1, -1),
-                self.teacher_decoder,
-                views,
-                cfg,
-                self.scene,
-                raw=False,
-            )
-            assert image is not None and t_views is not None
-            pred = self.student.encode(image)
-            s_in = self.student.render(pred, cam).high
-            s_views = self.student.render(pred.expand(len(yaws), -1, -1, -1, -1), views).high
-            images += [rgb_to_uint8(image[0].cpu().numpy())] + [
-                rgb_to_uint8(v.cpu().numpy()) for v in t_views
-            ]
-            images += [rgb_to_uint8(s_in[0].cpu().numpy())] + [rgb_to_uint8(v.cpu().numpy()) for v in s_views]
-        self.student.train()
-        sheet = tile(images, 1 + len(yaws))
-        self._tensorboard().samples(self.step, sheet)
-        return save_png(self.out_dir / "samples" / f"step-{self.step:06d}.png", sheet)
-
     # -- the loop ----------------------------------------------------------------------------------
     def train(self, max_steps: int | None = None) -> dict[str, Any] | None:
         """Train until global step ``max_steps`` (default: the config's total), with checkpoints every
@@ -611,7 +420,7 @@ class Trainer(TrainingSteps):
             while self.step < end and not self.interrupted:
                 row = self.train_step()
                 if self.is_main:
-                    self._log(row)
+                    append_log(self.out_dir, row)
                     self._tensorboard().step_row(row)
                 if bar is not None:
                     bar.update(1)

@@ -1,0 +1,117 @@
+"""The ``onnx`` backend of :func:`lp3d.lift.inference.load_encoder`: an ``.onnx`` encoder (and the
+package's super-resolution network) run by ONNX Runtime on the CPU, its input and output shapes
+checked against the sidecar.
+
+May import :mod:`lp3d.lift.model_package` and :mod:`lp3d.lift.loaded`; onnxruntime only when a
+model is loaded."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lp3d.lift.loaded import LoadedEncoder, LoadedSuperres, _reshape_planes
+from lp3d.lift.model_package import (
+    ModelPackage,
+    ModelPackageError,
+    SuperresEntry,
+    load_model_package,
+    verify_superres_file,
+)
+
+
+def _ort_session(path: Path) -> Any:
+    """An onnxruntime CPU session of ``path``; clear errors for a missing onnxruntime or a bad file."""
+    try:
+        import onnxruntime as ort
+    except ImportError as e:
+        raise ModelPackageError(
+            f"the onnx backend needs onnxruntime (pip install onnxruntime): {e}"
+        ) from None
+    options = ort.SessionOptions()
+    options.log_severity_level = 3  # errors only: warnings about unused initialisers are noise here
+    try:
+        return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+    except Exception as e:  # onnxruntime raises its own exception types (InvalidProtobuf, Fail, ...)
+        raise ModelPackageError(f"{path}: cannot load the ONNX model ({type(e).__name__}: {e})") from None
+
+
+def _load_onnx_superres(package: ModelPackage, entry: SuperresEntry) -> LoadedSuperres:
+    """The package's SR network from its ONNX file, checked against the sidecar's entry."""
+    verify_superres_file(entry)
+    session = _ort_session(entry.path)
+    import onnxruntime as ort  # present: the session was made
+
+    where = f"{entry.path} (the package's 'superres')"
+    inputs, outputs = session.get_inputs(), session.get_outputs()
+    if len(inputs) != 1 or len(outputs) != 1:
+        raise ModelPackageError(
+            f"{where}: expected one input (features) and one output (image), found {len(inputs)} and "
+            f"{len(outputs)}"
+        )
+    c, r, ro = entry.in_channels, entry.input_resolution, entry.output_resolution
+    for what, shape, want in (
+        ("input", inputs[0].shape, (c, r, r)),
+        ("output", outputs[0].shape, (3, ro, ro)),
+    ):
+        dims = ", ".join(map(str, want))
+        if len(shape) != 4 or any(
+            isinstance(d, int) and d != w for d, w in zip(shape[1:], want, strict=True)
+        ):
+            raise ModelPackageError(
+                f"{where}: {what} has shape {list(shape)}, but the sidecar says (B, {dims})"
+            )
+    name = inputs[0].name
+    fixed_batch = inputs[0].shape[0] if isinstance(inputs[0].shape[0], int) else None
+
+    def run(features: np.ndarray) -> np.ndarray:
+        if fixed_batch is not None and features.shape[0] != fixed_batch:
+            if fixed_batch != 1:
+                raise ModelPackageError(f"{where}: the model only accepts batches of exactly {fixed_batch}")
+            return np.concatenate([run(features[i : i + 1]) for i in range(features.shape[0])])
+        return session.run(None, {name: features})[0]
+
+    return LoadedSuperres(
+        package,
+        "onnx",
+        r,
+        ro,
+        c,
+        f"{entry.path.name} (onnxruntime {ort.__version__}, CPU)",
+        run,
+    )
+
+
+def _load_onnx(path: Path, *, superres: bool = False) -> LoadedEncoder:
+    package = load_model_package(path)
+    if not path.is_file():
+        raise ModelPackageError(f"{path}: no such model file")
+    session = _ort_session(path)
+    import onnxruntime as ort  # present: the session was made
+
+    inputs = session.get_inputs()
+    if len(inputs) != 1:
+        raise ModelPackageError(f"{path}: expected one input (the image), found {len(inputs)}")
+    inp = inputs[0]
+    shape = list(inp.shape)
+    s = package.image_size
+    if len(shape) != 4 or shape[1] not in (3, "3") or any(isinstance(d, int) and d != s for d in shape[2:]):
+        raise ModelPackageError(
+            f"{path}: input {inp.name!r} has shape {shape}, but the package says (B, 3, {s}, {s})"
+        )
+    fixed_batch = shape[0] if isinstance(shape[0], int) else None
+
+    def run(images: np.ndarray) -> np.ndarray:
+        x = np.ascontiguousarray(images, dtype=np.float32)
+        if fixed_batch is not None and x.shape[0] != fixed_batch:
+            # Exported with a static batch: run that many at a time.
+            if fixed_batch != 1:
+                raise ModelPackageError(f"{path}: the model only accepts batches of exactly {fixed_batch}")
+            return np.concatenate([run(x[i : i + 1]) for i in range(x.shape[0])])
+        out = session.run(None, {inp.name: x})[0]
+        return _reshape_planes(out, x.shape[0], str(path))
+
+    sr = _load_onnx_superres(package, package.superres) if superres and package.superres else None
+    return LoadedEncoder(package, "onnx", run, f"{path.name} (onnxruntime {ort.__version__}, CPU)", sr)
