@@ -1,7 +1,7 @@
 //! NumPy ↔ Rust conversion and validation of everything Python hands in. Every error names
 //! the argument it is about.
 
-use numpy::{PyArrayDyn, PyArrayMethods, PyUntypedArray, PyUntypedArrayMethods};
+use numpy::{PyArray1, PyArrayDyn, PyArrayMethods, PyUntypedArray, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyOverflowError, PyTypeError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBool, PyString};
@@ -211,4 +211,9 @@ pub fn finite_f32(v: f64, field: &str) -> PyResult<f32> {
 
 pub fn type_name(obj: &Bound<'_, PyAny>) -> String {
     obj.get_type().name().map(|n| n.to_string()).unwrap_or_else(|_| "?".into())
+}
+
+/// A float32 NumPy array of `shape` holding `data` (C order), for results handed back to Python.
+pub fn f32_array<'py>(py: Python<'py>, data: &[f32], shape: &[usize]) -> PyResult<Bound<'py, PyAny>> {
+    Ok(PyArray1::from_slice(py, data).reshape(shape)?.into_any())
 }

@@ -25,18 +25,18 @@ struct Composite {
     weights_sum: f32,
     depth_acc: f32,
     prev_t: f32,
-    prev_sigma: f32,
+    prev_sigma_raw: f32,
     acc: array<vec4<f32>, 8>,
     prev_feat: array<vec4<f32>, 8>,
 }
 
-// Adds the interval ending at the walk's current sample (depth t, raw density sigma, features
+// Adds the interval ending at the walk's current sample (depth t, raw density sigma_raw, features
 // cur_feat) to `c`: its weight into `scratch` in the coarse walk, else into the outputs.
 fn composite_sample(
     c: ptr<function, Composite>,
     walk: Walk,
     t: f32,
-    sigma: f32,
+    sigma_raw: f32,
     cur_feat: ptr<function, array<vec4<f32>, 8>>,
     coarse: bool,
     n_feat: u32,
@@ -44,7 +44,7 @@ fn composite_sample(
 ) {
     if (walk.i > 0u && (walk.occ_prev || walk.occ_cur)) {
         // Both ends were decoded (each is the other's neighbour).
-        let alpha = interval_alpha((*c).prev_sigma, sigma, t - (*c).prev_t);
+        let alpha = interval_alpha((*c).prev_sigma_raw, sigma_raw, t - (*c).prev_t);
         let w = alpha * (*c).transmittance;
         (*c).transmittance = transmit((*c).transmittance, alpha);
         if (coarse) {
@@ -62,7 +62,7 @@ fn composite_sample(
         }
     }
     (*c).prev_t = t;
-    (*c).prev_sigma = sigma;
+    (*c).prev_sigma_raw = sigma_raw;
     (*c).prev_feat = *cur_feat;
 }
 
@@ -92,7 +92,7 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
     // The raw density and decoded features of coarse samples 0..n_cached, kept by the coarse walk
     // for the composite, so that each sample is decoded once, as in EG3D (a coarse sample the
     // occupancy grid skipped ends the run; the composite decodes the ones after it again).
-    var cache_sigma = array<f32, COARSE_CACHE>();
+    var cache_sigma_raw = array<f32, COARSE_CACHE>();
     var cache_feat = array<array<vec4<f32>, 8>, COARSE_CACHE>();
     var n_cached = 0u;
 
@@ -133,7 +133,7 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
                 } else {
                     cur_feat[0] = cache_feat[k][0];
                 }
-                composite_sample(&c, walk, walk.t_cur, cache_sigma[k], &cur_feat, false, n_feat, &scratch);
+                composite_sample(&c, walk, walk.t_cur, cache_sigma_raw[k], &cur_feat, false, n_feat, &scratch);
                 walk_advance(&walk, ray, ray_index, n, &t_fine);
             }
             if (walk.i >= walk.total || c.transmittance < thr) {
@@ -143,9 +143,9 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
             sample_triplane(ray.origin + t * ray.dir, &feat);
             // Only the requested decoder rows: all 32 features or the 4 that hold RGB (also in the
             // coarse walk, for the cache).
-            let sigma = decode(n_feat, &feat, &cur_feat);
+            let sigma_raw = decode(n_feat, &feat, &cur_feat);
             if (coarse && walk.k_cur == n_cached && n_cached < COARSE_CACHE) {
-                cache_sigma[n_cached] = sigma;
+                cache_sigma_raw[n_cached] = sigma_raw;
                 if (n_feat == 32u) {
                     cache_feat[n_cached] = cur_feat;
                 } else {
@@ -153,7 +153,7 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
                 }
                 n_cached++;
             }
-            composite_sample(&c, walk, t, sigma, &cur_feat, coarse, n_feat, &scratch);
+            composite_sample(&c, walk, t, sigma_raw, &cur_feat, coarse, n_feat, &scratch);
             walk_advance(&walk, ray, ray_index, n, &t_fine);
         }
         if (!coarse) {
@@ -166,7 +166,7 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
         walk = walk_start(ray, ray_index, n, true, &t_fine);
         c.transmittance = 1.0;
         c.prev_t = 0.0;
-        c.prev_sigma = 0.0;
+        c.prev_sigma_raw = 0.0;
     }
     let weights_sum = c.weights_sum;
     let depth_acc = c.depth_acc;

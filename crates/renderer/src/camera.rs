@@ -93,7 +93,7 @@ impl Camera {
     /// yaw > 0 moves the camera toward +x, pitch > 0 raises it (true elevation, in (-90, 90)),
     /// roll turns it about its viewing axis (`cam2world[:3,:3] @ Rz(roll)`). Maps onto EG3D's
     /// angles as h = π/2 + yaw, v = π/2 · (1 − sin pitch).
-    pub fn orbit(
+    pub fn look_at_camera(
         yaw_deg: f64,
         pitch_deg: f64,
         roll_deg: f64,
@@ -120,8 +120,27 @@ impl Camera {
     /// principal point (0.5, 0.5). `h`, `v` are EG3D's angles in radians (h = v = π/2 is
     /// frontal). The origin lies on a sphere about the world origin, not about `lookat`
     /// (EG3D's quirk).
-    pub fn look_at(h: f64, v: f64, radius: f64, lookat: [f64; 3], focal: f64) -> Camera {
+    pub fn lookat_pose(h: f64, v: f64, radius: f64, lookat: [f64; 3], focal: f64) -> Camera {
         Camera(look_at_label(h, v, radius, lookat, focal).map(|v| v as f32))
+    }
+
+    /// The old name of [`Camera::look_at_camera`].
+    #[deprecated(note = "renamed to Camera::look_at_camera, as in Python")]
+    pub fn orbit(
+        yaw_deg: f64,
+        pitch_deg: f64,
+        roll_deg: f64,
+        radius: f64,
+        lookat: [f64; 3],
+        focal: f64,
+    ) -> Camera {
+        Camera::look_at_camera(yaw_deg, pitch_deg, roll_deg, radius, lookat, focal)
+    }
+
+    /// The old name of [`Camera::lookat_pose`].
+    #[deprecated(note = "renamed to Camera::lookat_pose, as in Python")]
+    pub fn look_at(h: f64, v: f64, radius: f64, lookat: [f64; 3], focal: f64) -> Camera {
+        Camera::lookat_pose(h, v, radius, lookat, focal)
     }
 }
 
@@ -184,7 +203,7 @@ fn below(x: f64, limit: f64) -> bool {
     x < limit
 }
 
-/// The float64 label of [`Camera::look_at`].
+/// The float64 label of [`Camera::lookat_pose`].
 fn look_at_label(h: f64, v: f64, radius: f64, lookat: [f64; 3], focal: f64) -> [f64; 25] {
     let theta = h;
     let v = v.clamp(1e-5, std::f64::consts::PI - 1e-5);
@@ -231,7 +250,7 @@ mod tests {
     #[test]
     fn frontal_look_at_matches_eg3d_sanity_numbers() {
         // docs/eg3d-rendering.md §13: camera at (0, 0, 2.7), right (1,0,0), up' (0,-1,0), forward (0,0,-1).
-        let c = Camera::look_at(
+        let c = Camera::lookat_pose(
             std::f64::consts::FRAC_PI_2,
             std::f64::consts::FRAC_PI_2,
             2.7,
@@ -249,7 +268,7 @@ mod tests {
 
     #[test]
     fn validation_names_the_field() {
-        let good = Camera::look_at(1.2, 1.4, 2.7, [0.0; 3], 4.26).0.map(f64::from);
+        let good = Camera::lookat_pose(1.2, 1.4, 2.7, [0.0; 3], 4.26).0.map(f64::from);
         let mut bad = good;
         bad[20] = 0.0;
         let e = Camera::from_label(&bad, "camera").unwrap_err().to_string();
@@ -267,7 +286,7 @@ mod tests {
 
     #[test]
     fn values_beyond_float32_are_refused() {
-        let good = Camera::look_at(1.2, 1.4, 2.7, [0.0; 3], 4.26).0.map(f64::from);
+        let good = Camera::lookat_pose(1.2, 1.4, 2.7, [0.0; 3], 4.26).0.map(f64::from);
         // Finite in float64, Inf in float32: rendered an empty image before.
         let mut bad = good;
         bad[3] = 1e300;

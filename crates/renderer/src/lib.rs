@@ -24,4 +24,4 @@ pub use error::{Error, Result};
 pub use occupancy::Occupancy;
 pub use renderer::{Display, GpuTriplane, Kernel, KernelChoice, RenderOutput, Renderer, DISPLAY_FORMAT};
 pub use settings::{Outputs, RenderSettings, Skips};
-pub use triplane::{Decoder, PlaneDtype, SceneInfo, Triplane};
+pub use triplane::{Decoder, PlaneDtype, SceneBounds, SceneInfo, Triplane};

@@ -281,7 +281,7 @@ fn footprints(g: usize, n: usize) -> Vec<Footprint> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::triplane::{Decoder, PlaneDtype, N_OUT};
+    use crate::triplane::{Decoder, PlaneDtype, SceneBounds, N_OUT};
 
     /// A tiny deterministic PRNG (no dependency) for test data.
     struct Lcg(u64);
@@ -322,9 +322,7 @@ mod tests {
             width: size,
             plane_dtype: PlaneDtype::F32,
             decoder: Decoder { w0, b0, w1, b1 },
-            box_warp: 1.0,
-            ray_start: 2.25,
-            ray_end: 3.3,
+            bounds: SceneBounds::default(),
             camera: None,
             occupancy: None,
             source: None,

@@ -14,7 +14,7 @@ use crate::gpu_types::{DecoderUniform, DisplayUniform, Params, FLAG_HALF_PLANES}
 use crate::occupancy::Occupancy;
 use crate::settings::{Outputs, RenderSettings};
 use crate::shaders;
-use crate::triplane::{PlaneDtype, SceneInfo, Triplane, N_CHANNELS};
+use crate::triplane::{PlaneDtype, SceneBounds, SceneInfo, Triplane, N_CHANNELS};
 
 const WORKGROUP: u32 = 64;
 /// Texel format of `render_to_texture` targets (an sRGB-unaware 8-bit RGBA storage texture).
@@ -561,7 +561,7 @@ impl Renderer {
                 "this triplane has no occupancy grid: bake one first (Occupancy::bake)",
             ));
         };
-        let max_delta = settings.max_interval(tri.scene.ray_start, tri.scene.ray_end);
+        let max_delta = settings.max_interval(tri.scene.bounds.ray_start, tri.scene.bounds.ray_end);
         let threshold = Occupancy::raw_threshold(eps as f64, max_delta);
         if occ.bits.as_ref().map(|(t, _)| *t) != Some(threshold) {
             let buf = self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -1003,15 +1003,13 @@ fn compile_fast_kernel(adapter: &str, marker: Option<&std::path::Path>) -> Resul
             w1: vec![0.0; crate::triplane::N_OUT * crate::triplane::HIDDEN],
             b1: vec![0.0; crate::triplane::N_OUT],
         },
-        box_warp: 1.0,
-        ray_start: 2.25,
-        ray_end: 3.3,
+        bounds: SceneBounds::default(),
         camera: None,
         occupancy: None,
         source: None,
     };
     let gpu = renderer.upload(&tri)?;
-    let camera = Camera::look_at(
+    let camera = Camera::lookat_pose(
         std::f64::consts::FRAC_PI_2,
         std::f64::consts::FRAC_PI_2,
         crate::camera::FFHQ_RADIUS,
@@ -1046,9 +1044,7 @@ mod tests {
                 w1: vec![weight; N_OUT * HIDDEN],
                 b1: vec![0.0; N_OUT],
             },
-            box_warp: 1.0,
-            ray_start: 2.25,
-            ray_end: 3.3,
+            bounds: SceneBounds::default(),
             camera: None,
             occupancy: None,
             source: None,

@@ -86,14 +86,84 @@ pub enum PlaneDtype {
     F32,
 }
 
+/// EG3D FFHQ's scene bounds (``rendering_kwargs``), as given (float64): [`SceneBounds::default`]
+/// and the defaults of Python's ``Triplane(...)``, exposed as ``lp3d_render.DEFAULT_*``;
+/// ``lp3d.render.settings.DEFAULT_*`` must agree (tests/test_render_api.py checks).
+pub const DEFAULT_BOX_WARP: f64 = 1.0;
+pub const DEFAULT_RAY_START: f64 = 2.25;
+pub const DEFAULT_RAY_END: f64 = 3.3;
+
+/// Where a triplane's scene is: the cube `[-box_warp/2, box_warp/2]^3` its planes span and the
+/// depth range `[ray_start, ray_end]` sampled along every ray, in the renderer's precision
+/// (float32). The Python twin is `lp3d.render.settings.SceneBounds`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SceneBounds {
+    pub box_warp: f32,
+    pub ray_start: f32,
+    pub ray_end: f32,
+}
+
+impl Default for SceneBounds {
+    /// EG3D FFHQ's bounds ([`DEFAULT_BOX_WARP`], [`DEFAULT_RAY_START`], [`DEFAULT_RAY_END`]).
+    fn default() -> Self {
+        SceneBounds {
+            box_warp: DEFAULT_BOX_WARP as f32,
+            ray_start: DEFAULT_RAY_START as f32,
+            ray_end: DEFAULT_RAY_END as f32,
+        }
+    }
+}
+
+impl SceneBounds {
+    /// The bounds from values as given (a file's float64, a Python float), checked as given and
+    /// as the renderer uses them (float32), so a value that overflows float32 (`ray_end = 1e300`)
+    /// or collapses in it is an error here and in Python (`SceneBounds.problem`) alike. Errors are
+    /// [`Error::InvalidInput`] naming the field (`box_warp`, `ray_start` or `ray_end`).
+    pub fn new(box_warp: f64, ray_start: f64, ray_end: f64) -> Result<SceneBounds> {
+        let (b32, s32, e32) = (box_warp as f32, ray_start as f32, ray_end as f32);
+        for (key, v, v32) in
+            [("box_warp", box_warp, b32), ("ray_start", ray_start, s32), ("ray_end", ray_end, e32)]
+        {
+            if v.is_finite() && !v32.is_finite() {
+                return Err(Error::invalid(
+                    key,
+                    format!("{v:e} is not finite as float32 (the renderer's precision)"),
+                ));
+            }
+        }
+        if !(box_warp.is_finite() && box_warp > 0.0 && b32 > 0.0) {
+            return Err(Error::invalid(
+                "box_warp",
+                format!("must be finite and > 0 (also as float32), got {box_warp:e}"),
+            ));
+        }
+        if !(ray_start.is_finite() && ray_start >= 0.0 && s32 >= 0.0) {
+            return Err(Error::invalid(
+                "ray_start",
+                format!("must be finite and >= 0 (also as float32), got {ray_start:e}"),
+            ));
+        }
+        if !(ray_end.is_finite() && ray_end > ray_start && e32 > s32) {
+            return Err(Error::invalid(
+                "ray_end",
+                format!("must be finite and > ray_start ({ray_start:e}) (also as float32), got {ray_end:e}"),
+            ));
+        }
+        Ok(SceneBounds { box_warp: b32, ray_start: s32, ray_end: e32 })
+    }
+
+    /// The checks of [`SceneBounds::new`] on these (float32) values.
+    pub fn validate(&self) -> Result<()> {
+        SceneBounds::new(self.box_warp.into(), self.ray_start.into(), self.ray_end.into()).map(|_| ())
+    }
+}
+
 /// What the kernels need to know about a triplane besides its data: plane size and bounds.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SceneInfo {
     pub height: u32,
     pub width: u32,
-    pub box_warp: f32,
-    pub ray_start: f32,
-    pub ray_end: f32,
+    pub bounds: SceneBounds,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -104,9 +174,7 @@ pub struct Triplane {
     pub width: usize,
     pub plane_dtype: PlaneDtype,
     pub decoder: Decoder,
-    pub box_warp: f32,
-    pub ray_start: f32,
-    pub ray_end: f32,
+    pub bounds: SceneBounds,
     /// The input view's camera, when known.
     pub camera: Option<Camera>,
     /// A baked occupancy grid for these planes and decoder (`crate::occupancy`).
@@ -117,13 +185,7 @@ pub struct Triplane {
 
 impl Triplane {
     pub fn scene(&self) -> SceneInfo {
-        SceneInfo {
-            height: self.height as u32,
-            width: self.width as u32,
-            box_warp: self.box_warp,
-            ray_start: self.ray_start,
-            ray_end: self.ray_end,
-        }
+        SceneInfo { height: self.height as u32, width: self.width as u32, bounds: self.bounds }
     }
 
     pub fn validate(&self) -> Result<()> {
@@ -143,22 +205,7 @@ impl Triplane {
         if let Some(o) = &self.occupancy {
             o.validate()?;
         }
-        if !(self.box_warp.is_finite() && self.box_warp > 0.0) {
-            return Err(Error::invalid("box_warp", format!("must be finite and > 0, got {}", self.box_warp)));
-        }
-        if !(self.ray_start.is_finite() && self.ray_start >= 0.0) {
-            return Err(Error::invalid(
-                "ray_start",
-                format!("must be finite and >= 0, got {}", self.ray_start),
-            ));
-        }
-        if !(self.ray_end.is_finite() && self.ray_end > self.ray_start) {
-            return Err(Error::invalid(
-                "ray_end",
-                format!("must be finite and > ray_start ({}), got {}", self.ray_start, self.ray_end),
-            ));
-        }
-        Ok(())
+        self.bounds.validate()
     }
 
     /// Planes re-laid channel-last, (3, H, W, 32): one texel's 32 channels are contiguous,
@@ -285,8 +332,12 @@ impl Triplane {
             b1: floats("decoder_b1"),
         };
         let mut scalar = |key: &str| take(key).and_then(|a| a.scalar_f64()).expect("required scalar present");
-        let (box_warp, ray_start, ray_end) = (scalar("box_warp"), scalar("ray_start"), scalar("ray_end"));
-        check_bounds(box_warp, ray_start, ray_end).map_err(|(k, m)| fmt(k, m))?;
+        let bounds = SceneBounds::new(scalar("box_warp"), scalar("ray_start"), scalar("ray_end")).map_err(
+            |e| match e {
+                Error::InvalidInput { field, message } => fmt(&field, message),
+                other => other,
+            },
+        )?;
         let camera = match take("camera") {
             None => None,
             Some(a) => {
@@ -323,19 +374,7 @@ impl Triplane {
             Some(NpyData::Str(s)) => Some(s),
             Some(_) => unreachable!("check_header admits unicode sources only"),
         };
-        let tri = Triplane {
-            planes,
-            height,
-            width,
-            plane_dtype,
-            decoder,
-            box_warp: box_warp as f32,
-            ray_start: ray_start as f32,
-            ray_end: ray_end as f32,
-            camera,
-            occupancy,
-            source,
-        };
+        let tri = Triplane { planes, height, width, plane_dtype, decoder, bounds, camera, occupancy, source };
         tri.validate().map_err(|e| match e {
             Error::InvalidInput { field, message } => fmt(key_of_field(&field), message),
             other => other,
@@ -368,16 +407,16 @@ impl Triplane {
                 NpyData::F16(self.planes.iter().map(|&v| half::f16::from_f32(v).to_bits()).collect())
             }
         };
-        let d = &self.decoder;
+        let (d, b) = (&self.decoder, &self.bounds);
         let mut arrays: Vec<(&str, NpyArray)> = vec![
             ("planes", NpyArray { shape: vec![3, N_CHANNELS, self.height, self.width], data: planes }),
             ("decoder_w0", NpyArray::f32(vec![HIDDEN, N_CHANNELS], d.w0.clone())),
             ("decoder_b0", NpyArray::f32(vec![HIDDEN], d.b0.clone())),
             ("decoder_w1", NpyArray::f32(vec![N_OUT, HIDDEN], d.w1.clone())),
             ("decoder_b1", NpyArray::f32(vec![N_OUT], d.b1.clone())),
-            ("box_warp", NpyArray { shape: vec![], data: NpyData::F64(vec![self.box_warp as f64]) }),
-            ("ray_start", NpyArray { shape: vec![], data: NpyData::F64(vec![self.ray_start as f64]) }),
-            ("ray_end", NpyArray { shape: vec![], data: NpyData::F64(vec![self.ray_end as f64]) }),
+            ("box_warp", NpyArray { shape: vec![], data: NpyData::F64(vec![b.box_warp as f64]) }),
+            ("ray_start", NpyArray { shape: vec![], data: NpyData::F64(vec![b.ray_start as f64]) }),
+            ("ray_end", NpyArray { shape: vec![], data: NpyData::F64(vec![b.ray_end as f64]) }),
             ("format_version", NpyArray { shape: vec![], data: NpyData::I64(vec![FORMAT_VERSION]) }),
         ];
         if let Some(c) = &self.camera {
@@ -523,36 +562,6 @@ fn check_header(key: &str, h: &npz::NpyHeader) -> std::result::Result<(), String
     }
 }
 
-/// The scene bounds, checked as stored (float64) and as the renderer uses them (float32), so a
-/// value that overflows float32 (`ray_end = 1e300`) is an error here and in Python alike.
-fn check_bounds(
-    box_warp: f64,
-    ray_start: f64,
-    ray_end: f64,
-) -> std::result::Result<(), (&'static str, String)> {
-    let (b32, s32, e32) = (box_warp as f32, ray_start as f32, ray_end as f32);
-    for (key, v, v32) in
-        [("box_warp", box_warp, b32), ("ray_start", ray_start, s32), ("ray_end", ray_end, e32)]
-    {
-        if v.is_finite() && !v32.is_finite() {
-            return Err((key, format!("{v:e} is not finite as float32 (the renderer's precision)")));
-        }
-    }
-    if !(box_warp.is_finite() && box_warp > 0.0 && b32 > 0.0) {
-        return Err(("box_warp", format!("must be finite and > 0 (also as float32), got {box_warp:e}")));
-    }
-    if !(ray_start.is_finite() && ray_start >= 0.0 && s32 >= 0.0) {
-        return Err(("ray_start", format!("must be finite and >= 0 (also as float32), got {ray_start:e}")));
-    }
-    if !(ray_end.is_finite() && ray_end > ray_start && e32 > s32) {
-        return Err((
-            "ray_end",
-            format!("must be finite and > ray_start ({ray_start:e}) (also as float32), got {ray_end:e}"),
-        ));
-    }
-    Ok(())
-}
-
 /// The file key of a [`Triplane::validate`] field (`w0` is stored as `decoder_w0`).
 fn key_of_field(field: &str) -> &str {
     match field {
@@ -561,5 +570,37 @@ fn key_of_field(field: &str) -> &str {
         "w1" => "decoder_w1",
         "b1" => "decoder_b1",
         f => f,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn field(r: Result<SceneBounds>) -> String {
+        match r {
+            Err(Error::InvalidInput { field, .. }) => field,
+            other => panic!("expected InvalidInput, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn scene_bounds_default_is_ffhq_and_valid() {
+        let b = SceneBounds::default();
+        assert_eq!((b.box_warp, b.ray_start, b.ray_end), (1.0, 2.25, 3.3));
+        b.validate().unwrap();
+        assert_eq!(SceneBounds::new(DEFAULT_BOX_WARP, DEFAULT_RAY_START, DEFAULT_RAY_END).unwrap(), b);
+    }
+
+    #[test]
+    fn scene_bounds_are_checked_as_given_and_as_float32() {
+        assert_eq!(field(SceneBounds::new(0.0, 2.25, 3.3)), "box_warp");
+        assert_eq!(field(SceneBounds::new(1e-50, 2.25, 3.3)), "box_warp"); // 0 as float32
+        assert_eq!(field(SceneBounds::new(1.0, -1e-50, 3.3)), "ray_start"); // -0 as float32
+        assert_eq!(field(SceneBounds::new(1.0, 2.25, 1e300)), "ray_end"); // overflows float32
+        assert_eq!(field(SceneBounds::new(1.0, 1.0, 1.0 + 1e-12)), "ray_end"); // equal as float32
+        assert_eq!(field(SceneBounds::new(1.0, 3.0, 2.0)), "ray_end");
+        let bad = SceneBounds { ray_end: f32::NAN, ..SceneBounds::default() };
+        assert!(matches!(bad.validate(), Err(Error::InvalidInput { field, .. }) if field == "ray_end"));
     }
 }

@@ -3,7 +3,9 @@
 //! reference lives in the Python suite (tests/test_render_parity.py).
 
 use lp3d_renderer::camera::{FFHQ_FOCAL, FFHQ_RADIUS};
-use lp3d_renderer::{Camera, Decoder, GpuContext, Outputs, PlaneDtype, RenderSettings, Renderer, Triplane};
+use lp3d_renderer::{
+    Camera, Decoder, GpuContext, Outputs, PlaneDtype, RenderSettings, Renderer, SceneBounds, Triplane,
+};
 
 fn test_triplane(h: usize, w: usize) -> Triplane {
     // Deterministic pseudo-random values (no rand dependency).
@@ -27,9 +29,7 @@ fn test_triplane(h: usize, w: usize) -> Triplane {
         width: w,
         plane_dtype: PlaneDtype::F32,
         decoder,
-        box_warp: 1.0,
-        ray_start: 2.25,
-        ray_end: 3.3,
+        bounds: SceneBounds::default(),
         camera: None,
         occupancy: None,
         source: Some("gpu_smoke".into()),
@@ -45,8 +45,8 @@ fn renders_finite_outputs_and_restricts_outputs() {
     let gpu = renderer.upload(&tri).unwrap();
     let half_pi = std::f64::consts::FRAC_PI_2;
     let cams = vec![
-        Camera::look_at(half_pi, half_pi, FFHQ_RADIUS, [0.0, 0.0, 0.0], FFHQ_FOCAL),
-        Camera::look_at(half_pi + 0.5, half_pi - 0.2, FFHQ_RADIUS, [0.0, 0.0, 0.2], FFHQ_FOCAL),
+        Camera::lookat_pose(half_pi, half_pi, FFHQ_RADIUS, [0.0, 0.0, 0.0], FFHQ_FOCAL),
+        Camera::lookat_pose(half_pi + 0.5, half_pi - 0.2, FFHQ_RADIUS, [0.0, 0.0, 0.2], FFHQ_FOCAL),
     ];
     let settings = RenderSettings {
         resolution: 8,
@@ -86,7 +86,7 @@ fn triplane_file_round_trips() {
         if dtype == PlaneDtype::F16 {
             tri.planes = tri.planes.iter().map(|&v| half::f16::from_f32(v).to_f32()).collect();
         }
-        tri.camera = Some(Camera::look_at(1.0, 1.5, 2.7, [0.0; 3], 4.2647));
+        tri.camera = Some(Camera::lookat_pose(1.0, 1.5, 2.7, [0.0; 3], 4.2647));
         let path = dir.join("t.npz");
         tri.save(&path).unwrap();
         assert_eq!(Triplane::load(&path).unwrap(), tri);

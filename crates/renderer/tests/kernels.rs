@@ -5,7 +5,8 @@
 use lp3d_renderer::camera::{FFHQ_FOCAL, FFHQ_RADIUS};
 use lp3d_renderer::renderer::{Kernel, KernelChoice};
 use lp3d_renderer::{
-    Camera, Decoder, GpuContext, GpuTriplane, Outputs, PlaneDtype, RenderSettings, Renderer, Triplane,
+    Camera, Decoder, GpuContext, GpuTriplane, Outputs, PlaneDtype, RenderSettings, Renderer, SceneBounds,
+    Triplane,
 };
 
 fn test_triplane(dtype: PlaneDtype) -> Triplane {
@@ -32,9 +33,7 @@ fn test_triplane(dtype: PlaneDtype) -> Triplane {
             w1: (0..33 * 64).map(|_| next() * 0.2).collect(),
             b1: (0..33).map(|_| next() * 0.1).collect(),
         },
-        box_warp: 1.0,
-        ray_start: 2.25,
-        ray_end: 3.3,
+        bounds: SceneBounds::default(),
         camera: None,
         occupancy: None,
         source: Some("kernels test".into()),
@@ -46,8 +45,8 @@ fn test_triplane(dtype: PlaneDtype) -> Triplane {
 fn render_bits(renderer: &Renderer, gpu: &GpuTriplane) -> Vec<Vec<u32>> {
     let half_pi = std::f64::consts::FRAC_PI_2;
     let cams = [
-        Camera::look_at(half_pi, half_pi, FFHQ_RADIUS, [0.0, 0.0, 0.0], FFHQ_FOCAL),
-        Camera::look_at(half_pi + 0.4, half_pi - 0.2, FFHQ_RADIUS, [0.0, 0.0, 0.2], FFHQ_FOCAL),
+        Camera::lookat_pose(half_pi, half_pi, FFHQ_RADIUS, [0.0, 0.0, 0.0], FFHQ_FOCAL),
+        Camera::lookat_pose(half_pi + 0.4, half_pi - 0.2, FFHQ_RADIUS, [0.0, 0.0, 0.2], FFHQ_FOCAL),
     ];
     let exact = RenderSettings {
         resolution: 8,

@@ -289,8 +289,8 @@ impl ViewerApp {
             tri.height,
             tri.width,
             if tri.plane_dtype == lp3d_renderer::PlaneDtype::F16 { "float16" } else { "float32" },
-            tri.ray_start,
-            tri.ray_end,
+            tri.bounds.ray_start,
+            tri.bounds.ray_end,
             tri.source.as_deref().map(|s| format!("\n{s}")).unwrap_or_default()
         );
         self.path_input = path.display().to_string();
@@ -298,7 +298,7 @@ impl ViewerApp {
             path,
             gpu,
             summary,
-            ray_range: (tri.ray_start, tri.ray_end),
+            ray_range: (tri.bounds.ray_start, tri.bounds.ray_end),
             generation: self.generation,
         });
         self.error = None;

@@ -1,4 +1,4 @@
-//! The viewer's camera: an EG3D look-at orbit (the renderer's `Camera::orbit`, the same camera as
+//! The viewer's camera: an EG3D look-at orbit (the renderer's `Camera::look_at_camera`, the same camera as
 //! `lp3d.render.camera.look_at_camera`), plus zoom as focal length and pan as principal point, so the
 //! scene stays inside the triplane's [ray_start, ray_end] depth range.
 
@@ -20,7 +20,14 @@ impl Orbit {
     }
 
     pub fn camera(&self) -> Camera {
-        let mut c = Camera::orbit(self.yaw, self.pitch, 0.0, FFHQ_RADIUS, FFHQ_PIVOT, FFHQ_FOCAL * self.zoom);
+        let mut c = Camera::look_at_camera(
+            self.yaw,
+            self.pitch,
+            0.0,
+            FFHQ_RADIUS,
+            FFHQ_PIVOT,
+            FFHQ_FOCAL * self.zoom,
+        );
         c.0[18] = (0.5 + self.pan[0]) as f32;
         c.0[21] = (0.5 + self.pan[1]) as f32;
         c
@@ -52,7 +59,7 @@ mod tests {
     #[test]
     fn default_orbit_is_the_frontal_look_at_camera() {
         let c = Orbit::new(0.0, 0.0).camera();
-        let expect = Camera::orbit(0.0, 0.0, 0.0, FFHQ_RADIUS, FFHQ_PIVOT, FFHQ_FOCAL);
+        let expect = Camera::look_at_camera(0.0, 0.0, 0.0, FFHQ_RADIUS, FFHQ_PIVOT, FFHQ_FOCAL);
         assert_eq!(c, expect);
         let mut o = Orbit::new(170.0, 0.0);
         o.rotate(-0.25, 2.0);

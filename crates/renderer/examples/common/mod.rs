@@ -3,7 +3,7 @@
 //! settings from the command line.
 
 use lp3d_renderer::camera::{FFHQ_FOCAL, FFHQ_RADIUS};
-use lp3d_renderer::{Camera, Decoder, PlaneDtype, RenderSettings, Triplane};
+use lp3d_renderer::{Camera, Decoder, PlaneDtype, RenderSettings, SceneBounds, Triplane};
 
 /// The random benchmark triplane of `frame_time` and `compile_time`.
 pub fn random_triplane() -> Triplane {
@@ -26,9 +26,7 @@ pub fn random_triplane() -> Triplane {
             w1: (0..33 * 64).map(|_| rand() * 0.2).collect(),
             b1: (0..33).map(|_| rand() * 0.1).collect(),
         },
-        box_warp: 1.0,
-        ray_start: 2.25,
-        ray_end: 3.3,
+        bounds: SceneBounds::default(),
         camera: None,
         occupancy: None,
         source: None,
@@ -38,7 +36,7 @@ pub fn random_triplane() -> Triplane {
 /// The frontal FFHQ camera the examples render the scene from.
 pub fn frontal_camera() -> [Camera; 1] {
     let half_pi = std::f64::consts::FRAC_PI_2;
-    [Camera::look_at(half_pi, half_pi, FFHQ_RADIUS, [0.0, 0.0, 0.2], FFHQ_FOCAL)]
+    [Camera::lookat_pose(half_pi, half_pi, FFHQ_RADIUS, [0.0, 0.0, 0.2], FFHQ_FOCAL)]
 }
 
 /// The examples' `[R] [S] [N] [repeats]` arguments (defaults 128, 48, 48, 3) and the settings

@@ -1,0 +1,63 @@
+//! `view`: the lp3d-view window (the `viewer` feature), opened from Python.
+
+use std::path::PathBuf;
+
+use lp3d_renderer::settings::{MAX_RESOLUTION, MAX_SAMPLES};
+use pyo3::exceptions::PyRuntimeError;
+use pyo3::prelude::*;
+
+use crate::convert::{float_arg, int_arg, Arg};
+use crate::device::guarded;
+use crate::error::invalid;
+
+/// Opens the lp3d-view window on a triplane file and blocks until it is closed.
+/// With ``screenshot``, renders until the final quality (``resolution``, ``depth_resolution`` +
+/// ``depth_resolution_importance``) is on screen, after at least ``frames`` UI frames and, with
+/// ``drag_frames``, a scripted drag; saves a PNG of the window, the render as ``*.render.png``
+/// and a JSON sidecar (the 3D view's pixel rectangle, every frame's render time and quality) and
+/// returns. While the camera moves, frames render at the quality predicted to fit
+/// ``frame_budget_ms``. Call from the main thread, once per process (a windowing limitation).
+#[pyfunction]
+#[pyo3(
+    signature = (path=None, *, screenshot=None, yaw=Arg::Default(0.0), pitch=Arg::Default(0.0),
+                 resolution=Arg::Default(128), depth_resolution=Arg::Default(48),
+                 depth_resolution_importance=Arg::Default(48), frame_budget_ms=Arg::Default(100.0),
+                 frames=Arg::Default(3), drag_frames=Arg::Default(0)),
+    text_signature = "(path=None, *, screenshot=None, yaw=0.0, pitch=0.0, resolution=128, depth_resolution=48, depth_resolution_importance=48, frame_budget_ms=100.0, frames=3, drag_frames=0)"
+)]
+#[allow(clippy::too_many_arguments)]
+pub fn view<'py>(
+    py: Python<'py>,
+    path: Option<PathBuf>,
+    screenshot: Option<PathBuf>,
+    yaw: Arg<'py, f64>,
+    pitch: Arg<'py, f64>,
+    resolution: Arg<'py, i64>,
+    depth_resolution: Arg<'py, i64>,
+    depth_resolution_importance: Arg<'py, i64>,
+    frame_budget_ms: Arg<'py, f64>,
+    frames: Arg<'py, i64>,
+    drag_frames: Arg<'py, i64>,
+) -> PyResult<()> {
+    let samples = MAX_SAMPLES as i64;
+    let options = lp3d_viewer::ViewerOptions {
+        path,
+        screenshot,
+        yaw: float_arg(&yaw, "yaw")?,
+        pitch: float_arg(&pitch, "pitch")?,
+        resolution: int_arg(&resolution, "resolution", 16, MAX_RESOLUTION as i64)? as u32,
+        depth_resolution: int_arg(&depth_resolution, "depth_resolution", 2, samples)? as u32,
+        depth_resolution_importance: int_arg(
+            &depth_resolution_importance,
+            "depth_resolution_importance",
+            0,
+            samples,
+        )? as u32,
+        frame_budget_ms: float_arg(&frame_budget_ms, "frame_budget_ms")?,
+        frames: int_arg(&frames, "frames", 1, 10_000)? as u32,
+        drag_frames: int_arg(&drag_frames, "drag_frames", 0, 10_000)? as u32,
+        help: false,
+    };
+    options.validate().map_err(|e| invalid("view", e))?;
+    py.detach(|| guarded(|| lp3d_viewer::run(options).map_err(PyRuntimeError::new_err)))
+}
