@@ -8,12 +8,15 @@ the float32 paths against the float64 reference."""
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
 
 import lp3d_render
 from conftest import make_scene
+from lp3d.lift.inference import DEFAULT_MODEL
+from lp3d.lift.model_package import ModelPackageError, load_model_package
 from lp3d.render import native
 from lp3d.render.camera import look_at_camera, stack_labels
 from lp3d.render.reference import render_reference
@@ -123,6 +126,13 @@ def test_scene_bounds_name_the_bad_field_everywhere(
         with pytest.raises(TriplaneError, match=field) as caught:
             dataclasses.replace(tri, **dataclasses.asdict(bounds))
         assert caught.value.field == field
+        # A model package's sidecar runs the same check (the shipped one, its bounds replaced).
+        sidecar = json.loads(DEFAULT_MODEL.with_suffix(".json").read_text())
+        sidecar.pop("superres", None)
+        sidecar.update(dataclasses.asdict(bounds))
+        (tmp_path / "bad.json").write_text(json.dumps(sidecar))
+        with pytest.raises(ModelPackageError, match=f"bad.json: {field} .*{words}"):
+            load_model_package(tmp_path / "bad.json")
 
 
 def test_scene_bounds_of_every_holder(tmp_path) -> None:

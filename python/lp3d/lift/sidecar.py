@@ -9,7 +9,6 @@ May import :mod:`lp3d.render` and the plumbing modules (:mod:`lp3d.array_cache`)
 from __future__ import annotations
 
 import json
-import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from lp3d.array_cache import file_sha256
-from lp3d.render.settings import HIDDEN, N_CHANNELS, N_OUT
+from lp3d.render.settings import HIDDEN, N_CHANNELS, N_OUT, SceneBounds
 
 #: The ``format`` string every sidecar carries.
 PACKAGE_FORMAT = "lp3d-model-package"
@@ -69,12 +68,12 @@ def _check_array(where: str, arr: np.ndarray) -> None:
 
 
 def _check_bounds(where: str, box_warp: float, ray_start: float, ray_end: float) -> None:
-    if not (math.isfinite(box_warp) and box_warp > 0):
-        raise ModelPackageError(f"{where}: box_warp must be finite and > 0, got {box_warp!r}")
-    if not (math.isfinite(ray_start) and ray_start >= 0):
-        raise ModelPackageError(f"{where}: ray_start must be finite and >= 0, got {ray_start!r}")
-    if not (math.isfinite(ray_end) and ray_end > ray_start):
-        raise ModelPackageError(f"{where}: ray_end must be finite and > ray_start, got {ray_end!r}")
+    """The scene bounds with :class:`~lp3d.render.settings.SceneBounds`' one check, errors naming
+    ``where`` (the sidecar or the argument) and the field."""
+    bad = SceneBounds(box_warp, ray_start, ray_end).problem()
+    if bad is not None:
+        field, what = bad
+        raise ModelPackageError(f"{where}: {field} {what}")
 
 
 _SHA256 = re.compile(r"[0-9a-f]{64}")
