@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import ast
 import importlib
+import re
 import subprocess
 import sys
 import warnings
@@ -202,6 +203,52 @@ def test_long_functions_say_why() -> None:
     assert not unexplained, (
         f"functions over {MAX_FUNCTION_LINES} lines without '# Long because:': {unexplained}"
     )
+
+
+#: The Rust crates' sources: the same function rule (a reason is a ``// Long because:`` comment).
+REPO = Path(__file__).resolve().parents[1]
+RUST_SOURCES = sorted((REPO / "crates").glob("*/src/**/*.rs"))
+_RUST_FN = re.compile(r"^(\s*)(?:pub(?:\([a-z]+\))? )?(?:const )?(?:async )?(?:unsafe )?fn (\w+)")
+
+
+def _rust_function_lengths(path: Path) -> list[tuple[str, int, bool]]:
+    """``(name, lines from ``fn`` to its closing brace, a '// Long because:' comment in the four
+    lines above)`` per function; rustfmt's layout makes the closing brace the first line after
+    ``fn`` at the same indent that is a lone ``}``."""
+    lines = path.read_text().splitlines()
+    found = []
+    for i, line in enumerate(lines):
+        m = _RUST_FN.match(line)
+        if m is None or line.rstrip().endswith(";"):
+            continue
+        end = next((j for j in range(i + 1, len(lines)) if lines[j] == m.group(1) + "}"), None)
+        if end is None:
+            continue
+        reason = any("// Long because:" in lines[k] for k in range(max(0, i - 4), i))
+        found.append((m.group(2), end - i + 1, reason))
+    return found
+
+
+def test_long_rust_functions_say_why() -> None:
+    assert RUST_SOURCES, "no Rust sources found beside the package"
+    unexplained = [
+        f"{path.relative_to(REPO)}:{fn} ({n} lines)"
+        for path in RUST_SOURCES
+        for fn, n, reason in _rust_function_lengths(path)
+        if n > MAX_FUNCTION_LINES and not reason
+    ]
+    assert not unexplained, (
+        f"Rust functions over {MAX_FUNCTION_LINES} lines without '// Long because:': {unexplained}"
+    )
+
+
+def test_the_rust_length_check_reads_reasons(tmp_path) -> None:
+    body = "".join(f"    let x{i} = {i};\n" for i in range(MAX_FUNCTION_LINES))
+    plain, explained = tmp_path / "a.rs", tmp_path / "b.rs"
+    plain.write_text(f"/// Doc.\npub fn f() {{\n{body}}}\n")
+    explained.write_text(f"// Long because: one table.\nfn f() {{\n{body}}}\n")
+    assert _rust_function_lengths(plain) == [("f", MAX_FUNCTION_LINES + 2, False)]
+    assert _rust_function_lengths(explained) == [("f", MAX_FUNCTION_LINES + 2, True)]
 
 
 def test_the_length_check_reads_reasons(tmp_path) -> None:

@@ -5,7 +5,7 @@ use std::hash::BuildHasher;
 
 use lp3d_renderer::settings::{MAX_RESOLUTION, MAX_SAMPLES};
 use lp3d_renderer::triplane::N_CHANNELS;
-use lp3d_renderer::{Camera, Outputs, RenderSettings, Skips};
+use lp3d_renderer::{Camera, Outputs, RenderOutput, RenderSettings, Skips};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
@@ -112,32 +112,42 @@ pub fn render<'py>(
         let out =
             py.detach(|| gpu.renderer.render(&uploaded, &cameras, &settings, outputs)).map_err(to_py)?;
 
-        let r = settings.resolution as usize;
-        let b = cameras.len();
-        let shape = |c: Option<usize>| -> Vec<usize> {
-            let mut s = Vec::new();
-            if batched {
-                s.push(b);
-            }
-            if let Some(c) = c {
-                s.push(c);
-            }
-            s.extend([r, r]);
-            s
-        };
-        let dict = PyDict::new(py);
-        if let Some(v) = &out.features {
-            dict.set_item("features", f32_array(py, v, &shape(Some(N_CHANNELS)))?)?;
-        }
-        if let Some(v) = &out.rgb {
-            dict.set_item("rgb", f32_array(py, v, &shape(Some(3)))?)?;
-        }
-        if let Some(v) = &out.depth {
-            dict.set_item("depth", f32_array(py, v, &shape(None))?)?;
-        }
-        if let Some(v) = &out.weights_sum {
-            dict.set_item("weights_sum", f32_array(py, v, &shape(None))?)?;
-        }
-        Ok(dict)
+        output_dict(py, &out, settings.resolution as usize, cameras.len(), batched)
     })
+}
+
+/// The render's outputs as a dict of float32 arrays, (B, C, R, R) or (C, R, R) as the cameras
+/// came batched or not (no C for depth and weights_sum).
+fn output_dict<'py>(
+    py: Python<'py>,
+    out: &RenderOutput,
+    r: usize,
+    b: usize,
+    batched: bool,
+) -> PyResult<Bound<'py, PyDict>> {
+    let shape = |c: Option<usize>| -> Vec<usize> {
+        let mut s = Vec::new();
+        if batched {
+            s.push(b);
+        }
+        if let Some(c) = c {
+            s.push(c);
+        }
+        s.extend([r, r]);
+        s
+    };
+    let dict = PyDict::new(py);
+    if let Some(v) = &out.features {
+        dict.set_item("features", f32_array(py, v, &shape(Some(N_CHANNELS)))?)?;
+    }
+    if let Some(v) = &out.rgb {
+        dict.set_item("rgb", f32_array(py, v, &shape(Some(3)))?)?;
+    }
+    if let Some(v) = &out.depth {
+        dict.set_item("depth", f32_array(py, v, &shape(None))?)?;
+    }
+    if let Some(v) = &out.weights_sum {
+        dict.set_item("weights_sum", f32_array(py, v, &shape(None))?)?;
+    }
+    Ok(dict)
 }

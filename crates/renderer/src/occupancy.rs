@@ -99,66 +99,7 @@ impl Occupancy {
             ));
         }
         let d = &tri.decoder;
-        // Per plane and 2-D cell: the hidden pre-activation's centre and radius contribution,
-        // Σ_c w0[j,c] · centre_c and Σ_c |w0[j,c]| · radius_c, for the plane's feature box.
-        let (h, w) = (tri.height, tri.width);
-        let mut centre = vec![0f64; 3 * g * g * HIDDEN];
-        let mut radius = vec![0f64; 3 * g * g * HIDDEN];
-        let xs = footprints(g, w);
-        let ys = footprints(g, h);
-        let mut lo = vec![0f64; g * g * N_CHANNELS];
-        let mut hi = vec![0f64; g * g * N_CHANNELS];
-        let mut row_lo = vec![0f64; h * g];
-        let mut row_hi = vec![0f64; h * g];
-        for p in 0..3 {
-            for c in 0..N_CHANNELS {
-                let plane = &tri.planes[(p * N_CHANNELS + c) * h * w..][..h * w];
-                // Separable min/max: over each cell's column range, then its row range.
-                for y in 0..h {
-                    let row = &plane[y * w..][..w];
-                    for (a, fp) in xs.iter().enumerate() {
-                        let (mut mn, mut mx) = (f64::INFINITY, f64::NEG_INFINITY);
-                        for &v in &row[fp.first..=fp.last] {
-                            mn = mn.min(v as f64);
-                            mx = mx.max(v as f64);
-                        }
-                        row_lo[y * g + a] = mn;
-                        row_hi[y * g + a] = mx;
-                    }
-                }
-                for (b, fy) in ys.iter().enumerate() {
-                    for (a, fx) in xs.iter().enumerate() {
-                        let (mut mn, mut mx) = (f64::INFINITY, f64::NEG_INFINITY);
-                        for y in fy.first..=fy.last {
-                            mn = mn.min(row_lo[y * g + a]);
-                            mx = mx.max(row_hi[y * g + a]);
-                        }
-                        // Zeros padding: a tap outside the plane contributes 0.
-                        if fx.padded || fy.padded {
-                            mn = mn.min(0.0);
-                            mx = mx.max(0.0);
-                        }
-                        // 2-D cell index: (u cell a, v cell b).
-                        lo[(a * g + b) * N_CHANNELS + c] = mn;
-                        hi[(a * g + b) * N_CHANNELS + c] = mx;
-                    }
-                }
-            }
-            for cell in 0..g * g {
-                let (l, u) = (&lo[cell * N_CHANNELS..][..N_CHANNELS], &hi[cell * N_CHANNELS..][..N_CHANNELS]);
-                for j in 0..HIDDEN {
-                    let wj = &d.w0[j * N_CHANNELS..][..N_CHANNELS];
-                    let (mut cs, mut rs) = (0f64, 0f64);
-                    for c in 0..N_CHANNELS {
-                        let wv = wj[c] as f64;
-                        cs += wv * 0.5 * (l[c] + u[c]);
-                        rs += wv.abs() * 0.5 * (u[c] - l[c]);
-                    }
-                    centre[(p * g * g + cell) * HIDDEN + j] = cs;
-                    radius[(p * g * g + cell) * HIDDEN + j] = rs;
-                }
-            }
-        }
+        let (centre, radius) = hidden_intervals(tri, g);
         // Magnitude of the first layer's terms, |b0_j| + Σ_c |w0[j,c]| · max |plane value|,
         // which bounds its float32 error (times F32_ALLOWANCE).
         let fmax = tri.planes.iter().fold(0f64, |m, &v| m.max((v as f64).abs()));
@@ -187,6 +128,74 @@ impl Occupancy {
         });
         Ok(Occupancy { resolution: g, bound })
     }
+}
+
+/// Per plane and 2-D cell of a `g`-cell grid: the centre and radius of each hidden unit's
+/// pre-activation contribution over the cell's feature box (min/max of every channel over the
+/// texels a sample in the cell can touch), laid out (3, g·g, HIDDEN).
+fn hidden_intervals(tri: &Triplane, g: usize) -> (Vec<f64>, Vec<f64>) {
+    let d = &tri.decoder;
+    // Per plane and 2-D cell: the hidden pre-activation's centre and radius contribution,
+    // Σ_c w0[j,c] · centre_c and Σ_c |w0[j,c]| · radius_c, for the plane's feature box.
+    let (h, w) = (tri.height, tri.width);
+    let mut centre = vec![0f64; 3 * g * g * HIDDEN];
+    let mut radius = vec![0f64; 3 * g * g * HIDDEN];
+    let xs = footprints(g, w);
+    let ys = footprints(g, h);
+    let mut lo = vec![0f64; g * g * N_CHANNELS];
+    let mut hi = vec![0f64; g * g * N_CHANNELS];
+    let mut row_lo = vec![0f64; h * g];
+    let mut row_hi = vec![0f64; h * g];
+    for p in 0..3 {
+        for c in 0..N_CHANNELS {
+            let plane = &tri.planes[(p * N_CHANNELS + c) * h * w..][..h * w];
+            // Separable min/max: over each cell's column range, then its row range.
+            for y in 0..h {
+                let row = &plane[y * w..][..w];
+                for (a, fp) in xs.iter().enumerate() {
+                    let (mut mn, mut mx) = (f64::INFINITY, f64::NEG_INFINITY);
+                    for &v in &row[fp.first..=fp.last] {
+                        mn = mn.min(v as f64);
+                        mx = mx.max(v as f64);
+                    }
+                    row_lo[y * g + a] = mn;
+                    row_hi[y * g + a] = mx;
+                }
+            }
+            for (b, fy) in ys.iter().enumerate() {
+                for (a, fx) in xs.iter().enumerate() {
+                    let (mut mn, mut mx) = (f64::INFINITY, f64::NEG_INFINITY);
+                    for y in fy.first..=fy.last {
+                        mn = mn.min(row_lo[y * g + a]);
+                        mx = mx.max(row_hi[y * g + a]);
+                    }
+                    // Zeros padding: a tap outside the plane contributes 0.
+                    if fx.padded || fy.padded {
+                        mn = mn.min(0.0);
+                        mx = mx.max(0.0);
+                    }
+                    // 2-D cell index: (u cell a, v cell b).
+                    lo[(a * g + b) * N_CHANNELS + c] = mn;
+                    hi[(a * g + b) * N_CHANNELS + c] = mx;
+                }
+            }
+        }
+        for cell in 0..g * g {
+            let (l, u) = (&lo[cell * N_CHANNELS..][..N_CHANNELS], &hi[cell * N_CHANNELS..][..N_CHANNELS]);
+            for j in 0..HIDDEN {
+                let wj = &d.w0[j * N_CHANNELS..][..N_CHANNELS];
+                let (mut cs, mut rs) = (0f64, 0f64);
+                for c in 0..N_CHANNELS {
+                    let wv = wj[c] as f64;
+                    cs += wv * 0.5 * (l[c] + u[c]);
+                    rs += wv.abs() * 0.5 * (u[c] - l[c]);
+                }
+                centre[(p * g * g + cell) * HIDDEN + j] = cs;
+                radius[(p * g * g + cell) * HIDDEN + j] = rs;
+            }
+        }
+    }
+    (centre, radius)
 }
 
 /// Upper bound on the raw density over 3-D cell `ijk` (interval arithmetic, `docs/occupancy.md`).

@@ -244,8 +244,7 @@ impl Triplane {
         bytes: u64,
         path: &Path,
     ) -> Result<Triplane> {
-        let fmt =
-            |field: &str, message: String| Error::Format { path: path.into(), field: field.into(), message };
+        let fmt = |field: &str, message: String| format_error(path, field, message);
         if bytes == 0 {
             return Err(fmt("", "empty file, not an .npz triplane".into()));
         }
@@ -256,142 +255,9 @@ impl Triplane {
             ));
         }
         let mut npz = npz::NpzReader::new(reader, bytes).map_err(|(k, m)| fmt(&k, m))?;
-        let mut keys: Vec<String> = npz.keys().map(str::to_string).collect();
-        keys.sort();
-        let has = |k: &str| keys.iter().any(|x| x == k);
-
-        // The version first, so a newer file is reported as such rather than by its new keys.
-        const VERSION: &str = "format_version";
-        if !has(VERSION) {
-            return Err(fmt(VERSION, "missing key (not an lp3d triplane file?)".into()));
-        }
-        let header = npz.header(VERSION).map_err(|m| fmt(VERSION, m))?;
-        check_header(VERSION, &header).map_err(|m| fmt(VERSION, m))?;
-        let version = match npz.read(VERSION, &header).map_err(|m| fmt(VERSION, m))? {
-            NpyData::I64(v) => v[0],
-            NpyData::I32(v) => v[0] as i64,
-            _ => unreachable!("check_header admits integers only"),
-        };
-        if version != FORMAT_VERSION {
-            return Err(fmt(
-                VERSION,
-                format!("unknown format_version {version} (this reader supports {FORMAT_VERSION})"),
-            ));
-        }
-        let unknown: Vec<&String> = keys
-            .iter()
-            .filter(|k| !REQUIRED_KEYS.contains(&k.as_str()) && !OPTIONAL_KEYS.contains(&k.as_str()))
-            .collect();
-        if let Some(first) = unknown.first() {
-            return Err(fmt(first, format!("unknown key(s) {unknown:?} (format_version {FORMAT_VERSION})")));
-        }
-        let missing: Vec<&str> = {
-            let mut m: Vec<&str> = REQUIRED_KEYS.iter().copied().filter(|k| !has(k)).collect();
-            m.sort();
-            m
-        };
-        if let Some(first) = missing.first() {
-            return Err(fmt(first, format!("missing required key(s) {missing:?}")));
-        }
-        if has("occupancy") != has("occupancy_checksum") {
-            let absent = if has("occupancy") { "occupancy_checksum" } else { "occupancy" };
-            return Err(fmt(absent, "missing ('occupancy' and 'occupancy_checksum' go together)".into()));
-        }
-
-        // Every header against the format before any data is read: no claim reaches the allocator.
-        let mut headers = Vec::with_capacity(keys.len());
-        for key in keys.iter().filter(|k| *k != VERSION) {
-            let h = npz.header(key).map_err(|m| fmt(key, m))?;
-            check_header(key, &h).map_err(|m| fmt(key, m))?;
-            headers.push((key.clone(), h));
-        }
-        let mut arrays: Vec<(String, NpyArray)> = Vec::with_capacity(headers.len());
-        for (key, h) in headers {
-            let data = npz.read(&key, &h).map_err(|m| fmt(&key, m))?;
-            arrays.push((key, NpyArray { shape: h.shape, data }));
-        }
-        let mut take = |key: &str| {
-            let i = arrays.iter().position(|(k, _)| k == key)?;
-            Some(arrays.swap_remove(i).1)
-        };
-
-        let planes = take("planes").expect("required key present");
-        let (height, width) = (planes.shape[2], planes.shape[3]);
-        let (planes, plane_dtype) = match planes.data {
-            NpyData::F16(v) => {
-                (v.iter().map(|&b| half::f16::from_bits(b).to_f32()).collect(), PlaneDtype::F16)
-            }
-            NpyData::F32(v) => (v, PlaneDtype::F32),
-            _ => unreachable!("check_header admits float16 and float32 planes only"),
-        };
-        let mut floats = |key: &str| take(key).and_then(|a| a.to_f32()).expect("required float key present");
-        let decoder = Decoder {
-            w0: floats("decoder_w0"),
-            b0: floats("decoder_b0"),
-            w1: floats("decoder_w1"),
-            b1: floats("decoder_b1"),
-        };
-        let mut scalar = |key: &str| take(key).and_then(|a| a.scalar_f64()).expect("required scalar present");
-        let bounds = SceneBounds::new(scalar("box_warp"), scalar("ray_start"), scalar("ray_end")).map_err(
-            |e| match e {
-                Error::InvalidInput { field, message } => fmt(&field, message),
-                other => other,
-            },
-        )?;
-        let camera = match take("camera") {
-            None => None,
-            Some(a) => {
-                let v64: Vec<f64> = match a.data {
-                    NpyData::F64(v) => v,
-                    NpyData::F32(v) => v.iter().map(|&x| x as f64).collect(),
-                    _ => unreachable!("check_header admits float32 and float64 cameras only"),
-                };
-                let camera = Camera::from_label(&v64, "camera").map_err(|e| fmt("camera", e.to_string()))?;
-                if let Some(i) = v64.iter().position(|&x| !(x as f32).is_finite()) {
-                    return Err(fmt(
-                        "camera",
-                        format!("value {} at index {i} is not finite as float32", v64[i]),
-                    ));
-                }
-                Some(camera)
-            }
-        };
-        let checksum = match take("occupancy_checksum").map(|a| a.data) {
-            None => None,
-            Some(NpyData::I64(v)) => Some(v[0]),
-            Some(NpyData::I32(v)) => Some(v[0] as i64),
-            Some(_) => unreachable!("check_header admits integer checksums only"),
-        };
-        let occupancy = match take("occupancy") {
-            None => None,
-            Some(NpyArray { shape, data: NpyData::F32(bound) }) => {
-                Some(Occupancy { resolution: shape[0], bound })
-            }
-            Some(_) => unreachable!("check_header admits float32 grids only"),
-        };
-        let source = match take("source").map(|a| a.data) {
-            None => None,
-            Some(NpyData::Str(s)) => Some(s),
-            Some(_) => unreachable!("check_header admits unicode sources only"),
-        };
-        let tri = Triplane { planes, height, width, plane_dtype, decoder, bounds, camera, occupancy, source };
-        tri.validate().map_err(|e| match e {
-            Error::InvalidInput { field, message } => fmt(key_of_field(&field), message),
-            other => other,
-        })?;
-        if let Some(stored) = checksum {
-            let actual = Occupancy::checksum(&tri) as i64;
-            if stored != actual {
-                return Err(fmt(
-                    "occupancy_checksum",
-                    format!(
-                        "{stored} does not match these planes and decoder ({actual}): the grid was baked \
-                         for another triplane; bake it again"
-                    ),
-                ));
-            }
-        }
-        Ok(tri)
+        let keys = checked_keys(&mut npz, path)?;
+        let arrays = read_arrays(&mut npz, &keys, path)?;
+        from_arrays(arrays, path)
     }
 
     /// Writes the triplane atomically ([`crate::atomic`]): a temporary file of this call's own in
@@ -501,6 +367,171 @@ fn file_kind(t: &std::fs::FileType) -> &'static str {
     } else {
         "is not a regular file"
     }
+}
+
+/// The key of the format version, read before anything else.
+const VERSION: &str = "format_version";
+
+/// A [`Error::Format`] about `field` of the file at `path`.
+fn format_error(path: &Path, field: &str, message: String) -> Error {
+    Error::Format { path: path.into(), field: field.into(), message }
+}
+
+/// The archive's keys, sorted, after the checks that need no data but the version: the version
+/// is supported, no key is unknown, none required is missing, and `occupancy` comes with its
+/// checksum.
+fn checked_keys<R: std::io::Read + std::io::Seek>(
+    npz: &mut npz::NpzReader<R>,
+    path: &Path,
+) -> Result<Vec<String>> {
+    let fmt = |field: &str, message: String| format_error(path, field, message);
+    let mut keys: Vec<String> = npz.keys().map(str::to_string).collect();
+    keys.sort();
+    let has = |k: &str| keys.iter().any(|x| x == k);
+
+    // The version first, so a newer file is reported as such rather than by its new keys.
+    if !has(VERSION) {
+        return Err(fmt(VERSION, "missing key (not an lp3d triplane file?)".into()));
+    }
+    let header = npz.header(VERSION).map_err(|m| fmt(VERSION, m))?;
+    check_header(VERSION, &header).map_err(|m| fmt(VERSION, m))?;
+    let version = match npz.read(VERSION, &header).map_err(|m| fmt(VERSION, m))? {
+        NpyData::I64(v) => v[0],
+        NpyData::I32(v) => v[0] as i64,
+        _ => unreachable!("check_header admits integers only"),
+    };
+    if version != FORMAT_VERSION {
+        return Err(fmt(
+            VERSION,
+            format!("unknown format_version {version} (this reader supports {FORMAT_VERSION})"),
+        ));
+    }
+    let unknown: Vec<&String> = keys
+        .iter()
+        .filter(|k| !REQUIRED_KEYS.contains(&k.as_str()) && !OPTIONAL_KEYS.contains(&k.as_str()))
+        .collect();
+    if let Some(first) = unknown.first() {
+        return Err(fmt(first, format!("unknown key(s) {unknown:?} (format_version {FORMAT_VERSION})")));
+    }
+    let missing: Vec<&str> = {
+        let mut m: Vec<&str> = REQUIRED_KEYS.iter().copied().filter(|k| !has(k)).collect();
+        m.sort();
+        m
+    };
+    if let Some(first) = missing.first() {
+        return Err(fmt(first, format!("missing required key(s) {missing:?}")));
+    }
+    if has("occupancy") != has("occupancy_checksum") {
+        let absent = if has("occupancy") { "occupancy_checksum" } else { "occupancy" };
+        return Err(fmt(absent, "missing ('occupancy' and 'occupancy_checksum' go together)".into()));
+    }
+    Ok(keys)
+}
+
+/// Every array but the version, read after all headers passed `check_header`: no size an
+/// archive claims reaches the allocator unchecked.
+fn read_arrays<R: std::io::Read + std::io::Seek>(
+    npz: &mut npz::NpzReader<R>,
+    keys: &[String],
+    path: &Path,
+) -> Result<Vec<(String, NpyArray)>> {
+    let fmt = |field: &str, message: String| format_error(path, field, message);
+    // Every header against the format before any data is read: no claim reaches the allocator.
+    let mut headers = Vec::with_capacity(keys.len());
+    for key in keys.iter().filter(|k| *k != VERSION) {
+        let h = npz.header(key).map_err(|m| fmt(key, m))?;
+        check_header(key, &h).map_err(|m| fmt(key, m))?;
+        headers.push((key.clone(), h));
+    }
+    let mut arrays: Vec<(String, NpyArray)> = Vec::with_capacity(headers.len());
+    for (key, h) in headers {
+        let data = npz.read(&key, &h).map_err(|m| fmt(&key, m))?;
+        arrays.push((key, NpyArray { shape: h.shape, data }));
+    }
+    Ok(arrays)
+}
+
+/// The triplane from its checked arrays (as [`read_arrays`] returns them), validated; a stored
+/// occupancy checksum must match these planes and decoder.
+fn from_arrays(mut arrays: Vec<(String, NpyArray)>, path: &Path) -> Result<Triplane> {
+    let fmt = |field: &str, message: String| format_error(path, field, message);
+    let mut take = |key: &str| {
+        let i = arrays.iter().position(|(k, _)| k == key)?;
+        Some(arrays.swap_remove(i).1)
+    };
+
+    let planes = take("planes").expect("required key present");
+    let (height, width) = (planes.shape[2], planes.shape[3]);
+    let (planes, plane_dtype) = match planes.data {
+        NpyData::F16(v) => (v.iter().map(|&b| half::f16::from_bits(b).to_f32()).collect(), PlaneDtype::F16),
+        NpyData::F32(v) => (v, PlaneDtype::F32),
+        _ => unreachable!("check_header admits float16 and float32 planes only"),
+    };
+    let mut floats = |key: &str| take(key).and_then(|a| a.to_f32()).expect("required float key present");
+    let decoder = Decoder {
+        w0: floats("decoder_w0"),
+        b0: floats("decoder_b0"),
+        w1: floats("decoder_w1"),
+        b1: floats("decoder_b1"),
+    };
+    let mut scalar = |key: &str| take(key).and_then(|a| a.scalar_f64()).expect("required scalar present");
+    let bounds = SceneBounds::new(scalar("box_warp"), scalar("ray_start"), scalar("ray_end")).map_err(
+        |e| match e {
+            Error::InvalidInput { field, message } => fmt(&field, message),
+            other => other,
+        },
+    )?;
+    let camera = match take("camera") {
+        None => None,
+        Some(a) => {
+            let v64: Vec<f64> = match a.data {
+                NpyData::F64(v) => v,
+                NpyData::F32(v) => v.iter().map(|&x| x as f64).collect(),
+                _ => unreachable!("check_header admits float32 and float64 cameras only"),
+            };
+            let camera = Camera::from_label(&v64, "camera").map_err(|e| fmt("camera", e.to_string()))?;
+            if let Some(i) = v64.iter().position(|&x| !(x as f32).is_finite()) {
+                return Err(fmt("camera", format!("value {} at index {i} is not finite as float32", v64[i])));
+            }
+            Some(camera)
+        }
+    };
+    let checksum = match take("occupancy_checksum").map(|a| a.data) {
+        None => None,
+        Some(NpyData::I64(v)) => Some(v[0]),
+        Some(NpyData::I32(v)) => Some(v[0] as i64),
+        Some(_) => unreachable!("check_header admits integer checksums only"),
+    };
+    let occupancy = match take("occupancy") {
+        None => None,
+        Some(NpyArray { shape, data: NpyData::F32(bound) }) => {
+            Some(Occupancy { resolution: shape[0], bound })
+        }
+        Some(_) => unreachable!("check_header admits float32 grids only"),
+    };
+    let source = match take("source").map(|a| a.data) {
+        None => None,
+        Some(NpyData::Str(s)) => Some(s),
+        Some(_) => unreachable!("check_header admits unicode sources only"),
+    };
+    let tri = Triplane { planes, height, width, plane_dtype, decoder, bounds, camera, occupancy, source };
+    tri.validate().map_err(|e| match e {
+        Error::InvalidInput { field, message } => fmt(key_of_field(&field), message),
+        other => other,
+    })?;
+    if let Some(stored) = checksum {
+        let actual = Occupancy::checksum(&tri) as i64;
+        if stored != actual {
+            return Err(fmt(
+                "occupancy_checksum",
+                format!(
+                    "{stored} does not match these planes and decoder ({actual}): the grid was baked \
+                     for another triplane; bake it again"
+                ),
+            ));
+        }
+    }
+    Ok(tri)
 }
 
 /// Checks one entry's `.npy` header (dtype, shape, caps) against the format's table before any

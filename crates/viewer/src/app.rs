@@ -474,6 +474,8 @@ impl ViewerApp {
         }
     }
 
+    // Long because: egui is immediate mode; the side panel's widgets are written in the order
+    // they appear, one or two lines each, and splitting them would split the panel's reading order.
     fn controls(&mut self, ui: &mut egui::Ui) {
         ui.heading("lp3d-view");
         ui.horizontal(|ui| {
