@@ -69,6 +69,7 @@ def test_stub_signatures_match_runtime() -> None:
         "Triplane.load": _lp3d_render.Triplane.load,
         "Triplane.save": _lp3d_render.Triplane.save,
         "view": _lp3d_render.view,
+        "view_options": _lp3d_render.view_options,
     }
     assert set(stubs) == set(runtime)
     for name, obj in runtime.items():

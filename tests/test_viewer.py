@@ -153,3 +153,38 @@ def test_bad_inputs_exit_non_zero(tmp_path: Path) -> None:
             [sys.executable, "-m", "lp3d.cli", "view", *args], capture_output=True, text=True, timeout=60
         )
         assert out.returncode != 0 and name in out.stderr, (args, out.stderr)
+
+
+def test_viewer_flags_are_parsed_in_one_place() -> None:
+    """``lp3d view`` hands its arguments to the viewer crate's parser (``lp3d_render.view_options``),
+    the one that cargo's ``lp3d-view`` uses: same flags, same values, same help."""
+    opts = lp3d_render.view_options(
+        ["--yaw", "12.5", "--samples", "16+8", "--resolution", "64", "--frames", "2", "h.npz"]
+    )
+    assert str(opts.pop("path")) == "h.npz"
+    assert opts == {
+        "help": False,
+        "screenshot": None,
+        "yaw": 12.5,
+        "pitch": 0.0,
+        "resolution": 64,
+        "depth_resolution": 16,
+        "depth_resolution_importance": 8,
+        "frame_budget_ms": 100.0,
+        "frames": 2,
+        "drag_frames": 0,
+    }
+    assert lp3d_render.view_options(["-h"])["help"] is True
+    with pytest.raises(ValueError, match="unknown option --nope"):
+        lp3d_render.view_options(["--nope"])
+    shown = subprocess.run(
+        [sys.executable, "-m", "lp3d.cli", "view", "--help"], capture_output=True, text=True, timeout=60
+    )
+    usage = lp3d_render.VIEW_USAGE.replace("usage: lp3d-view", "usage: lp3d view", 1)
+    assert shown.returncode == 0 and shown.stdout.strip() == usage.strip()
+    for flag in ("--screenshot", "--yaw", "--pitch", "--samples", "--frame-budget-ms", "--drag-frames"):
+        assert flag in lp3d_render.VIEW_USAGE
+    unknown = subprocess.run(
+        [sys.executable, "-m", "lp3d.cli", "view", "--nope"], capture_output=True, text=True, timeout=60
+    )
+    assert unknown.returncode == 2 and "unknown option --nope" in unknown.stderr

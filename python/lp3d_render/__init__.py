@@ -23,6 +23,7 @@ from lp3d_render._lp3d_render import (
     MAX_RESOLUTION,
     MAX_SAMPLES,
     PLANE_AXES,
+    VIEW_USAGE,
     Triplane,
     __version__,
     adapter_info,
@@ -30,6 +31,7 @@ from lp3d_render._lp3d_render import (
     look_at_camera,
     render,
     view,
+    view_options,
 )
 
 __all__ = [
@@ -45,10 +47,12 @@ __all__ = [
     "MAX_SAMPLES",
     "PLANE_AXES",
     "Triplane",
+    "VIEW_USAGE",
     "__version__",
     "adapter_info",
     "last_frame_device_bytes",
     "look_at_camera",
     "render",
     "view",
+    "view_options",
 ]

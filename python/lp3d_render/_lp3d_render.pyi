@@ -2,6 +2,7 @@
 
 from collections.abc import Iterable
 from os import PathLike
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -18,6 +19,8 @@ DEFAULT_BOX_WARP: float
 DEFAULT_RAY_START: float
 DEFAULT_RAY_END: float
 FORMAT_VERSION: int
+#: lp3d-view's usage text: its flags, defined once in the viewer crate.
+VIEW_USAGE: str
 #: The triplane file's caps (docs/triplane-format.md, "Caps"), by name.
 FILE_LIMITS: dict[str, int]
 __version__: str
@@ -109,3 +112,4 @@ def view(
     frames: int = 3,
     drag_frames: int = 0,
 ) -> None: ...
+def view_options(argv: list[str]) -> dict[str, Any]: ...

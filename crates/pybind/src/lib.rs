@@ -32,7 +32,11 @@ fn _lp3d_render(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(device::last_frame_device_bytes, m)?)?;
     m.add_function(wrap_pyfunction!(camera::look_at_camera, m)?)?;
     #[cfg(feature = "viewer")]
-    m.add_function(wrap_pyfunction!(view::view, m)?)?;
+    {
+        m.add_function(wrap_pyfunction!(view::view, m)?)?;
+        m.add_function(wrap_pyfunction!(view::view_options, m)?)?;
+        m.add("VIEW_USAGE", lp3d_viewer::USAGE)?;
+    }
     m.add("MAX_RESOLUTION", MAX_RESOLUTION)?;
     m.add("MAX_SAMPLES", MAX_SAMPLES)?;
     m.add("FFHQ_FOCAL", FFHQ_FOCAL)?;

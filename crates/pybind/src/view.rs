@@ -1,10 +1,12 @@
-//! `view`: the lp3d-view window (the `viewer` feature), opened from Python.
+//! `view`: the lp3d-view window (the `viewer` feature), opened from Python, and
+//! `view_options`: its command line, parsed by the viewer's own parser.
 
 use std::path::PathBuf;
 
 use lp3d_renderer::settings::{MAX_RESOLUTION, MAX_SAMPLES};
-use pyo3::exceptions::PyRuntimeError;
+use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
+use pyo3::types::PyDict;
 
 use crate::convert::{float_arg, int_arg, Arg};
 use crate::device::guarded;
@@ -60,4 +62,27 @@ pub fn view<'py>(
     };
     options.validate().map_err(|e| invalid("view", e))?;
     py.detach(|| guarded(|| lp3d_viewer::run(options).map_err(PyRuntimeError::new_err)))
+}
+
+/// Parses ``lp3d-view``'s command line (``argv`` without the program name) with the viewer's
+/// own parser, the one definition of its flags (``VIEW_USAGE`` lists them), for ``lp3d view``
+/// and the ``lp3d-view`` console script. Returns ``help`` (``-h``/``--help`` was given) and
+/// ``path`` plus the keyword arguments of :func:`view`; a bad flag or value is a ValueError
+/// whose message names it.
+#[pyfunction]
+pub fn view_options<'py>(py: Python<'py>, argv: Vec<String>) -> PyResult<Bound<'py, PyDict>> {
+    let o = lp3d_viewer::ViewerOptions::from_args(argv).map_err(PyValueError::new_err)?;
+    let dict = PyDict::new(py);
+    dict.set_item("help", o.help)?;
+    dict.set_item("path", o.path)?;
+    dict.set_item("screenshot", o.screenshot)?;
+    dict.set_item("yaw", o.yaw)?;
+    dict.set_item("pitch", o.pitch)?;
+    dict.set_item("resolution", o.resolution)?;
+    dict.set_item("depth_resolution", o.depth_resolution)?;
+    dict.set_item("depth_resolution_importance", o.depth_resolution_importance)?;
+    dict.set_item("frame_budget_ms", o.frame_budget_ms)?;
+    dict.set_item("frames", o.frames)?;
+    dict.set_item("drag_frames", o.drag_frames)?;
+    Ok(dict)
 }

@@ -20,8 +20,9 @@ bounds are not that package's), else the shipped model's SR when the triplane ha
 decoder and bounds (every triplane the shipped model encodes has), else none (raw, and they say why).
 
 Every subcommand has ``--help`` and is one module of this package (``add_arguments(parser)``,
-``run(args) -> int``); what they share is in :mod:`lp3d.cli.common`. Errors go to stderr as
-``lp3d <command>: error: <what and where>``: exit status 0 ok, 1 an error, 2 a usage error, 130
+``run(args) -> int``, optionally ``PARSER_OPTIONS`` for its argparse parser: ``view`` hands its
+arguments to the viewer crate's own parser); what they share is in :mod:`lp3d.cli.common`. Errors go
+to stderr as ``lp3d <command>: error: <what and where>``: exit status 0 ok, 1 an error, 2 a usage error, 130
 interrupted (:mod:`lp3d.errors`, the policy of every entry point); set ``LP3D_DEBUG=1`` for the
 traceback. Outputs are written to temporary files beside their destination and renamed into place
 only when everything succeeded (:mod:`lp3d.outputs`), so a failed command leaves no partial files;
@@ -151,7 +152,12 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"lp3d {version}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, module in COMMANDS.items():
-        p = sub.add_parser(name, help=module.HELP, description=getattr(module, "DESCRIPTION", None))
+        p = sub.add_parser(
+            name,
+            help=module.HELP,
+            description=getattr(module, "DESCRIPTION", None),
+            **getattr(module, "PARSER_OPTIONS", {}),
+        )
         if not getattr(module, "LAZY", False) or name == command:
             _add_command(p, module)
     return parser
@@ -160,7 +166,9 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 def standalone_parser(module: ModuleType, prog: str) -> argparse.ArgumentParser:
     """A parser for one subcommand on its own (``lp3d-view``), to run with
     :func:`lp3d.errors.run_command`."""
-    p = argparse.ArgumentParser(prog=prog, description=getattr(module, "DESCRIPTION", None))
+    p = argparse.ArgumentParser(
+        prog=prog, description=getattr(module, "DESCRIPTION", None), **getattr(module, "PARSER_OPTIONS", {})
+    )
     _add_command(p, module)
     return p
 

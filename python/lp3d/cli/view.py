@@ -1,12 +1,12 @@
 """``lp3d view`` (also the ``lp3d-view`` console script): the interactive viewer compiled into
-``lp3d_render`` (the same Rust code as ``cargo run -p lp3d-viewer``)."""
+``lp3d_render`` (the same Rust code as ``cargo run -p lp3d-viewer``), with the same flags: they are
+parsed by the viewer crate (``crates/viewer/src/options.rs``) in both."""
 
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from lp3d.cli.common import UsageError, UserError, parse_samples
+from lp3d.cli.common import UsageError, UserError
 
 HELP = "open a triplane file in the interactive viewer"
 DESCRIPTION = (
@@ -15,70 +15,35 @@ DESCRIPTION = (
 )
 
 
+#: The viewer's flags are defined once, by the viewer crate's parser (``lp3d_render.view_options``;
+#: ``lp3d view --help`` prints its ``VIEW_USAGE``): this parser hands every argument through
+#: untouched. NUL cannot occur in a command-line argument, so with it as the only prefix
+#: character argparse reads no argument (not even ``-h``) as one of its own options.
+PARSER_OPTIONS = {"add_help": False, "prefix_chars": "\0"}
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("triplane", nargs="?", type=Path, help="triplane .npz file")
-    p.add_argument("--screenshot", type=Path, help="render a few frames, save a PNG of the window, exit")
-    p.add_argument("--yaw", type=float, default=0.0, help="initial yaw in degrees (default: 0)")
-    p.add_argument("--pitch", type=float, default=0.0, help="initial pitch in degrees (default: 0)")
     p.add_argument(
-        "--resolution", type=int, default=128, help="rays per side of the final image (default: 128)"
-    )
-    p.add_argument(
-        "--samples",
-        type=parse_samples,
-        default=(48, 48),
-        metavar="COARSE+FINE",
-        help="samples per ray of the final image, EG3D's depth_resolution + depth_resolution_importance "
-        "(default: 48+48; 64 alone skips the importance pass)",
-    )
-    p.add_argument(
-        "--frame-budget-ms",
-        type=float,
-        default=100.0,
-        help="while the camera moves, render at the quality predicted to take at most this per frame; "
-        "when it stops, refine to the final quality (default: 100)",
-    )
-    p.add_argument(
-        "--frames",
-        type=int,
-        default=3,
-        help="UI frames before a screenshot; it also waits for the final quality (default: 3)",
-    )
-    p.add_argument(
-        "--drag-frames",
-        type=int,
-        default=0,
-        help="with --screenshot: drag the view to orbit over this many UI frames (synthetic pointer "
-        "events), then save once the refined image is up; the JSON sidecar records each frame's render "
-        "time and quality (default: 0, no drag)",
+        "argv", nargs=argparse.REMAINDER, metavar="...", help="[options] [triplane.npz]; --help lists them"
     )
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.screenshot is not None and args.triplane is None:
-        raise UsageError("--screenshot needs a triplane file")
-    if args.drag_frames and args.screenshot is None:
-        raise UsageError("--drag-frames needs --screenshot")
-
     import lp3d_render
 
     try:
-        lp3d_render.view(
-            args.triplane,
-            screenshot=args.screenshot,
-            yaw=args.yaw,
-            pitch=args.pitch,
-            resolution=args.resolution,
-            depth_resolution=args.samples[0],
-            depth_resolution_importance=args.samples[1],
-            frame_budget_ms=args.frame_budget_ms,
-            frames=args.frames,
-            drag_frames=args.drag_frames,
-        )
+        options = lp3d_render.view_options(list(args.argv))
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    if options.pop("help"):  # the viewer's usage, under the name it was called by (lp3d view)
+        print(lp3d_render.VIEW_USAGE.replace("lp3d-view", args.command_parser.prog, 1))
+        return 0
+    try:
+        lp3d_render.view(options.pop("path"), **options)
     except RuntimeError as e:  # the window system or GPU (ValueError and OSError name their input)
         raise UserError(str(e)) from None
-    if args.screenshot is not None:
-        print(f"wrote {args.screenshot}")
+    if options["screenshot"] is not None:
+        print(f"wrote {options['screenshot']}")
     return 0
 
 
