@@ -189,6 +189,25 @@ def test_train_eval_export_are_the_module_commands() -> None:
         assert ours.description == theirs.description and ours.prog == f"lp3d {name}"
 
 
+def test_a_closed_stdout_is_no_error_message(tmp_path) -> None:
+    """``lp3d info x.npz | head -1``: when the reader goes away, the command stops with status 1 and
+    prints nothing (no "Broken pipe" line, no traceback at exit)."""
+    import subprocess
+    import sys
+
+    script = (
+        "import argparse, sys\n"
+        "from lp3d.errors import run_command\n"
+        "def func(args):\n"
+        "    raise BrokenPipeError(32, 'Broken pipe')\n"
+        "p = argparse.ArgumentParser(prog='lp3d x')\n"
+        "p.set_defaults(func=func)\n"
+        "sys.exit(run_command(p, []))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 1 and out.stderr == "", out
+
+
 def test_one_exit_code_policy_for_every_entry_point(capsys, tmp_path) -> None:
     """0 ok, 1 a runtime error (one line, no traceback), 2 a usage error: in ``lp3d`` and in the
     ``python -m lp3d.train|eval|export`` aliases alike."""

@@ -77,6 +77,9 @@ def run_command(parser: argparse.ArgumentParser, argv: Sequence[str] | None = No
     except KeyboardInterrupt:
         print(f"{command.prog}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except BrokenPipeError:  # the reader of stdout went away (`lp3d info x.npz | head -1`): no message
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # so the exit flush is quiet too
+        return EXIT_ERROR
     # ValueError covers the library's validation errors (TriplaneError, ModelPackageError, PhotoError,
     # ...), OSError unreadable and unwritable files: all name their input.
     except (UserError, ValueError, OSError) as e:
