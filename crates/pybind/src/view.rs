@@ -68,7 +68,7 @@ pub fn view<'py>(
 /// own parser, the one definition of its flags (``VIEW_USAGE`` lists them), for ``lp3d view``
 /// and the ``lp3d-view`` console script. Returns ``help`` (``-h``/``--help`` was given) and
 /// ``path`` plus the keyword arguments of :func:`view`; a bad flag or value is a ValueError
-/// whose message names it.
+/// whose message names it. The files the flags name are checked by :func:`view`.
 #[pyfunction]
 pub fn view_options<'py>(py: Python<'py>, argv: Vec<String>) -> PyResult<Bound<'py, PyDict>> {
     let o = lp3d_viewer::ViewerOptions::from_args(argv).map_err(PyValueError::new_err)?;

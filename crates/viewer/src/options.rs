@@ -95,11 +95,19 @@ impl ViewerOptions {
                 }
             }
         }
-        o.validate()?;
+        o.validate_flags()?;
         Ok(o)
     }
 
+    /// Every check: the flags ([`Self::validate_flags`]) and the files they name
+    /// ([`Self::check_outputs`]).
     pub fn validate(&self) -> Result<(), String> {
+        self.validate_flags()?;
+        self.check_outputs()
+    }
+
+    /// The flags' values and combinations: a usage error (`from_args` runs these; exit status 2).
+    pub fn validate_flags(&self) -> Result<(), String> {
         if !(-89.0..=89.0).contains(&self.pitch) {
             return Err(format!("--pitch must be in [-89, 89], got {}", self.pitch));
         }
@@ -128,6 +136,12 @@ impl ViewerOptions {
         if self.screenshot.is_some() && self.path.is_none() {
             return Err("--screenshot needs a triplane file".into());
         }
+        Ok(())
+    }
+
+    /// The screenshot's files against the file system and the input: a runtime error (exit
+    /// status 1), checked before the window opens.
+    pub fn check_outputs(&self) -> Result<(), String> {
         if let (Some(shot), Some(input)) = (&self.screenshot, &self.path) {
             check_screenshot_paths(input, shot)?;
         }
@@ -301,7 +315,10 @@ mod tests {
         std::fs::write(&input, b"a triplane").unwrap();
         let p = |name: &str| dir.join(name).to_string_lossy().into_owned();
         let input_s = p("v.npz");
-        let err = |shot: &str, input: &str| parse(&["--screenshot", shot, input]).unwrap_err();
+        // Flags that parse; the files they name are checked by `check_outputs` (and `validate`).
+        let err = |shot: &str, input: &str| {
+            parse(&["--screenshot", shot, input]).unwrap().check_outputs().unwrap_err()
+        };
         assert!(err(&input_s, &input_s).contains("would be replaced"));
         // The same file by another spelling, through a symlink, and through a hard link.
         let dotted = format!("{}/./v.npz", dir.display());
@@ -325,7 +342,7 @@ mod tests {
         assert!(err(&p("out.jpg"), &input_s).contains(".png"));
         assert!(err(&p("folder.png"), &input_s).contains("is a folder"));
         assert!(err(&p("missing/s.png"), &input_s).contains("does not exist"));
-        parse(&["--screenshot", &p("ok.png"), &input_s]).unwrap();
+        parse(&["--screenshot", &p("ok.png"), &input_s]).unwrap().validate().unwrap();
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
