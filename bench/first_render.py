@@ -7,7 +7,7 @@ and warm (the cache filled by an earlier run), for ``lp3d_render.render``, ``lp3
 
 Times are wall-clock seconds of the whole process (interpreter start, imports, adapter, pipeline
 compile, upload, render and read-back). By default (``LP3D_KERNEL`` unset) a cold process draws with
-the quick kernel while the fast one compiles in the background (crates/renderer/src/renderer.rs);
+the quick kernel while the fast one compiles in the background (crates/renderer/src/kernel.rs);
 the ``LP3D_KERNEL=fast`` row waits for the fast kernel instead. Cold runs point
 ``MESA_SHADER_CACHE_DIR`` at a new empty folder (only for ``lp3d_render.render`` by default: the
 others compile the same kernels); warm runs use ``$MESA_SHADER_CACHE_DIR`` (as ``./dev`` sets it)

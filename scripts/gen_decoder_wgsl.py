@@ -4,7 +4,7 @@ same arithmetic.
 
 Why generated: WGSL has no unrolling directive. The MLP's sizes are EG3D's fixed 32 -> 64 -> 33,
 and the file holds two forms of it, picked per pipeline by the override constant
-`ROLLED_DECODER` (crates/renderer/src/renderer.rs):
+`ROLLED_DECODER` (crates/renderer/src/kernel.rs):
 
 - unrolled: every weight index a constant. On lavapipe a uniform load at a constant offset is
   nearly free at run time, but each of the ~4200 loads is a separate piece of LLVM IR, so this

@@ -229,6 +229,18 @@ def _rust_function_lengths(path: Path) -> list[tuple[str, int, bool]]:
     return found
 
 
+def test_rust_modules_stay_small() -> None:
+    """The same 500-line rule for the crates' modules, counting the code before its inline
+    ``#[cfg(test)]`` tests."""
+    long = {}
+    for path in RUST_SOURCES:
+        lines = path.read_text().splitlines()
+        code = next((i for i, line in enumerate(lines) if line.startswith("#[cfg(test)]")), len(lines))
+        if code > MAX_MODULE_LINES:
+            long[str(path.relative_to(REPO))] = code
+    assert not long, f"Rust modules over {MAX_MODULE_LINES} lines of code: {long}"
+
+
 def test_long_rust_functions_say_why() -> None:
     assert RUST_SOURCES, "no Rust sources found beside the package"
     unexplained = [

@@ -1,5 +1,10 @@
 //! GPU pipelines and dispatch. The CPU validates and prepares buffers; all rendering work
-//! happens in the WGSL kernels of `shaders/` (one ray per invocation).
+//! happens in the WGSL kernels of `shaders/` (one ray per invocation). Uploading a triplane is
+//! `renderer/upload.rs`, one request's buffers and dispatches `renderer/frame.rs`.
+
+mod frame;
+mod layouts;
+mod upload;
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, OnceLock};
@@ -10,14 +15,17 @@ use wgpu::util::DeviceExt;
 use crate::camera::Camera;
 use crate::device::GpuContext;
 use crate::error::{Error, Result};
-use crate::kernel::{build_render_pipeline, fast_kernel_marker, spawn_fast_kernel_compile, write_marker};
-// The kernel types' old path (`lp3d_renderer::renderer::KernelChoice`) keeps working.
 use crate::gpu_types::{DecoderUniform, DisplayUniform, Params, FLAG_HALF_PLANES};
-pub use crate::kernel::{Kernel, KernelChoice};
+use crate::kernel::{build_render_pipeline, fast_kernel_marker, spawn_fast_kernel_compile, write_marker};
 use crate::occupancy::Occupancy;
 use crate::settings::{Outputs, RenderSettings};
 use crate::shaders;
 use crate::triplane::{PlaneDtype, SceneInfo, Triplane, N_CHANNELS};
+use layouts::Layouts;
+
+// The old paths (`lp3d_renderer::renderer::KernelChoice`, `::check_decoder_range`) keep working.
+pub use crate::kernel::{Kernel, KernelChoice};
+pub use upload::check_decoder_range;
 
 const WORKGROUP: u32 = 64;
 /// Texel format of `render_to_texture` targets (an sRGB-unaware 8-bit RGBA storage texture).
@@ -43,32 +51,6 @@ struct GpuOccupancy {
     bits: Option<(f64, wgpu::Buffer)>,
 }
 
-impl GpuTriplane {
-    pub fn scene(&self) -> SceneInfo {
-        self.scene
-    }
-
-    /// Whether the planes are stored as float16 on the device.
-    pub fn half_planes(&self) -> bool {
-        self.half
-    }
-
-    pub fn has_occupancy(&self) -> bool {
-        self.occupancy.lock().map(|o| o.is_some()).unwrap_or(false)
-    }
-
-    /// Bytes of device memory this triplane holds: planes, decoder and occupancy bits.
-    pub fn device_bytes(&self) -> u64 {
-        let bits = self
-            .occupancy
-            .lock()
-            .ok()
-            .and_then(|o| o.as_ref().and_then(|o| o.bits.as_ref().map(|(_, b)| b.size())))
-            .unwrap_or(0);
-        self.planes.size() + self.decoder.size() + bits
-    }
-}
-
 /// Render results, float32, row-major: `features` (B, 32, R, R), `rgb` (B, 3, R, R),
 /// `depth` and `weights_sum` (B, R, R). Only requested outputs are present.
 #[derive(Debug, Clone, Default)]
@@ -79,58 +61,6 @@ pub struct RenderOutput {
     pub rgb: Option<Vec<f32>>,
     pub depth: Option<Vec<f32>>,
     pub weights_sum: Option<Vec<f32>>,
-}
-
-/// Float32's largest value, in float64.
-const F32_MAX: f64 = f32::MAX as f64;
-
-/// Refuses a triplane whose finite values could overflow float32 inside the kernel: planes
-/// near float32's maximum (3e38) or decoder weights large enough to push the decoder's sums
-/// past it would render NaN everywhere — a black image and no error.
-///
-/// The bound follows `shaders/triplane.wgsl` and `shaders/decoder.wgsl` exactly, in float64:
-/// with `P = max |planes|`, every partial sum of the feature accumulation (3 planes x 4
-/// bilinear taps, weights summing to 1 per plane) is at most `3P`, and the averaged feature
-/// `f` at most `P`; every partial sum of a hidden pre-activation `z_j = w0_j . f + b0_j` is at
-/// most `Z_j = sum_k |w0_jk| P + |b0_j|`, so `softplus(z_j) <= Z_j + 1`; every partial sum of
-/// an output `o_k = w1_k . h + b1_k` is at most `O_k = sum_j |w1_kj| (Z_j + 1) + |b1_k|`. The
-/// ray marcher adds two raw densities before halving them, so it needs `2 O_0`. Colours go
-/// through a sigmoid and densities through softplus and `1 - exp(-x)`, which are finite for
-/// any finite argument. If all of these stay below float32's maximum (with a margin far above
-/// float32's rounding of at most 65-term sums), no intermediate value can be Inf or NaN: a
-/// proof for every camera and setting, checked once per upload (one pass over the planes)
-/// and covering every path, the viewer's `render_to_texture` included, whose results never
-/// come back to the CPU. Real triplanes sit ~30 orders of magnitude below the limit.
-pub fn check_decoder_range(tri: &Triplane) -> Result<()> {
-    let p = tri.planes.iter().fold(0f64, |m, &v| m.max((v as f64).abs()));
-    let d = &tri.decoder;
-    let n_in = N_CHANNELS;
-    let n_hidden = d.b0.len();
-    let hidden: Vec<f64> = (0..n_hidden)
-        .map(|j| {
-            let row = &d.w0[j * n_in..(j + 1) * n_in];
-            row.iter().map(|&w| (w as f64).abs() * p).sum::<f64>() + (d.b0[j] as f64).abs()
-        })
-        .collect();
-    let mut worst = 3.0 * p;
-    for (k, b) in d.b1.iter().enumerate() {
-        let row = &d.w1[k * n_hidden..(k + 1) * n_hidden];
-        let o: f64 = row.iter().zip(&hidden).map(|(&w, &z)| (w as f64).abs() * (z + 1.0)).sum::<f64>()
-            + (*b as f64).abs();
-        worst = worst.max(if k == 0 { 2.0 * o } else { o });
-    }
-    worst = hidden.iter().fold(worst, |m, &z| m.max(z));
-    // Written so that a NaN bound (impossible for finite inputs) would also be refused.
-    if !matches!((worst * 1.001).partial_cmp(&F32_MAX), Some(std::cmp::Ordering::Less)) {
-        return Err(Error::invalid(
-            "planes",
-            format!(
-                "the triplane's values overflow float32 in the decoder: planes up to {p:.3e} with \
-                 these decoder weights reach {worst:.3e}, beyond float32's maximum {F32_MAX:.3e}"
-            ),
-        ));
-    }
-    Ok(())
 }
 
 /// What the viewer shows: one render output mapped to colour.
@@ -192,87 +122,6 @@ pub struct Renderer {
     last_frame_bytes: AtomicU64,
     /// Errors wgpu reports outside an error scope, kept instead of panicking.
     uncaptured: Arc<Mutex<Option<String>>>,
-}
-
-fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
-    wgpu::BindGroupLayoutEntry {
-        binding,
-        visibility: wgpu::ShaderStages::COMPUTE,
-        ty: wgpu::BindingType::Buffer {
-            ty: wgpu::BufferBindingType::Storage { read_only },
-            has_dynamic_offset: false,
-            min_binding_size: None,
-        },
-        count: None,
-    }
-}
-
-fn uniform_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
-    wgpu::BindGroupLayoutEntry {
-        binding,
-        visibility: wgpu::ShaderStages::COMPUTE,
-        ty: wgpu::BindingType::Buffer {
-            ty: wgpu::BufferBindingType::Uniform,
-            has_dynamic_offset: false,
-            min_binding_size: None,
-        },
-        count: None,
-    }
-}
-
-/// The bind-group and pipeline layouts: the render bindings (shared by every entry point) and
-/// the present pass's, which adds the display texture.
-struct Layouts {
-    render: wgpu::BindGroupLayout,
-    render_pipeline_layout: wgpu::PipelineLayout,
-    present: wgpu::BindGroupLayout,
-    present_pipeline_layout: wgpu::PipelineLayout,
-}
-
-impl Layouts {
-    fn new(device: &wgpu::Device) -> Layouts {
-        let render = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("lp3d render bindings"),
-            entries: &[
-                uniform_entry(0),
-                storage_entry(1, true),
-                storage_entry(2, true),
-                uniform_entry(3),
-                storage_entry(4, false),
-                storage_entry(5, false),
-                storage_entry(6, false),
-                storage_entry(7, false),
-                storage_entry(8, true),
-            ],
-        });
-        let render_pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("lp3d render pipeline layout"),
-            bind_group_layouts: &[Some(&render)],
-            immediate_size: 0,
-        });
-        let present = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("lp3d present bindings"),
-            entries: &[
-                wgpu::BindGroupLayoutEntry {
-                    binding: 0,
-                    visibility: wgpu::ShaderStages::COMPUTE,
-                    ty: wgpu::BindingType::StorageTexture {
-                        access: wgpu::StorageTextureAccess::WriteOnly,
-                        format: DISPLAY_FORMAT,
-                        view_dimension: wgpu::TextureViewDimension::D2,
-                    },
-                    count: None,
-                },
-                uniform_entry(1),
-            ],
-        });
-        let present_pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("lp3d present pipeline layout"),
-            bind_group_layouts: &[Some(&render), Some(&present)],
-            immediate_size: 0,
-        });
-        Layouts { render, render_pipeline_layout, present, present_pipeline_layout }
-    }
 }
 
 impl Renderer {
@@ -427,243 +276,10 @@ impl Renderer {
         self.quick_pipeline.as_ref().or(self.fast_pipeline.get()).expect("a render pipeline was built")
     }
 
-    /// Uploads a validated triplane, with its occupancy grid if it has one. Float16 planes
-    /// stay float16 on the device (packed pairs, unpacked to float32 in the kernel).
-    pub fn upload(&self, tri: &Triplane) -> Result<GpuTriplane> {
-        tri.validate()?;
-        check_decoder_range(tri)?;
-        let half = tri.plane_dtype == PlaneDtype::F16;
-        let planes: Vec<u32> = if half {
-            // Channel 2i in the low half, 2i + 1 in the high half (WGSL unpack2x16float).
-            tri.planes_channel_last()
-                .chunks_exact(2)
-                .map(|p| {
-                    let lo = half::f16::from_f32(p[0]).to_bits() as u32;
-                    let hi = half::f16::from_f32(p[1]).to_bits() as u32;
-                    lo | (hi << 16)
-                })
-                .collect()
-        } else {
-            tri.planes_channel_last().into_iter().map(f32::to_bits).collect()
-        };
-        debug_assert_eq!(planes.len() % (N_CHANNELS / 2), 0);
-        let bytes = (planes.len() * 4) as u64;
-        let max = self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size);
-        if bytes > max {
-            return Err(Error::invalid(
-                "planes",
-                format!(
-                    "{} MiB exceeds this device's storage buffer limit of {} MiB",
-                    bytes >> 20,
-                    max >> 20
-                ),
-            ));
-        }
-        let scope = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
-        let planes = self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("lp3d planes (3, H, W, 32)"),
-            contents: bytemuck::cast_slice(&planes),
-            usage: wgpu::BufferUsages::STORAGE,
-        });
-        let decoder = self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("lp3d decoder weights"),
-            contents: bytemuck::bytes_of(&DecoderUniform::from_decoder(&tri.decoder)),
-            usage: wgpu::BufferUsages::UNIFORM,
-        });
-        if let Some(e) = pollster::block_on(scope.pop()) {
-            return Err(Error::Gpu(format!("uploading the triplane failed: {e}")));
-        }
-        let occupancy = tri.occupancy.clone().map(|grid| GpuOccupancy { grid: Arc::new(grid), bits: None });
-        Ok(GpuTriplane { planes, decoder, scene: tri.scene(), half, occupancy: Mutex::new(occupancy) })
-    }
-
-    /// Attaches (or replaces) an uploaded triplane's occupancy grid, e.g. one baked after
-    /// upload with `Occupancy::bake`. The caller vouches that it was baked for these planes.
-    pub fn set_occupancy(&self, tri: &GpuTriplane, grid: Occupancy) -> Result<()> {
-        grid.validate()?;
-        let mut slot = tri.occupancy.lock().map_err(|_| Error::Gpu("occupancy lock poisoned".into()))?;
-        *slot = Some(GpuOccupancy { grid: Arc::new(grid), bits: None });
-        Ok(())
-    }
-
     /// Device bytes of the last rendered frame's own buffers (outputs, readbacks, uniforms,
     /// cameras), excluding the triplane's (`GpuTriplane::device_bytes`).
     pub fn last_frame_device_bytes(&self) -> u64 {
         self.last_frame_bytes.load(Ordering::Relaxed)
-    }
-
-    /// The occupancy bits for `settings` (grid resolution and buffer), or `None` when the skip
-    /// is off. Cached per triplane for the last threshold.
-    fn occupancy_bits(
-        &self,
-        tri: &GpuTriplane,
-        settings: &RenderSettings,
-    ) -> Result<Option<(u32, wgpu::Buffer)>> {
-        let eps = settings.skips.occupancy_epsilon;
-        if eps <= 0.0 {
-            return Ok(None);
-        }
-        let mut slot = tri.occupancy.lock().map_err(|_| Error::Gpu("occupancy lock poisoned".into()))?;
-        let Some(occ) = slot.as_mut() else {
-            return Err(Error::invalid(
-                "occupancy_epsilon",
-                "this triplane has no occupancy grid: bake one first (Occupancy::bake)",
-            ));
-        };
-        let max_delta = settings.max_interval(tri.scene.bounds.ray_start, tri.scene.bounds.ray_end);
-        let threshold = Occupancy::raw_threshold(eps as f64, max_delta);
-        if occ.bits.as_ref().map(|(t, _)| *t) != Some(threshold) {
-            let buf = self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("lp3d occupancy bits"),
-                contents: bytemuck::cast_slice(&occ.grid.bits(threshold)),
-                usage: wgpu::BufferUsages::STORAGE,
-            });
-            occ.bits = Some((threshold, buf));
-        }
-        Ok(occ.bits.as_ref().map(|(_, b)| (occ.grid.resolution as u32, b.clone())))
-    }
-
-    /// How many cameras one dispatch renders: the batch is split so each dispatch's outputs
-    /// (`fc` feature channels and `n_pix` pixels per camera) fit one storage binding.
-    fn cameras_per_dispatch(&self, fc: usize, n_pix: usize, n_cam: usize) -> Result<usize> {
-        let max_binding =
-            self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size) as usize;
-        let per_cam = (fc.max(1) * n_pix * 4).max(1);
-        if per_cam > max_binding {
-            return Err(Error::invalid(
-                "resolution",
-                format!("one image's outputs ({} MiB) exceed the device's buffer limit", per_cam >> 20),
-            ));
-        }
-        Ok((max_binding / per_cam).clamp(1, n_cam))
-    }
-
-    /// Validates a render request and allocates its buffers and bind group.
-    // Long because: every buffer of a frame is made inside one out-of-memory error scope, so
-    // that a device that runs out reports it once, as this frame's error.
-    fn prepare(
-        &self,
-        tri: &GpuTriplane,
-        cameras: &[Camera],
-        settings: &RenderSettings,
-        outputs: Outputs,
-    ) -> Result<Frame> {
-        settings.validate()?;
-        if cameras.is_empty() || cameras.len() > MAX_CAMERAS {
-            return Err(Error::invalid(
-                "camera",
-                format!("batch size must be in [1, {MAX_CAMERAS}], got {}", cameras.len()),
-            ));
-        }
-        let n_cam = cameras.len();
-        let r = settings.resolution as usize;
-        let n_pix = r * r;
-        let fc = outputs.feature_channels() as usize;
-        let mut params = Params::new(&tri.scene, settings, fc as u32, n_cam as u32);
-        if tri.half {
-            params.flags |= FLAG_HALF_PLANES;
-        }
-        let occupancy = self.occupancy_bits(tri, settings)?;
-        if let Some((g, _)) = &occupancy {
-            params.occupancy_resolution = *g;
-        }
-
-        let chunk = self.cameras_per_dispatch(fc, n_pix, n_cam)?;
-
-        let oom_scope = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
-        let dev = &self.device;
-        let storage = |label: &str, size: usize| {
-            dev.create_buffer(&wgpu::BufferDescriptor {
-                label: Some(label),
-                size: (size.max(1) * 4) as u64,
-                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-                mapped_at_creation: false,
-            })
-        };
-        let labels: Vec<f32> = cameras.iter().flat_map(|c| c.0).collect();
-        let camera_buf = dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("lp3d cameras (B, 25)"),
-            contents: bytemuck::cast_slice(&labels),
-            usage: wgpu::BufferUsages::STORAGE,
-        });
-        let params_buf = dev.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("lp3d params"),
-            size: std::mem::size_of::<Params>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let bounds_buf = dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("lp3d depth bounds"),
-            contents: bytemuck::cast_slice(&[f32::INFINITY.to_bits(), 0u32]),
-            usage: wgpu::BufferUsages::STORAGE,
-        });
-        let features = storage("lp3d features out", chunk * fc * n_pix);
-        let depth = storage("lp3d depth out", chunk * n_pix);
-        let weights_sum = storage("lp3d weights_sum out", chunk * n_pix);
-        let bind_group = dev.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("lp3d render bind group"),
-            layout: &self.layout,
-            entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: params_buf.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: camera_buf.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 2, resource: tri.planes.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 3, resource: tri.decoder.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 4, resource: features.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 5, resource: depth.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 6, resource: weights_sum.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 7, resource: bounds_buf.as_entire_binding() },
-                wgpu::BindGroupEntry {
-                    binding: 8,
-                    resource: occupancy.as_ref().map_or(&self.no_occupancy, |(_, b)| b).as_entire_binding(),
-                },
-            ],
-        });
-        let bytes = [&camera_buf, &params_buf, &bounds_buf, &features, &depth, &weights_sum]
-            .iter()
-            .map(|b| b.size())
-            .sum();
-        if let Some(e) = pollster::block_on(oom_scope.pop()) {
-            return Err(Error::Gpu(format!("out of device memory allocating render buffers: {e}")));
-        }
-        Ok(Frame {
-            params,
-            params_buf,
-            bind_group,
-            features,
-            depth,
-            weights_sum,
-            n_cam,
-            n_pix,
-            fc,
-            chunk,
-            bytes,
-        })
-    }
-
-    /// Records the dispatches for cameras `first..first + count` of a prepared frame (the
-    /// batch-global depth bounds pass runs with the first chunk).
-    fn encode_chunk(&self, frame: &mut Frame, first: usize, count: usize) -> wgpu::CommandEncoder {
-        frame.params.camera_offset = first as u32;
-        self.queue.write_buffer(&frame.params_buf, 0, bytemuck::bytes_of(&frame.params));
-        let groups_x = (frame.n_pix as u32).div_ceil(WORKGROUP);
-        let mut encoder = self
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("lp3d render") });
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("lp3d render pass"),
-                timestamp_writes: None,
-            });
-            pass.set_bind_group(0, &frame.bind_group, &[]);
-            if first == 0 {
-                // Batch-global depth range first: render_rays clamps against it.
-                pass.set_pipeline(&self.bounds_pipeline);
-                pass.dispatch_workgroups(groups_x, frame.n_cam as u32, 1);
-            }
-            pass.set_pipeline(self.render_pipeline());
-            pass.dispatch_workgroups(groups_x, count as u32, 1);
-        }
-        encoder
     }
 
     /// Renders `cameras` (one image each) of an uploaded triplane and reads the results back.
@@ -873,47 +489,4 @@ fn keep_first_uncaptured_error(device: &wgpu::Device) -> Arc<Mutex<Option<String
         }
     }));
     slot
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::triplane::SceneBounds;
-    use crate::triplane::{Decoder, HIDDEN, N_OUT};
-
-    /// Constant planes and a decoder of constant weights: every bound term is known exactly.
-    fn constant(plane: f32, weight: f32) -> Triplane {
-        Triplane {
-            planes: vec![plane; 3 * N_CHANNELS * 2 * 2],
-            height: 2,
-            width: 2,
-            plane_dtype: PlaneDtype::F32,
-            decoder: Decoder {
-                w0: vec![weight; HIDDEN * N_CHANNELS],
-                b0: vec![0.0; HIDDEN],
-                w1: vec![weight; N_OUT * HIDDEN],
-                b1: vec![0.0; N_OUT],
-            },
-            bounds: SceneBounds::default(),
-            camera: None,
-            occupancy: None,
-            source: None,
-        }
-    }
-
-    #[test]
-    fn decoder_range_refuses_planes_that_overflow_float32() {
-        // The issue's case: finite planes of 3e38 rendered NaN (the 3-plane sum alone is Inf).
-        let e = check_decoder_range(&constant(3e38, 0.1)).unwrap_err().to_string();
-        assert!(e.starts_with("planes:") && e.contains("overflow float32"), "{e}");
-        // Moderate planes, huge weights: the hidden layer's sums overflow.
-        assert!(check_decoder_range(&constant(1.0, 1e37)).is_err());
-        // z = 32 * 1e17 * 1e-1 = 3.2e17; o = 64 * 0.1 * (z + 1) = 2.05e17; fine.
-        check_decoder_range(&constant(1e17, 0.1)).unwrap();
-        // The density's midpoint sum 2 * o_0 is the binding term: o_0 = 64 w (32 w P + 1).
-        let w = 1e6f32;
-        let p = (f32::MAX as f64 / 2.0 / (64.0 * w as f64 * 32.0 * w as f64)) as f32;
-        check_decoder_range(&constant(p * 0.99, w)).unwrap();
-        assert!(check_decoder_range(&constant(p * 1.01, w)).is_err());
-    }
 }

@@ -1,0 +1,150 @@
+//! One render request's GPU side: validating it, splitting its cameras into dispatches that
+//! fit a storage binding, allocating its buffers and bind group (`prepare`), and recording
+//! each chunk's dispatches (`encode_chunk`).
+
+use super::*;
+
+impl Renderer {
+    /// How many cameras one dispatch renders: the batch is split so each dispatch's outputs
+    /// (`fc` feature channels and `n_pix` pixels per camera) fit one storage binding.
+    pub(super) fn cameras_per_dispatch(&self, fc: usize, n_pix: usize, n_cam: usize) -> Result<usize> {
+        let max_binding =
+            self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size) as usize;
+        let per_cam = (fc.max(1) * n_pix * 4).max(1);
+        if per_cam > max_binding {
+            return Err(Error::invalid(
+                "resolution",
+                format!("one image's outputs ({} MiB) exceed the device's buffer limit", per_cam >> 20),
+            ));
+        }
+        Ok((max_binding / per_cam).clamp(1, n_cam))
+    }
+
+    /// Validates a render request and allocates its buffers and bind group.
+    // Long because: every buffer of a frame is made inside one out-of-memory error scope, so
+    // that a device that runs out reports it once, as this frame's error.
+    pub(super) fn prepare(
+        &self,
+        tri: &GpuTriplane,
+        cameras: &[Camera],
+        settings: &RenderSettings,
+        outputs: Outputs,
+    ) -> Result<Frame> {
+        settings.validate()?;
+        if cameras.is_empty() || cameras.len() > MAX_CAMERAS {
+            return Err(Error::invalid(
+                "camera",
+                format!("batch size must be in [1, {MAX_CAMERAS}], got {}", cameras.len()),
+            ));
+        }
+        let n_cam = cameras.len();
+        let r = settings.resolution as usize;
+        let n_pix = r * r;
+        let fc = outputs.feature_channels() as usize;
+        let mut params = Params::new(&tri.scene, settings, fc as u32, n_cam as u32);
+        if tri.half {
+            params.flags |= FLAG_HALF_PLANES;
+        }
+        let occupancy = self.occupancy_bits(tri, settings)?;
+        if let Some((g, _)) = &occupancy {
+            params.occupancy_resolution = *g;
+        }
+
+        let chunk = self.cameras_per_dispatch(fc, n_pix, n_cam)?;
+
+        let oom_scope = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let dev = &self.device;
+        let storage = |label: &str, size: usize| {
+            dev.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: (size.max(1) * 4) as u64,
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            })
+        };
+        let labels: Vec<f32> = cameras.iter().flat_map(|c| c.0).collect();
+        let camera_buf = dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("lp3d cameras (B, 25)"),
+            contents: bytemuck::cast_slice(&labels),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        let params_buf = dev.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("lp3d params"),
+            size: std::mem::size_of::<Params>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let bounds_buf = dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("lp3d depth bounds"),
+            contents: bytemuck::cast_slice(&[f32::INFINITY.to_bits(), 0u32]),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        let features = storage("lp3d features out", chunk * fc * n_pix);
+        let depth = storage("lp3d depth out", chunk * n_pix);
+        let weights_sum = storage("lp3d weights_sum out", chunk * n_pix);
+        let bind_group = dev.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("lp3d render bind group"),
+            layout: &self.layout,
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: params_buf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: camera_buf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 2, resource: tri.planes.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 3, resource: tri.decoder.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 4, resource: features.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 5, resource: depth.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 6, resource: weights_sum.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 7, resource: bounds_buf.as_entire_binding() },
+                wgpu::BindGroupEntry {
+                    binding: 8,
+                    resource: occupancy.as_ref().map_or(&self.no_occupancy, |(_, b)| b).as_entire_binding(),
+                },
+            ],
+        });
+        let bytes = [&camera_buf, &params_buf, &bounds_buf, &features, &depth, &weights_sum]
+            .iter()
+            .map(|b| b.size())
+            .sum();
+        if let Some(e) = pollster::block_on(oom_scope.pop()) {
+            return Err(Error::Gpu(format!("out of device memory allocating render buffers: {e}")));
+        }
+        Ok(Frame {
+            params,
+            params_buf,
+            bind_group,
+            features,
+            depth,
+            weights_sum,
+            n_cam,
+            n_pix,
+            fc,
+            chunk,
+            bytes,
+        })
+    }
+
+    /// Records the dispatches for cameras `first..first + count` of a prepared frame (the
+    /// batch-global depth bounds pass runs with the first chunk).
+    pub(super) fn encode_chunk(&self, frame: &mut Frame, first: usize, count: usize) -> wgpu::CommandEncoder {
+        frame.params.camera_offset = first as u32;
+        self.queue.write_buffer(&frame.params_buf, 0, bytemuck::bytes_of(&frame.params));
+        let groups_x = (frame.n_pix as u32).div_ceil(WORKGROUP);
+        let mut encoder = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("lp3d render") });
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("lp3d render pass"),
+                timestamp_writes: None,
+            });
+            pass.set_bind_group(0, &frame.bind_group, &[]);
+            if first == 0 {
+                // Batch-global depth range first: render_rays clamps against it.
+                pass.set_pipeline(&self.bounds_pipeline);
+                pass.dispatch_workgroups(groups_x, frame.n_cam as u32, 1);
+            }
+            pass.set_pipeline(self.render_pipeline());
+            pass.dispatch_workgroups(groups_x, count as u32, 1);
+        }
+        encoder
+    }
+}

@@ -1,0 +1,84 @@
+//! The bind-group and pipeline layouts every render entry point shares.
+
+use super::*;
+
+fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Storage { read_only },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
+fn uniform_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Uniform,
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
+/// The bind-group and pipeline layouts: the render bindings (shared by every entry point) and
+/// the present pass's, which adds the display texture.
+pub(super) struct Layouts {
+    pub(super) render: wgpu::BindGroupLayout,
+    pub(super) render_pipeline_layout: wgpu::PipelineLayout,
+    pub(super) present: wgpu::BindGroupLayout,
+    pub(super) present_pipeline_layout: wgpu::PipelineLayout,
+}
+
+impl Layouts {
+    pub(super) fn new(device: &wgpu::Device) -> Layouts {
+        let render = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("lp3d render bindings"),
+            entries: &[
+                uniform_entry(0),
+                storage_entry(1, true),
+                storage_entry(2, true),
+                uniform_entry(3),
+                storage_entry(4, false),
+                storage_entry(5, false),
+                storage_entry(6, false),
+                storage_entry(7, false),
+                storage_entry(8, true),
+            ],
+        });
+        let render_pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("lp3d render pipeline layout"),
+            bind_group_layouts: &[Some(&render)],
+            immediate_size: 0,
+        });
+        let present = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("lp3d present bindings"),
+            entries: &[
+                wgpu::BindGroupLayoutEntry {
+                    binding: 0,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::StorageTexture {
+                        access: wgpu::StorageTextureAccess::WriteOnly,
+                        format: DISPLAY_FORMAT,
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                    },
+                    count: None,
+                },
+                uniform_entry(1),
+            ],
+        });
+        let present_pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("lp3d present pipeline layout"),
+            bind_group_layouts: &[Some(&render), Some(&present)],
+            immediate_size: 0,
+        });
+        Layouts { render, render_pipeline_layout, present, present_pipeline_layout }
+    }
+}
