@@ -241,6 +241,54 @@ def test_rust_modules_stay_small() -> None:
     assert not long, f"Rust modules over {MAX_MODULE_LINES} lines of code: {long}"
 
 
+def _rust_module_imports() -> dict[str, dict[str, set[str]]]:
+    """Per crate: each top-level module (a child module counts as its parent) -> the modules of the
+    same crate it names through ``crate::``. ``lib.rs`` and ``main.rs`` only declare and re-export."""
+    crates: dict[str, dict[str, set[str]]] = {}
+    for path in RUST_SOURCES:
+        src = next(p for p in path.parents if p.name == "src")
+        rel = path.relative_to(src)
+        if rel.as_posix() in ("lib.rs", "main.rs"):
+            continue
+        module = rel.parts[0].removesuffix(".rs")
+        code = re.sub(r"//.*", "", path.read_text())  # paths in comments name, they do not import
+        named = set(re.findall(r"\bcrate::(\w+)", code)) - {module}
+        crates.setdefault(src.parent.name, {}).setdefault(module, set()).update(named)
+    return crates
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Every cycle a depth-first walk of ``graph`` meets, as the modules along it."""
+    state: dict[str, int] = {}  # 1: on the current path, 2: done
+    found: list[list[str]] = []
+
+    def visit(trail: list[str]) -> None:
+        state[trail[-1]] = 1
+        for nxt in sorted(graph.get(trail[-1], ())):
+            if state.get(nxt) == 1:
+                found.append(trail[trail.index(nxt) :] + [nxt])
+            elif nxt in graph and nxt not in state:
+                visit(trail + [nxt])
+        state[trail[-1]] = 2
+
+    for module in sorted(graph):
+        if module not in state:
+            visit([module])
+    return found
+
+
+def test_rust_modules_import_without_cycles() -> None:
+    """Inside each crate, modules form layers too: no module reaches itself through ``crate::``
+    paths (Rust would allow it; a newcomer reading bottom-up could not)."""
+    cycles = [
+        f"{crate}: {' -> '.join(cycle)}"
+        for crate, graph in _rust_module_imports().items()
+        for cycle in _cycles(graph)
+    ]
+    assert not cycles, f"Rust module cycles: {cycles}"
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == [["a", "b", "c", "a"]]
+
+
 def test_long_rust_functions_say_why() -> None:
     assert RUST_SOURCES, "no Rust sources found beside the package"
     unexplained = [

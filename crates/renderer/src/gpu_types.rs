@@ -4,7 +4,7 @@
 
 use bytemuck::{Pod, Zeroable};
 
-use crate::settings::RenderSettings;
+use crate::settings::{Display, RenderSettings};
 use crate::triplane::{Decoder, SceneInfo, HIDDEN, N_CHANNELS, N_OUT};
 
 pub const FLAG_JITTER: u32 = 1;
@@ -114,8 +114,7 @@ pub struct DisplayUniform {
 }
 
 impl DisplayUniform {
-    pub fn new(display: crate::renderer::Display) -> Self {
-        use crate::renderer::Display;
+    pub fn new(display: Display) -> Self {
         let (mode, channel, depth_near, depth_far) = match display {
             Display::Rgb => (0, 0, 0.0, 1.0),
             Display::Depth { near, far } => (1, 0, near, far),

@@ -1,16 +1,10 @@
 //! The two forms of the render kernel and which of them a `Renderer` uses: the fast
 //! (unrolled) kernel, the quick (rolled) one, and on lavapipe the background compile that
-//! swaps the fast one in once Mesa's shader cache holds it.
+//! swaps the fast one in once Mesa's shader cache holds it (the compile itself is
+//! `renderer/background.rs`).
 
-use std::thread::JoinHandle;
-
-use crate::camera::Camera;
-use crate::device::GpuContext;
 use crate::error::{Error, Result};
-use crate::renderer::Renderer;
-use crate::settings::{Outputs, RenderSettings};
 use crate::shaders;
-use crate::triplane::{PlaneDtype, SceneBounds, Triplane, N_CHANNELS};
 
 /// The two compiled forms of the render kernel (`shaders/decoder.wgsl`, picked by the override
 /// constant `ROLLED_DECODER`). They do the same arithmetic in the same order, so their outputs
@@ -147,71 +141,6 @@ pub(crate) fn write_marker(path: &std::path::Path) {
             let _ = crate::atomic::write_atomically(path, |_| Ok(()));
         }
     }
-}
-
-/// Starts [`compile_fast_kernel`] on its own thread.
-pub(crate) fn spawn_fast_kernel_compile(
-    adapter: String,
-    marker: Option<std::path::PathBuf>,
-) -> Result<JoinHandle<Result<()>>> {
-    std::thread::Builder::new()
-        .name("lp3d kernel compile".into())
-        .spawn(move || compile_fast_kernel(&adapter, marker.as_deref()))
-        .map_err(|e| Error::Gpu(format!("starting the background kernel compile failed: {e}")))
-}
-
-/// The background half of `KernelChoice::Auto`: compiles the fast kernel on a device of its
-/// own (lavapipe JIT-compiles a pipeline at its first dispatch, on the queue that runs it, so
-/// compiling on the renderer's own device would stall its renders for the whole compile) with
-/// one one-ray render, which leaves the compiled kernel in Mesa's on-disk shader cache. The
-/// device is dropped before returning, which flushes that cache, so the renderer's own first
-/// dispatch of the fast kernel then loads it instead of compiling it. (With Mesa's cache
-/// disabled, that dispatch compiles it again, once.)
-fn compile_fast_kernel(adapter: &str, marker: Option<&std::path::Path>) -> Result<()> {
-    let ctx = GpuContext::headless()?;
-    if ctx.adapter_info.name != adapter {
-        return Err(Error::Gpu(format!(
-            "the background kernel compile found adapter {:?}, not {adapter:?}",
-            ctx.adapter_info.name
-        )));
-    }
-    let renderer = Renderer::with_kernel(&ctx, KernelChoice::Fast)?;
-    // The marker is written below, after the device is gone, not by this render.
-    if let Ok(mut m) = renderer.marker.lock() {
-        *m = None;
-    }
-    let tri = Triplane {
-        planes: vec![0.0; 3 * N_CHANNELS * 2 * 2],
-        height: 2,
-        width: 2,
-        plane_dtype: PlaneDtype::F32,
-        decoder: crate::triplane::Decoder {
-            w0: vec![0.0; crate::triplane::HIDDEN * N_CHANNELS],
-            b0: vec![0.0; crate::triplane::HIDDEN],
-            w1: vec![0.0; crate::triplane::N_OUT * crate::triplane::HIDDEN],
-            b1: vec![0.0; crate::triplane::N_OUT],
-        },
-        bounds: SceneBounds::default(),
-        camera: None,
-        occupancy: None,
-        source: None,
-    };
-    let gpu = renderer.upload(&tri)?;
-    let camera = Camera::lookat_pose(
-        std::f64::consts::FRAC_PI_2,
-        std::f64::consts::FRAC_PI_2,
-        crate::camera::FFHQ_RADIUS,
-        [0.0, 0.0, 0.0],
-        crate::camera::FFHQ_FOCAL,
-    );
-    let settings = RenderSettings { resolution: 1, ..Default::default() };
-    renderer.render(&gpu, &[camera], &settings, Outputs::ALL)?;
-    // Drop the device (flushing Mesa's cache writes) before the marker says it is cached.
-    drop((gpu, renderer, ctx));
-    if let Some(path) = marker {
-        write_marker(path);
-    }
-    Ok(())
 }
 
 #[cfg(test)]

@@ -7,12 +7,9 @@
 //! every point in space has a cell whose bound holds. Grid layout: `bound[(ix * G + iy) * G + iz]`.
 
 use crate::error::{Error, Result};
+pub use crate::occupancy_grid::{Occupancy, DEFAULT_RESOLUTION, MAX_RESOLUTION};
 use crate::triplane::{Triplane, HIDDEN, N_CHANNELS, PLANE_AXES};
 
-/// Default cells per axis.
-pub const DEFAULT_RESOLUTION: usize = 64;
-/// Largest accepted cells per axis.
-pub const MAX_RESOLUTION: usize = 512;
 /// Widening of each cell, in plane coordinates, so that a sample whose float32 cell index
 /// rounds into a neighbour still has its bilinear taps inside that neighbour's footprint
 /// (float32 rounding of q is ~1e-6 inside the box; a cell at G = 64 is 3e-2 wide).
@@ -21,71 +18,12 @@ const CELL_MARGIN: f64 = 1e-4;
 /// length <= 65, softplus and WGSL's exp/log precision): a few 1e-6 of the magnitudes involved.
 const F32_ALLOWANCE: f64 = 1e-5;
 
-/// A baked grid: an upper bound on the decoder's raw density (`sigma_raw`, before EG3D's
-/// `softplus(x - 1)`) over each cell, float32 rounded up.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Occupancy {
-    /// Cells per axis, G.
-    pub resolution: usize,
-    /// G³ bounds, `(ix * G + iy) * G + iz`.
-    pub bound: Vec<f32>,
-}
-
 impl Occupancy {
-    pub fn validate(&self) -> Result<()> {
-        let g = self.resolution;
-        if !(1..=MAX_RESOLUTION).contains(&g) {
-            return Err(Error::invalid(
-                "occupancy",
-                format!("grid must be (G, G, G) with G in [1, {MAX_RESOLUTION}], got G = {g}"),
-            ));
-        }
-        if self.bound.len() != g * g * g {
-            return Err(Error::invalid("occupancy", "data length does not match (G, G, G)"));
-        }
-        if let Some(i) = self.bound.iter().position(|x| !x.is_finite()) {
-            return Err(Error::invalid("occupancy", format!("contains NaN/Inf at flat index {i}")));
-        }
-        Ok(())
-    }
-
-    /// The raw-density threshold below which a cell is empty for a per-interval opacity bound
-    /// `epsilon` and intervals at most `max_delta` long: softplus(r - 1) · max_delta = epsilon.
-    pub fn raw_threshold(epsilon: f64, max_delta: f64) -> f64 {
-        // softplus⁻¹(y) = ln(expm1(y)), accurate for tiny y in float64.
-        1.0 + (epsilon / max_delta).exp_m1().ln()
-    }
-
-    /// One bit per cell, set where the cell may hold density above `raw_threshold`.
-    pub fn bits(&self, raw_threshold: f64) -> Vec<u32> {
-        let mut bits = vec![0u32; self.bound.len().div_ceil(32).max(1)];
-        for (i, &b) in self.bound.iter().enumerate() {
-            let empty = (b as f64) <= raw_threshold; // NaN is never empty
-            if !empty {
-                bits[i / 32] |= 1 << (i % 32);
-            }
-        }
-        bits
-    }
-
-    /// Fraction of cells empty at `raw_threshold`.
-    pub fn empty_fraction(&self, raw_threshold: f64) -> f64 {
-        let empty = self.bound.iter().filter(|&&b| b as f64 <= raw_threshold).count();
-        empty as f64 / self.bound.len() as f64
-    }
-
     /// CRC-32 of the planes (float32 values, `(3, 32, H, W)` order, little-endian) and the
     /// decoder (w0, b0, w1, b1 as float32): stored beside the grid in the `.npz` so a grid
-    /// baked for other planes or weights is detected on load.
+    /// baked for other planes or weights is detected on load ([`Triplane::occupancy_checksum`]).
     pub fn checksum(tri: &Triplane) -> u32 {
-        let mut h = crc32fast::Hasher::new();
-        for part in [&tri.planes, &tri.decoder.w0, &tri.decoder.b0, &tri.decoder.w1, &tri.decoder.b1] {
-            for chunk in part.chunks(4096) {
-                let bytes: Vec<u8> = chunk.iter().flat_map(|v| v.to_le_bytes()).collect();
-                h.update(&bytes);
-            }
-        }
-        h.finalize()
+        tri.occupancy_checksum()
     }
 
     /// Bakes the grid for `tri` with `resolution` cells per axis (see `docs/occupancy.md`).

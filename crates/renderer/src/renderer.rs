@@ -2,6 +2,7 @@
 //! happens in the WGSL kernels of `shaders/` (one ray per invocation). Uploading a triplane is
 //! `renderer/upload.rs`, one request's buffers and dispatches `renderer/frame.rs`.
 
+mod background;
 mod frame;
 mod layouts;
 mod upload;
@@ -16,16 +17,19 @@ use crate::camera::Camera;
 use crate::device::GpuContext;
 use crate::error::{Error, Result};
 use crate::gpu_types::{DecoderUniform, DisplayUniform, Params, FLAG_HALF_PLANES};
-use crate::kernel::{build_render_pipeline, fast_kernel_marker, spawn_fast_kernel_compile, write_marker};
+use crate::kernel::{build_render_pipeline, fast_kernel_marker, write_marker};
 use crate::occupancy::Occupancy;
 use crate::settings::{Outputs, RenderSettings};
 use crate::shaders;
 use crate::triplane::{PlaneDtype, SceneInfo, Triplane, N_CHANNELS};
+use background::spawn_fast_kernel_compile;
 use layouts::Layouts;
 
 // The old paths (`lp3d_renderer::renderer::KernelChoice`, `::check_decoder_range`) keep working.
 pub use crate::kernel::{Kernel, KernelChoice};
 pub use upload::check_decoder_range;
+// `Display` lives with the other settings; `lp3d_renderer::renderer::Display` still resolves.
+pub use crate::settings::Display;
 
 const WORKGROUP: u32 = 64;
 /// Texel format of `render_to_texture` targets (an sRGB-unaware 8-bit RGBA storage texture).
@@ -61,20 +65,6 @@ pub struct RenderOutput {
     pub rgb: Option<Vec<f32>>,
     pub depth: Option<Vec<f32>>,
     pub weights_sum: Option<Vec<f32>>,
-}
-
-/// What the viewer shows: one render output mapped to colour.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Display {
-    Rgb,
-    /// Depth as a ramp, near (bright) to far (dark); rays with weights sum < 0.5 are black.
-    Depth {
-        near: f32,
-        far: f32,
-    },
-    Weights,
-    /// One of the 32 feature channels, [-1, 1] mapped to black..white.
-    Channel(u32),
 }
 
 /// Buffers and bindings of one render request (see `Renderer::prepare`).

@@ -177,3 +177,17 @@ impl Outputs {
         }
     }
 }
+
+/// What the viewer shows: one render output mapped to colour.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Display {
+    Rgb,
+    /// Depth as a ramp, near (bright) to far (dark); rays with weights sum < 0.5 are black.
+    Depth {
+        near: f32,
+        far: f32,
+    },
+    Weights,
+    /// One of the 32 feature channels, [-1, 1] mapped to black..white.
+    Channel(u32),
+}

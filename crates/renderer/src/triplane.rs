@@ -10,7 +10,7 @@ pub use file::{OPTIONAL_KEYS, REQUIRED_KEYS};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::npz;
-pub use crate::occupancy::Occupancy;
+pub use crate::occupancy_grid::Occupancy;
 
 /// Which world axes each plane samples as (u, v): (x,y), (x,z), (z,x).
 ///
@@ -31,7 +31,7 @@ pub const FORMAT_VERSION: i64 = 1;
 /// Largest accepted plane side (H and W).
 pub const MAX_PLANE_SIZE: usize = 2048;
 /// Largest accepted occupancy grid side G.
-pub const MAX_OCCUPANCY_RESOLUTION: usize = crate::occupancy::MAX_RESOLUTION;
+pub const MAX_OCCUPANCY_RESOLUTION: usize = crate::occupancy_grid::MAX_RESOLUTION;
 /// Longest accepted `source` text, in characters.
 pub const MAX_SOURCE_CHARS: usize = 4096;
 /// Largest accepted triplane file (2048 x 2048 float32 planes and a 512^3 grid are just over 2 GiB).
@@ -185,6 +185,20 @@ pub struct Triplane {
 }
 
 impl Triplane {
+    /// CRC-32 of the planes (float32 values, `(3, 32, H, W)` order, little-endian) and the
+    /// decoder (w0, b0, w1, b1 as float32): stored beside the grid in the `.npz` so a grid
+    /// baked for other planes or weights is detected on load.
+    pub fn occupancy_checksum(&self) -> u32 {
+        let mut h = crc32fast::Hasher::new();
+        for part in [&self.planes, &self.decoder.w0, &self.decoder.b0, &self.decoder.w1, &self.decoder.b1] {
+            for chunk in part.chunks(4096) {
+                let bytes: Vec<u8> = chunk.iter().flat_map(|v| v.to_le_bytes()).collect();
+                h.update(&bytes);
+            }
+        }
+        h.finalize()
+    }
+
     pub fn scene(&self) -> SceneInfo {
         SceneInfo { height: self.height as u32, width: self.width as u32, bounds: self.bounds }
     }

@@ -77,7 +77,7 @@ impl Triplane {
         if let Some(o) = &self.occupancy {
             let g = o.resolution;
             arrays.push(("occupancy", NpyArray::f32(vec![g, g, g], o.bound.clone())));
-            let crc = Occupancy::checksum(self) as i64;
+            let crc = self.occupancy_checksum() as i64;
             arrays.push(("occupancy_checksum", NpyArray { shape: vec![], data: NpyData::I64(vec![crc]) }));
         }
         if let Some(s) = &self.source {
@@ -306,7 +306,7 @@ fn from_arrays(mut arrays: Vec<(String, NpyArray)>, path: &Path) -> Result<Tripl
         other => other,
     })?;
     if let Some(stored) = checksum {
-        let actual = Occupancy::checksum(&tri) as i64;
+        let actual = tri.occupancy_checksum() as i64;
         if stored != actual {
             return Err(fmt(
                 "occupancy_checksum",

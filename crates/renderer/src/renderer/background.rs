@@ -1,0 +1,71 @@
+//! The background half of `KernelChoice::Auto` on lavapipe: the fast kernel compiled on a
+//! device and thread of its own while the quick kernel serves.
+
+use super::*;
+use crate::kernel::write_marker;
+use crate::triplane::SceneBounds;
+
+/// Starts [`compile_fast_kernel`] on its own thread.
+pub(super) fn spawn_fast_kernel_compile(
+    adapter: String,
+    marker: Option<std::path::PathBuf>,
+) -> Result<JoinHandle<Result<()>>> {
+    std::thread::Builder::new()
+        .name("lp3d kernel compile".into())
+        .spawn(move || compile_fast_kernel(&adapter, marker.as_deref()))
+        .map_err(|e| Error::Gpu(format!("starting the background kernel compile failed: {e}")))
+}
+
+/// The background half of `KernelChoice::Auto`: compiles the fast kernel on a device of its
+/// own (lavapipe JIT-compiles a pipeline at its first dispatch, on the queue that runs it, so
+/// compiling on the renderer's own device would stall its renders for the whole compile) with
+/// one one-ray render, which leaves the compiled kernel in Mesa's on-disk shader cache. The
+/// device is dropped before returning, which flushes that cache, so the renderer's own first
+/// dispatch of the fast kernel then loads it instead of compiling it. (With Mesa's cache
+/// disabled, that dispatch compiles it again, once.)
+fn compile_fast_kernel(adapter: &str, marker: Option<&std::path::Path>) -> Result<()> {
+    let ctx = GpuContext::headless()?;
+    if ctx.adapter_info.name != adapter {
+        return Err(Error::Gpu(format!(
+            "the background kernel compile found adapter {:?}, not {adapter:?}",
+            ctx.adapter_info.name
+        )));
+    }
+    let renderer = Renderer::with_kernel(&ctx, KernelChoice::Fast)?;
+    // The marker is written below, after the device is gone, not by this render.
+    if let Ok(mut m) = renderer.marker.lock() {
+        *m = None;
+    }
+    let tri = Triplane {
+        planes: vec![0.0; 3 * N_CHANNELS * 2 * 2],
+        height: 2,
+        width: 2,
+        plane_dtype: PlaneDtype::F32,
+        decoder: crate::triplane::Decoder {
+            w0: vec![0.0; crate::triplane::HIDDEN * N_CHANNELS],
+            b0: vec![0.0; crate::triplane::HIDDEN],
+            w1: vec![0.0; crate::triplane::N_OUT * crate::triplane::HIDDEN],
+            b1: vec![0.0; crate::triplane::N_OUT],
+        },
+        bounds: SceneBounds::default(),
+        camera: None,
+        occupancy: None,
+        source: None,
+    };
+    let gpu = renderer.upload(&tri)?;
+    let camera = Camera::lookat_pose(
+        std::f64::consts::FRAC_PI_2,
+        std::f64::consts::FRAC_PI_2,
+        crate::camera::FFHQ_RADIUS,
+        [0.0, 0.0, 0.0],
+        crate::camera::FFHQ_FOCAL,
+    );
+    let settings = RenderSettings { resolution: 1, ..Default::default() };
+    renderer.render(&gpu, &[camera], &settings, Outputs::ALL)?;
+    // Drop the device (flushing Mesa's cache writes) before the marker says it is cached.
+    drop((gpu, renderer, ctx));
+    if let Some(path) = marker {
+        write_marker(path);
+    }
+    Ok(())
+}
