@@ -57,7 +57,7 @@ from lp3d.lift.sidecar import (
     _sidecar_field,
     verify_superres_file,
 )
-from lp3d.render.settings import N_CHANNELS
+from lp3d.render.settings import N_CHANNELS, SceneBounds
 from lp3d.render.triplane import TriplaneData
 
 __all__ = [
@@ -178,22 +178,17 @@ def _decoder_arrays(decoder: Any) -> dict[str, np.ndarray]:
 
 
 def _bounds_of(bounds: Any) -> tuple[float, float, float]:
-    """``(box_warp, ray_start, ray_end)`` from a mapping, an object with attributes or a 3-sequence."""
-    keys = ("box_warp", "ray_start", "ray_end")
-    if isinstance(bounds, Mapping):
-        values = [bounds.get(k) for k in keys]
-    elif all(hasattr(bounds, k) for k in keys):
-        values = [getattr(bounds, k) for k in keys]
-    elif isinstance(bounds, Sequence) and len(bounds) == 3:
-        values = list(bounds)
-    else:
-        raise ModelPackageError("bounds must have box_warp, ray_start and ray_end")
+    """``(box_warp, ray_start, ray_end)``, checked, from what :meth:`SceneBounds.of` reads (a
+    ``SceneBounds``, a triplane, a mapping) or a 3-sequence."""
     try:
-        box_warp, ray_start, ray_end = (float(v) for v in values)  # type: ignore[arg-type]
-    except (TypeError, ValueError) as e:
-        raise ModelPackageError(f"bounds must be numbers: {e}") from None
-    _check_bounds("bounds", box_warp, ray_start, ray_end)
-    return box_warp, ray_start, ray_end
+        if isinstance(bounds, Sequence) and not isinstance(bounds, str) and len(bounds) == 3:
+            scene = SceneBounds(*(float(v) for v in bounds))
+        else:
+            scene = SceneBounds.of(bounds)
+    except (AttributeError, KeyError, TypeError, ValueError) as e:
+        raise ModelPackageError(f"bounds must have box_warp, ray_start and ray_end as numbers: {e}") from None
+    _check_bounds("bounds", scene.box_warp, scene.ray_start, scene.ray_end)
+    return scene.box_warp, scene.ray_start, scene.ray_end
 
 
 def _config_dict(config: Any) -> dict[str, Any]:

@@ -69,7 +69,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from lp3d.errors import EXIT_ERROR, UsageError, run_command
+from lp3d.errors import UsageError, UserError, run_command
 from lp3d.teachers import Teacher
 from lp3d.training.checkpoint import load_checkpoint, student_from_checkpoint
 from lp3d.training.config import TrainConfig
@@ -413,9 +413,10 @@ def run_cli(args: argparse.Namespace) -> int:
             eg3d_source=args.eg3d_source,
             device=args.device,
         )
-    except (ValueError, RuntimeError, FileNotFoundError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return EXIT_ERROR
+    except (
+        RuntimeError
+    ) as e:  # a device or model failure; ValueError and OSError reach run_command as they are
+        raise UserError(str(e)) from None
     print(summary_table(report))
     s = report["student"]
     print(f"student  : encode {s['encode_ms']:.1f} ms, render {s['render_ms']:.1f} ms per view")

@@ -32,11 +32,10 @@ from __future__ import annotations
 
 import argparse
 import copy
-import sys
 from pathlib import Path
 from typing import Any
 
-from lp3d.errors import EXIT_ERROR, UsageError, run_command
+from lp3d.errors import UsageError, UserError, run_command
 from lp3d.lift.model_package import (
     ModelPackageError,
     decoder_digest,
@@ -99,8 +98,7 @@ def _add_superres_main(args: argparse.Namespace) -> int:
         sidecar = set_package_superres(package.sidecar, entry)
         weights = add_superres_to_weights(args.weights, sr, digest) if args.weights else None
     except (ModelPackageError, ExportError, ValueError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return EXIT_ERROR
+        raise UserError(str(e)) from None  # run_command prints it as "lp3d export: error: ..."
     _print_superres(entry, err, args.tolerance)
     print(f"updated {sidecar} (its 'superres' entry)")
     if weights is not None:
@@ -291,19 +289,13 @@ def run_cli(args: argparse.Namespace) -> int:
             )
     except ParityError as e:
         Path(args.output).unlink(missing_ok=True)  # no package without its super-resolution network
-        print(f"error: {e}; removed {args.output}", file=sys.stderr)
-        return EXIT_ERROR
+        raise UserError(f"{e}; removed {args.output}") from None
     except (CheckpointError, ValueError, ExportError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return EXIT_ERROR
+        raise UserError(str(e)) from None
     cfg = student.config
     if not err <= args.tolerance:
         Path(path).unlink(missing_ok=True)
-        print(
-            f"error: ONNX vs PyTorch max abs error {err:.3g} > {args.tolerance:g}; removed {path}",
-            file=sys.stderr,
-        )
-        return EXIT_ERROR
+        raise UserError(f"ONNX vs PyTorch max abs error {err:.3g} > {args.tolerance:g}; removed {path}")
     print(
         f"wrote {path} (encoder {cfg.name!r}, image (B, 3, {cfg.image_size}, {cfg.image_size}) -> triplane "
         f"(B, 3, 32, {cfg.triplane_resolution}, {cfg.triplane_resolution}), opset {args.opset}); "

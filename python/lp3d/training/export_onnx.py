@@ -52,24 +52,33 @@ def export_encoder(
     """Write the encoder of ``model`` as ONNX (input ``image``, output ``triplane``, dynamic batch),
     atomically. A :class:`~lp3d.training.student.Student` exports ``Student.encode`` (encoder +
     offset)."""
+    encoder = _as_module(model).eval()
+    s = encoder.config.image_size
+    example = torch.zeros(1, 3, s, s, device=next(encoder.parameters()).device)
+    return export_batched(encoder, example, path, opset=opset, names=("image", "triplane"))
+
+
+def export_batched(
+    module: nn.Module, example: Tensor, path: str | os.PathLike[str], *, opset: int, names: tuple[str, str]
+) -> Path:
+    """``module`` as ONNX at ``path`` (its folder made, written atomically): one input and one output,
+    named ``names``, traced from ``example`` with the batch axis dynamic. Used for the encoder and the
+    super-resolution network."""
     if opset < MIN_OPSET:
         raise ValueError(f"opset must be >= {MIN_OPSET}, got {opset}")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    encoder = _as_module(model).eval()
-    s = encoder.config.image_size
-    example = torch.zeros(1, 3, s, s, device=next(encoder.parameters()).device)
     with atomic_path(path) as tmp, warnings.catch_warnings(), torch.no_grad():
-        warnings.simplefilter("ignore")  # TracerWarnings about shape checks that are constant here
+        warnings.simplefilter("ignore")  # legacy-exporter deprecation and tracer shape warnings
         torch.onnx.export(
-            encoder,
+            module,
             (example,),
             str(tmp),
             dynamo=False,
             opset_version=opset,
-            input_names=["image"],
-            output_names=["triplane"],
-            dynamic_axes={"image": {0: "batch"}, "triplane": {0: "batch"}},
+            input_names=[names[0]],
+            output_names=[names[1]],
+            dynamic_axes={names[0]: {0: "batch"}, names[1]: {0: "batch"}},
         )
     return path
 

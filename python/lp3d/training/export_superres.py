@@ -6,7 +6,6 @@
 from __future__ import annotations
 
 import os
-import warnings
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +25,7 @@ from lp3d.training.export_onnx import (
     MIN_OPSET,
     ExportError,
     ParityError,
+    export_batched,
 )
 
 
@@ -43,25 +43,10 @@ class _FeaturesToImage(nn.Module):
 def export_superres(sr: SuperResolution, path: str | os.PathLike[str], *, opset: int = MIN_OPSET) -> Path:
     """Write ``sr`` as ONNX: input ``features`` (B, C, R, R), output ``image`` (B, 3, R_out, R_out),
     dynamic batch, atomically. The graph is the folded form (plain convolutions; same outputs)."""
-    if opset < MIN_OPSET:
-        raise ValueError(f"opset must be >= {MIN_OPSET}, got {opset}")
-    path = Path(path)
     module = _FeaturesToImage(sr).eval()
     cfg = sr.config
     example = torch.zeros(1, cfg.in_channels, cfg.input_resolution, cfg.input_resolution)
-    with atomic_path(path) as tmp, warnings.catch_warnings(), torch.no_grad():
-        warnings.simplefilter("ignore")  # legacy-exporter deprecation and tracer warnings
-        torch.onnx.export(
-            module,
-            (example,),
-            str(tmp),
-            dynamo=False,
-            opset_version=opset,
-            input_names=["features"],
-            output_names=["image"],
-            dynamic_axes={"features": {0: "batch"}, "image": {0: "batch"}},
-        )
-    return path
+    return export_batched(module, example, path, opset=opset, names=("features", "image"))
 
 
 def check_superres_onnx(
