@@ -18,13 +18,14 @@ import os
 import statistics
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
 import lp3d_render
 from lp3d.render.camera import look_at_camera
+from lp3d.render.settings import Skips
 from lp3d.render.triplane import TriplaneData
 from lp3d.render.triplane_io import load_triplane
 from lp3d.teachers import ProceduralTeacher
@@ -38,36 +39,29 @@ os.environ.setdefault("LP3D_KERNEL", "fast")
 class Setting:
     name: str
     samples: tuple[int, int]
-    transmittance_threshold: float = 0.0
-    empty_threshold: float = 0.0
-    #: Occupancy grid skip (docs/occupancy.md), 0 = off; the grid is baked at G = 64 before timing.
-    occupancy_epsilon: float = 0.0
-    #: ... in the coarse pass too (moves the importance samples).
-    occupancy_coarse: bool = False
-
-    @property
-    def exact(self) -> bool:
-        return not (self.transmittance_threshold or self.empty_threshold or self.occupancy_epsilon)
+    #: The renderer's skips (lp3d.render.settings.Skips); with occupancy_epsilon the grid is baked at
+    #: G = 64 before timing.
+    skips: Skips = Skips()
 
 
 SETTINGS = (
     [Setting(f"exact {s}+{n}", (s, n)) for s, n in [(12, 12), (24, 24), (48, 48), (96, 96)]]
     + [
-        Setting(f"T<{t:g} empty<{e:g} {s}+{n}", (s, n), t, e)
+        Setting(f"T<{t:g} empty<{e:g} {s}+{n}", (s, n), Skips(t, e))
         for s, n in [(24, 24), (48, 48)]
         for t, e in [(1e-4, 1e-4), (1e-3, 1e-3), (1e-2, 1e-2)]
     ]
     + [
-        Setting(f"grid eps {g:g} {s}+{n}", (s, n), occupancy_epsilon=g)
+        Setting(f"grid eps {g:g} {s}+{n}", (s, n), Skips(occupancy_epsilon=g))
         for s, n in [(24, 24), (48, 48)]
         for g in (1e-4, 1e-3)
     ]
     + [
-        Setting(f"grid eps 1e-4 T<1e-3 empty<1e-3 {s}+{n}", (s, n), 1e-3, 1e-3, 1e-4)
+        Setting(f"grid eps 1e-4 T<1e-3 empty<1e-3 {s}+{n}", (s, n), Skips(1e-3, 1e-3, 1e-4))
         for s, n in [(24, 24), (48, 48)]
     ]
     + [
-        Setting(f"grid eps 1e-4 + coarse, T<1e-3 empty<1e-3 {s}+{n}", (s, n), 1e-3, 1e-3, 1e-4, True)
+        Setting(f"grid eps 1e-4 + coarse, T<1e-3 empty<1e-3 {s}+{n}", (s, n), Skips(1e-3, 1e-3, 1e-4, True))
         for s, n in [(24, 24), (48, 48)]
     ]
 )
@@ -88,10 +82,6 @@ def fog(seed: int = 0, size: int = 64) -> TriplaneData:
         b1=np.zeros(33, np.float32),
         source="random fog",
     )
-
-
-def native(t: TriplaneData):
-    return t.to_native()
 
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
@@ -196,7 +186,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     torch_ms = {}
     for scene_name, data in scenes.items():
-        tri = native(data)
+        tri = data.to_native()
         # Warm-up / compile, and bake the occupancy grid (G = 64) outside the timings.
         lp3d_render.render(tri, cam, resolution=8, occupancy_epsilon=1e-4)
         ref = lp3d_render.render(
@@ -219,10 +209,7 @@ def main(argv: list[str] | None = None) -> int:
                     depth_resolution=s,
                     depth_resolution_importance=n,
                     outputs=["rgb"],
-                    transmittance_threshold=st.transmittance_threshold,
-                    empty_threshold=st.empty_threshold,
-                    occupancy_epsilon=st.occupancy_epsilon,
-                    occupancy_coarse=st.occupancy_coarse,
+                    **asdict(st.skips),
                 ),
                 args.repeats,
             )
@@ -234,7 +221,7 @@ def main(argv: list[str] | None = None) -> int:
                     "ms": ms,
                     "psnr": psnr(rgb, ref),
                     "max": float(np.abs(rgb - ref).max() / 2),
-                    "exact": st.exact,
+                    "exact": st.skips.exact,
                 }
             )
             print(f"{scene_name:16s} {st.name:28s} {ms:9.1f} ms  {rows[-1]['psnr']:6.1f} dB", file=sys.stderr)
