@@ -102,7 +102,7 @@ pub struct Renderer {
     background: Mutex<Option<JoinHandle<Result<()>>>>,
     /// Where to record that the fast kernel is in Mesa's shader cache (`fast_kernel_marker`),
     /// until a render with the fast kernel has done so.
-    pub(crate) marker: Mutex<Option<std::path::PathBuf>>,
+    marker: Mutex<Option<std::path::PathBuf>>,
     bounds_pipeline: wgpu::ComputePipeline,
     present_layout: wgpu::BindGroupLayout,
     present_pipeline: wgpu::ComputePipeline,
