@@ -2,8 +2,9 @@
 
     python -m lp3d.teachers.figure --out docs/teacher.png
 
-Defaults: seeds 0..7, yaws -45, -22.5, 0, 22.5, 45 degrees (pitch 0, FFHQ camera), 128^2 rays with
-48 + 48 samples (EG3D's FFHQ settings), RGB mapped from [-1, 1] to [0, 255].
+Defaults: the default teacher version, seeds 0..7, yaws -45, -22.5, 0, 22.5, 45 degrees (pitch 0,
+FFHQ camera), 128^2 rays with 48 + 48 samples (EG3D's FFHQ settings, the viewer's full quality),
+RGB mapped from [-1, 1] to [0, 255]. ``--samples 24`` shows the demo's setting.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ def render_sheet(
     resolution: int = 128,
     depth_resolution: int = 48,
     depth_resolution_importance: int = 48,
+    version: int | None = None,
 ) -> np.ndarray:
     """The sheet as (rows * (R + 2) + 2, columns * (R + 2) + 2, 3) uint8: one row per seed, one column
     per yaw, separated by a dark 2-pixel gutter."""
@@ -36,7 +38,7 @@ def render_sheet(
     from lp3d.render.camera import look_at_camera
     from lp3d.teachers.procedural import ProceduralTeacher
 
-    teacher = ProceduralTeacher()
+    teacher = ProceduralTeacher() if version is None else ProceduralTeacher(version=version)
     cams = np.stack([look_at_camera(yaw_deg=float(y), pitch_deg=pitch_deg) for y in yaws])
     images = []
     for seed in seeds:
@@ -64,6 +66,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--pitch", type=float, default=0.0, help="camera elevation in degrees")
     parser.add_argument("--resolution", type=int, default=128, help="rays per image side")
     parser.add_argument("--samples", type=int, default=48, help="coarse and fine samples per ray (each)")
+    parser.add_argument("--version", type=int, default=None, help="teacher version (default: the default)")
     args = parser.parse_args(argv)
 
     from lp3d.images import save_png
@@ -76,6 +79,7 @@ def main(argv: list[str] | None = None) -> int:
         resolution=args.resolution,
         depth_resolution=args.samples,
         depth_resolution_importance=args.samples,
+        version=args.version,
     )
     path = save_png(args.out, sheet)
     print(

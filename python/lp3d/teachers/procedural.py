@@ -20,9 +20,19 @@ hand-built decoder turns them into density and colour. The construction rests on
 
 8 parts x (1 shape + 3 colour channels) = 32 channels. The decoder (:func:`procedural_decoder`) has one
 softplus density unit per part and, per part and colour, a gate pair
-``softplus(3 c + beta (o + m)) - softplus(beta (o + m))`` equal to the logit ``3 c`` inside the part
+``softplus(c + beta (o + m)) - softplus(beta (o + m))`` equal to the (scaled) logit ``c`` inside the part
 (``o`` = shape mean - 1/2 > -m) and to 0 elsewhere: 8 + 8 x 3 x 2 = 56 of the 64 hidden units.
 Output features 3..31 are the part occupancies and per-part colours, so they carry meaning too.
+
+Two versions share this construction (:class:`~lp3d.teachers.procedural_decoder.DecoderDesign`):
+
+* **v2, the default**, is built to be a fair stand-in for EG3D (issue 20): sharpness lives in the
+  planes (shape channels scaled by 50, each part's field slope evened out by its surface gain), the
+  decoder's weights stay below 10 in the first layer, and surfaces gather their opacity over 2-4 cm,
+  so they are soft on the 48 + 48 sampler's scale (2.2 cm between coarse samples) and a plane error
+  moves a surface a little instead of flipping a part. Glasses are thicker and hair and beard edges
+  softer than in v1, for the same reason. ``bench/teacher_check.py`` measures both.
+* **v1** keeps the first teacher bit for bit: the shipped ``small`` model was distilled from it.
 
 The code: :mod:`~lp3d.teachers.procedural_decoder` (channel layout, decoder),
 :mod:`~lp3d.teachers.procedural_identity` (:class:`HeadParams` from a seed),
@@ -47,10 +57,11 @@ from lp3d.teachers.procedural_builder import _Builder
 from lp3d.teachers.procedural_decoder import (
     BACKGROUND,
     BEARD,
+    DEFAULT_VERSION,
+    DESIGNS,
     EARS,
     EYES,
     FIELD_CEILING,
-    FIELD_FLOOR,
     GLASSES,
     HAIR,
     HEAD,
@@ -64,6 +75,9 @@ from lp3d.teachers.procedural_identity import HAIRSTYLES, PATTERNS, Hairstyle, H
 
 #: Plane resolution of the emitted triplanes (EG3D FFHQ: 256).
 RESOLUTION = 256
+#: The teacher versions (:mod:`lp3d.teachers.procedural_decoder`): 2 is the default; 1 is kept because
+#: the shipped ``small`` model was distilled from it and its evaluation is reproduced against it.
+TEACHER_VERSIONS = tuple(sorted(DESIGNS))
 
 __all__ = [
     "BACKGROUND",
@@ -78,6 +92,7 @@ __all__ = [
     "PARTS",
     "PATTERNS",
     "RESOLUTION",
+    "TEACHER_VERSIONS",
     "TORSO",
     "Hairstyle",
     "HeadParams",
@@ -85,6 +100,16 @@ __all__ = [
     "ProceduralTeacher",
     "procedural_decoder",
 ]
+
+
+def _field(a: np.ndarray | float, gain: float, lo: float, hi: float) -> np.ndarray:
+    """A plane's shape field from the part's quadric-like ``a`` (A or B): ``1 - a/2`` through the
+    surface gain (``gain (1 - a/2) + 3/4 (1 - gain)``: the same surface f + g = 3/2, ``gain`` times
+    the slope), clamped to [lo, hi], float32. The gain acts before the clamp, so far from the part
+    the field still reaches the floor."""
+    a = np.asarray(a, dtype=np.float32)
+    f = 1.0 - 0.5 * a if gain == 1.0 else gain * (1.0 - 0.5 * a) + 0.75 * (1.0 - gain)
+    return np.clip(f, lo, hi, dtype=np.float32)
 
 
 # ---------------------------------------------------------------------------------------- teacher
@@ -96,16 +121,20 @@ class ProceduralTeacher:
     teacher.
     """
 
-    def __init__(self, resolution: int = RESOLUTION) -> None:
+    def __init__(self, resolution: int = RESOLUTION, *, version: int = DEFAULT_VERSION) -> None:
         if isinstance(resolution, bool) or not isinstance(resolution, int) or resolution < 16:
             raise ValueError(f"resolution must be an int >= 16, got {resolution!r}")
+        if type(version) is not int or version not in DESIGNS:
+            raise ValueError(f"version must be one of {list(DESIGNS)}, got {version!r}")
         self.resolution = resolution
+        self.version = version
+        self._design = DESIGNS[version]
         self.box_warp = DEFAULT_BOX_WARP
         # Texel centres in world units (grid_sample with align_corners=False).
         c = ((2.0 * np.arange(resolution) + 1.0) / resolution - 1.0) * (self.box_warp / 2.0)
         self._coords = c.astype(np.float32)
         self._textures = _Textures(self._coords)
-        self._decoder = procedural_decoder()
+        self._decoder = procedural_decoder(version)
 
     def decoder(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The fixed decoder shared by every identity (copies): w0 (64, 32), b0 (64,), w1 (33, 64),
@@ -115,7 +144,13 @@ class ProceduralTeacher:
 
     def sample(self, seed: int) -> TriplaneData:
         """Triplane (3, 32, R, R) float32 of identity ``seed``; ``source`` is ``"procedural seed N"``."""
-        return self.build(HeadParams.sample(seed), source=f"procedural seed {int(seed)}")
+        return self.build(HeadParams.sample(seed), source=self.source(seed))
+
+    def source(self, seed: int) -> str:
+        """The ``source`` text of identity ``seed``: ``"procedural seed N"`` (v1: ``"procedural v1 seed
+        N"``)."""
+        version = "" if self.version == DEFAULT_VERSION else f" v{self.version}"
+        return f"procedural{version} seed {int(seed)}"
 
     def sample_batch(self, seeds: Sequence[int]) -> list[TriplaneData]:
         """``[sample(s) for s in seeds]``."""
@@ -123,30 +158,34 @@ class ProceduralTeacher:
 
     def build(self, params: HeadParams, *, source: str | None = None) -> TriplaneData:
         """The triplane of an explicit identity."""
-        parts = _Builder(params, self._coords, self._textures).parts()
+        parts = _Builder(params, self._coords, self._textures, version=self.version).parts()
         R = self.resolution
+        d = self._design
+        lo, hi, k = d.field_floor, FIELD_CEILING, d.shape_scale
         planes = np.empty((3, N_CHANNELS, R, R), dtype=np.float32)
         for p, part in enumerate(parts):
-            # f = 1 - A/2 and g = 1 - B/2: the shape channel's mean is (f + g) / 3 (planes 1 and 2 hold
-            # g/2 each), and the colour logit COLOUR_GAIN * mean is fc + gc.
+            # f = 1 - A/2 and g = 1 - B/2 (each through the part's surface gain, then clamped), scaled
+            # by k: the shape channel's mean is k (f + g) / 3 (planes 1 and 2 hold k g/2 each), and the
+            # colour logit 3 * mean is fc + gc.
+            c = d.surface_gain[p]
             colours = slice(N_PARTS + 3 * p, N_PARTS + 3 * p + 3)
             f, fc = planes[0, p], planes[0, colours]
             if part.window is None:
-                np.multiply(part.A, -0.5, out=f)
-                f += 1.0
-                np.clip(f, FIELD_FLOOR, FIELD_CEILING, out=f)
+                f[...] = _field(part.A, c, lo, hi)
                 fc[...] = part.fc
             else:
                 rows, cols = part.window
-                f[...] = FIELD_FLOOR
-                f[rows, cols] = np.clip(1.0 - 0.5 * np.asarray(part.A), FIELD_FLOOR, FIELD_CEILING)
+                f[...] = lo
+                f[rows, cols] = _field(part.A, c, lo, hi)
                 fc[...] = 0.0
                 fc[:, rows, cols] = part.fc
+            if k != 1.0:
+                f *= k
             # Plane 2 samples (z, x): it gets the transposes. Fields that vary along one axis only are
             # stored as (R, 1) or (1, R), so most transposes are cheap broadcasts.
-            g = np.clip(
-                0.5 - 0.25 * np.asarray(part.B, dtype=np.float32), 0.5 * FIELD_FLOOR, 0.5 * FIELD_CEILING
-            )
+            g = 0.5 * _field(part.B, c, lo, hi)
+            if k != 1.0:
+                g = g * np.float32(k)
             gc = 0.5 * np.asarray(part.gc, dtype=np.float32)
             planes[1, p] = g
             planes[2, p] = g.T

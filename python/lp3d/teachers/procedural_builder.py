@@ -27,8 +27,9 @@ class _Builder:
     columns; ``y`` = ``z`` (R, 1) index rows, read as y in the (x, y) fields (A, fc) and as z in the
     (x, z) fields (B, gc)."""
 
-    def __init__(self, p: HeadParams, coords: np.ndarray, textures: _Textures) -> None:
+    def __init__(self, p: HeadParams, coords: np.ndarray, textures: _Textures, *, version: int) -> None:
         self.p = p
+        self.version = version
         self.coords = coords
         self.tex = textures
         self.x = coords[None, :]
@@ -372,7 +373,10 @@ class _Builder:
             bun = 1.0 - ((x / rb) ** 2 + ((y - yb) / rb) ** 2)
             s = np.maximum(s, 0.4 * np.sqrt(np.clip(bun, 0.0, 1.0)))
             delta = np.maximum(delta, bun)
-        A = 1.0 - s * s + 40.0 * np.maximum(-delta, 0.0)
+        # Beyond the silhouette A rises steeply; v1's wall (gain 40) is thinner than the sampler can
+        # resolve where a ray grazes the hair's edge, v2's is ten times softer.
+        wall = 40.0 if self.version == 1 else 4.0
+        A = 1.0 - s * s + wall * np.maximum(-delta, 0.0)
         B = (np.maximum(z - zh, 0.0) / dzf) ** 2 + (np.maximum(zh - z, 0.0) / dzb) ** 2
         # Colour: strands (or curls) over (x, y) and (x, z), a sheen band on the crown, darker below.
         if p.hairstyle == "bald":
@@ -398,7 +402,10 @@ class _Builder:
         re, ex, ey = p.eye_size, p.eye_spacing, self.ey
         zg = self.face_z(ex, ey) + 0.018
         R = 1.6 * re
-        w = 0.0055  # half thickness of the frame wire (thinner wires break up under 48 + 48 samples)
+        # Half thickness of the frame wire across (w) and along the view (wz). v1's 5.5 mm wire breaks up
+        # under 48 + 48 samples; v2's frames are thicker, deepest along the view, so that their surfaces
+        # can be soft on the sampler's scale and still opaque.
+        w, wz = (0.0055, 0.0055) if self.version == 1 else (0.0075, 0.014)
         head_w = float(self.head_width(ey))
         hinge_x, arm_x = 0.92 * head_w, head_w + 0.007
         rows, cols = self.window(-arm_x - 2 * w, arm_x + 2 * w, ey - 1.3 * R, ey + 1.3 * R)
@@ -409,7 +416,7 @@ class _Builder:
         bridge = np.where(ax < ex - R + 0.002, bar, _EMPTY)
         bars = np.where((ax > ex + R - 0.002) & (ax < arm_x + w), bar, _EMPTY)
         A = np.minimum(np.minimum(rims, bridge), bars)
-        front = np.where(self.ax < hinge_x + w, ((z - zg) / w) ** 2, _EMPTY)
+        front = np.where(self.ax < hinge_x + w, ((z - zg) / wz) ** 2, _EMPTY)
         z_ear = self.zc - 0.04
         curve_x = hinge_x + (arm_x - hinge_x) * _ss(zg, zg - 0.07, z)
         arm = ((self.ax - curve_x) / w) ** 2 + (
@@ -431,7 +438,8 @@ class _Builder:
         x, y = self.x[:, cols], self.y[rows, :]
         grown = self.skull_A(x * (W / (W + th)), yc + (y - yc) * (H / (H + th)))
         line = ym + 0.018 + (self.ey - 0.03 - ym - 0.018) * (np.abs(x) / W) ** 3  # up to the sideburns
-        mask = _ss(line + 0.004, line - 0.004, y)
+        edge = 0.004 if self.version == 1 else 0.012  # v2: a softer edge that 48 + 48 samples resolve
+        mask = _ss(line + edge, line - edge, y)
         mouth = _ss(1.0, 0.7, (x / 0.03) ** 2 + ((y - ym) / 0.012) ** 2)
         A = grown + 3.0 * (1.0 - mask * (1.0 - mouth))
         dz = z - zc

@@ -9,8 +9,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lp3d.teachers.procedural_decoder import FIELD_FLOOR
-
 
 # --------------------------------------------------------------------------------------- helpers
 def _ss(e0: float | np.ndarray, e1: float | np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -50,8 +48,8 @@ class _Part:
     window: tuple[slice, slice] | None = None
 
 
-#: A = B = this gives f = g = FIELD_FLOOR: an absent part.
-_EMPTY = 2.0 * (1.0 - FIELD_FLOOR)
+#: A = B = this gives f = g = -1, at or below every version's field floor: an absent part.
+_EMPTY = 4.0
 _ABSENT = _Part(_EMPTY, _EMPTY, 0.0, 0.0)
 
 

@@ -117,9 +117,11 @@ def reference_teachers(teacher: Teacher, cfg: TrainConfig) -> tuple[Teacher, Tea
         truth = (
             teacher
             if teacher.resolution == PROCEDURAL_RESOLUTION
-            else ProceduralTeacher(PROCEDURAL_RESOLUTION)
+            else ProceduralTeacher(PROCEDURAL_RESOLUTION, version=teacher.version)
         )
-        ceiling = teacher if teacher.resolution == t else ProceduralTeacher(resolution=t)
+        ceiling = (
+            teacher if teacher.resolution == t else ProceduralTeacher(resolution=t, version=teacher.version)
+        )
         return truth, ceiling
     return teacher, None
 

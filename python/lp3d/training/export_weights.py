@@ -167,7 +167,7 @@ def _training_inputs(cfg: Any, teacher_name: str, data_cache: str | None, n: int
     from lp3d.training.synthetic_data import SyntheticDataset, default_cache_root
     from lp3d.training.teacher_factory import build_teacher, dataset_key
 
-    if cfg.recipe != "cpu" or teacher_name != "procedural":
+    if cfg.recipe != "cpu" or not teacher_name.startswith("procedural"):
         raise ValueError("--basis-components needs a CPU-recipe run of the procedural teacher")
     teacher = build_teacher(teacher_name, triplane_resolution=cfg.triplane_resolution)
     key = dataset_key(cfg, teacher, teacher_name)

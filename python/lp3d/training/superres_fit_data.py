@@ -168,7 +168,7 @@ class PairSet:
 
         if teacher_fingerprint(teacher, key.first_seed) != key.teacher_fingerprint:
             raise StalePairsError("the teacher's fingerprint differs from the pair key's")
-        low = ProceduralTeacher(resolution=key.teacher_low_resolution)
+        low = ProceduralTeacher(resolution=key.teacher_low_resolution, version=teacher.version)
         render = renderer().render
         pkg = encoder.package
         ref_dist = CameraDistribution.from_dict(key.reference_cameras)

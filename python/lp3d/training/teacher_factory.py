@@ -17,7 +17,11 @@ from lp3d.teachers import Teacher
 from lp3d.training.config import TrainConfig
 from lp3d.training.synthetic_data import DatasetKey, teacher_fingerprint
 
-TEACHERS = ("procedural", "eg3d")
+#: ``procedural`` is the embedded default (procedural teacher v2); ``procedural-v1`` is the first
+#: procedural teacher, kept because the shipped ``small`` model was distilled from it (and runs made
+#: before v2 recorded it as ``procedural``: resume or evaluate them with ``--teacher procedural-v1``).
+TEACHERS = ("procedural", "procedural-v1", "eg3d")
+PROCEDURAL_VERSIONS = {"procedural": 2, "procedural-v1": 1}
 
 
 def build_teacher(
@@ -29,13 +33,14 @@ def build_teacher(
     conditioning: str = "gen_videos",
     device: str | torch.device = "cpu",
 ) -> Teacher:
-    """The teacher ``name``: ``procedural`` (built at the encoder's triplane resolution, so L_tri needs
-    no resampling) or ``eg3d`` (``lp3d.teachers.eg3d.EG3DTeacher.from_pickle``, imported only when asked
-    for: loading a pickle executes its code; ``conditioning``: whose conditioning camera, see there)."""
-    if name == "procedural":
+    """The teacher ``name``: ``procedural`` or ``procedural-v1`` (built at the encoder's triplane
+    resolution, so L_tri needs no resampling) or ``eg3d``
+    (``lp3d.teachers.eg3d.EG3DTeacher.from_pickle``, imported only when asked for: loading a pickle
+    executes its code; ``conditioning``: whose conditioning camera, see there)."""
+    if name in PROCEDURAL_VERSIONS:
         from lp3d.teachers import ProceduralTeacher
 
-        return ProceduralTeacher(resolution=triplane_resolution)
+        return ProceduralTeacher(resolution=triplane_resolution, version=PROCEDURAL_VERSIONS[name])
     if name == "eg3d":
         try:
             from lp3d.teachers import eg3d  # type: ignore[attr-defined]
