@@ -106,7 +106,7 @@ from lp3d.training.eval_setup import (
 )
 from lp3d.training.losses import LPIPSLoss, LPIPSWeightsNotFound, build_perceptual
 from lp3d.training.student import Student
-from lp3d.training.teacher_factory import build_teacher, resolve_teacher_args
+from lp3d.training.teacher_factory import TEACHERS, build_teacher, resolve_teacher_args
 
 __all__ = [
     "INPUT_YAW_RANGE_DEG",
@@ -282,16 +282,20 @@ def run(
     teacher_pkl: str | None = None,
     eg3d_source: str | None = None,
     device: str | torch.device = "cpu",
+    teacher_name: str | None = None,
 ) -> tuple[Path, Path, dict[str, Any]]:
-    """Evaluate a checkpoint; returns ``(report.json, comparison.png, report)``."""
+    """Evaluate a checkpoint; returns ``(report.json, comparison.png, report)``. ``teacher_name``
+    overrides the teacher the run recorded (runs made before procedural teacher v2 recorded
+    ``procedural`` for what is now ``procedural-v1``)."""
     device = torch.device(device)
     ckpt = load_checkpoint(checkpoint, map_location=device)
     cfg: TrainConfig = ckpt["train_config"]
     student = student_from_checkpoint(ckpt, device)
     # The run recorded how its teacher was built; given paths override (e.g. the pickle moved).
     targs = resolve_teacher_args(ckpt, teacher_pkl=teacher_pkl, eg3d_source=eg3d_source)
+    teacher_name = teacher_name or ckpt["teacher"]
     teacher = build_teacher(
-        ckpt["teacher"],
+        teacher_name,
         triplane_resolution=cfg.triplane_resolution,
         teacher_pkl=targs["teacher_pkl"],
         eg3d_source=targs["eg3d_source"],
@@ -316,7 +320,7 @@ def run(
     report, rows = evaluate(
         student, teacher, settings=settings, lpips=lpips, perceptual=perceptual, device=device
     )
-    report = {"checkpoint": ckpt["path"], "step": int(ckpt["step"]), "teacher": ckpt["teacher"], **report}
+    report = {"checkpoint": ckpt["path"], "step": int(ckpt["step"]), "teacher": teacher_name, **report}
     if lpips_note:
         report["lpips_note"] = lpips_note
     out_dir = (
@@ -375,6 +379,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="NVlabs/eg3d's eg3d/ folder, to unpickle the generator (default: the one the run recorded)",
     )
+    p.add_argument(
+        "--teacher",
+        choices=TEACHERS,
+        default=None,
+        help="the run's teacher (default: the one it recorded; runs made before procedural teacher v2 "
+        "recorded 'procedural' for procedural-v1)",
+    )
     p.add_argument("--device", default="cpu", help="cpu or cuda")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -412,6 +423,7 @@ def run_cli(args: argparse.Namespace) -> int:
             teacher_pkl=args.teacher_pkl,
             eg3d_source=args.eg3d_source,
             device=args.device,
+            teacher_name=args.teacher,
         )
     except (
         RuntimeError
