@@ -4,7 +4,8 @@
 
 Defaults: the default teacher version, seeds 0..7, yaws -45, -22.5, 0, 22.5, 45 degrees (pitch 0,
 FFHQ camera), 128^2 rays with 48 + 48 samples (EG3D's FFHQ settings, the viewer's full quality),
-RGB mapped from [-1, 1] to [0, 255]. ``--samples 24`` shows the demo's setting.
+RGB mapped from [-1, 1] to [0, 255]. ``--samples 24`` shows the demo's setting; ``--versions 1 2``
+stacks the two teachers' sheets (v1 above, v2 below).
 """
 
 from __future__ import annotations
@@ -66,21 +67,32 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--pitch", type=float, default=0.0, help="camera elevation in degrees")
     parser.add_argument("--resolution", type=int, default=128, help="rays per image side")
     parser.add_argument("--samples", type=int, default=48, help="coarse and fine samples per ray (each)")
-    parser.add_argument("--version", type=int, default=None, help="teacher version (default: the default)")
+    parser.add_argument(
+        "--versions",
+        type=int,
+        nargs="+",
+        default=None,
+        help="teacher versions, one sheet each, stacked top to bottom (default: the default teacher)",
+    )
     args = parser.parse_args(argv)
 
     from lp3d.images import save_png
 
     start = time.perf_counter()
-    sheet = render_sheet(
-        args.seeds,
-        args.yaws,
-        pitch_deg=args.pitch,
-        resolution=args.resolution,
-        depth_resolution=args.samples,
-        depth_resolution_importance=args.samples,
-        version=args.version,
-    )
+    sheets = [
+        render_sheet(
+            args.seeds,
+            args.yaws,
+            pitch_deg=args.pitch,
+            resolution=args.resolution,
+            depth_resolution=args.samples,
+            depth_resolution_importance=args.samples,
+            version=version,
+        )
+        for version in (args.versions or [None])
+    ]
+    gap = np.full((6, sheets[0].shape[1], 3), 255, np.uint8)
+    sheet = np.concatenate([x for sh in sheets for x in (sh, gap)][:-1], axis=0)
     path = save_png(args.out, sheet)
     print(
         f"wrote {path}: {len(args.seeds)} identities x {len(args.yaws)} yaws at {args.resolution}^2 "

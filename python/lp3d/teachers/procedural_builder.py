@@ -5,6 +5,7 @@ relief and face paint, eyes, ears, torso, backdrop, hair, glasses and beard.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -22,6 +23,29 @@ from lp3d.teachers.procedural_fields import (
 from lp3d.teachers.procedural_identity import HeadParams
 
 
+@dataclass(frozen=True)
+class _Geometry:
+    """Where the teacher versions' shapes differ. v2's surfaces gather their opacity over a few
+    centimetres (soft on the 48 + 48 sampler's scale), so its glasses are thicker and its edges
+    softer than v1's: v1's steep edges and 5.5 mm glasses wire are thinner than the sampler resolves
+    where a ray grazes them. (Hair 1.5x as thick covers the face better from the side, but its edges
+    then exceed 0.15 against 192 + 192 samples: 0.166; kept at v1's thickness.)"""
+
+    #: How steeply the hair's A rises beyond its silhouette.
+    hair_wall: float
+    #: Half width of the beard mask's edge (world units).
+    beard_edge: float
+    #: Half thickness of the glasses' frame wire across the view and along it.
+    glasses_wire: float
+    glasses_depth: float
+
+
+_GEOMETRY = {
+    1: _Geometry(hair_wall=40.0, beard_edge=0.004, glasses_wire=0.0055, glasses_depth=0.0055),
+    2: _Geometry(hair_wall=4.0, beard_edge=0.012, glasses_wire=0.0075, glasses_depth=0.014),
+}
+
+
 class _Builder:
     """The eight parts of one identity, from the texel centres ``coords`` (R,): ``x`` (1, R) indexes
     columns; ``y`` = ``z`` (R, 1) index rows, read as y in the (x, y) fields (A, fc) and as z in the
@@ -29,7 +53,7 @@ class _Builder:
 
     def __init__(self, p: HeadParams, coords: np.ndarray, textures: _Textures, *, version: int) -> None:
         self.p = p
-        self.version = version
+        self.geometry = _GEOMETRY[version]
         self.coords = coords
         self.tex = textures
         self.x = coords[None, :]
@@ -373,10 +397,7 @@ class _Builder:
             bun = 1.0 - ((x / rb) ** 2 + ((y - yb) / rb) ** 2)
             s = np.maximum(s, 0.4 * np.sqrt(np.clip(bun, 0.0, 1.0)))
             delta = np.maximum(delta, bun)
-        # Beyond the silhouette A rises steeply; v1's wall (gain 40) is thinner than the sampler can
-        # resolve where a ray grazes the hair's edge, v2's is ten times softer.
-        wall = 40.0 if self.version == 1 else 4.0
-        A = 1.0 - s * s + wall * np.maximum(-delta, 0.0)
+        A = 1.0 - s * s + self.geometry.hair_wall * np.maximum(-delta, 0.0)
         B = (np.maximum(z - zh, 0.0) / dzf) ** 2 + (np.maximum(zh - z, 0.0) / dzb) ** 2
         # Colour: strands (or curls) over (x, y) and (x, z), a sheen band on the crown, darker below.
         if p.hairstyle == "bald":
@@ -402,10 +423,7 @@ class _Builder:
         re, ex, ey = p.eye_size, p.eye_spacing, self.ey
         zg = self.face_z(ex, ey) + 0.018
         R = 1.6 * re
-        # Half thickness of the frame wire across (w) and along the view (wz). v1's 5.5 mm wire breaks up
-        # under 48 + 48 samples; v2's frames are thicker, deepest along the view, so that their surfaces
-        # can be soft on the sampler's scale and still opaque.
-        w, wz = (0.0055, 0.0055) if self.version == 1 else (0.0075, 0.014)
+        w, wz = self.geometry.glasses_wire, self.geometry.glasses_depth  # half thickness: across, along
         head_w = float(self.head_width(ey))
         hinge_x, arm_x = 0.92 * head_w, head_w + 0.007
         rows, cols = self.window(-arm_x - 2 * w, arm_x + 2 * w, ey - 1.3 * R, ey + 1.3 * R)
@@ -438,7 +456,7 @@ class _Builder:
         x, y = self.x[:, cols], self.y[rows, :]
         grown = self.skull_A(x * (W / (W + th)), yc + (y - yc) * (H / (H + th)))
         line = ym + 0.018 + (self.ey - 0.03 - ym - 0.018) * (np.abs(x) / W) ** 3  # up to the sideburns
-        edge = 0.004 if self.version == 1 else 0.012  # v2: a softer edge that 48 + 48 samples resolve
+        edge = self.geometry.beard_edge
         mask = _ss(line + edge, line - edge, y)
         mouth = _ss(1.0, 0.7, (x / 0.03) ** 2 + ((y - ym) / 0.012) ** 2)
         A = grown + 3.0 * (1.0 - mask * (1.0 - mouth))
