@@ -28,7 +28,7 @@ Two versions share this construction (:class:`~lp3d.teachers.procedural_decoder.
 
 * **v2, the default**, is built to be a fair stand-in for EG3D (issue 20): sharpness lives in the
   planes (shape channels scaled by 50, each part's field slope evened out by its surface gain), the
-  decoder's weights stay below 10 in the first layer, and surfaces gather their opacity over 3-6 cm,
+  decoder's weights stay below 10 in the first layer, and surfaces gather their opacity over about 5 cm,
   so they are soft on the 48 + 48 sampler's scale (2.2 cm between coarse samples) and a plane error
   moves a surface a little instead of flipping a part. Glasses are thicker and hair and beard edges
   softer than in v1, for the same reason. ``bench/teacher_check.py`` measures both.
