@@ -20,6 +20,7 @@ Prints a Markdown table per check (and the command) to stdout; ``--json`` writes
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -65,16 +66,7 @@ def rgb(tri: TriplaneData, cams: np.ndarray, resolution: int, samples: int) -> n
 
 
 def with_planes(tri: TriplaneData, planes: np.ndarray) -> TriplaneData:
-    return TriplaneData(
-        planes=planes.astype(np.float32),
-        w0=tri.w0,
-        b0=tri.b0,
-        w1=tri.w1,
-        b1=tri.b1,
-        box_warp=tri.box_warp,
-        ray_start=tri.ray_start,
-        ray_end=tri.ray_end,
-    )
+    return dataclasses.replace(tri, planes=planes.astype(np.float32))
 
 
 def convergence(version: int, seeds: list[int]) -> dict[str, list[float]]:
