@@ -27,12 +27,14 @@ import time
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from lp3d.render.camera import look_at_camera
 from lp3d.render.native import render
 from lp3d.render.triplane import TriplaneData
 from lp3d.teachers.procedural import TEACHER_VERSIONS, ProceduralTeacher
 from lp3d.training.config import TrainConfig
+from lp3d.training.eval_metrics import psnr
 from lp3d.training.eval_setup import NOVEL_VIEWS
 
 #: Held-out identities (TrainConfig.eval_seed_start; no configuration trains on them).
@@ -43,10 +45,10 @@ NOISE_VIEWS = ((-30.0, 15.0), (0.0, 15.0), (30.0, 15.0))
 
 
 def psnr01(a: np.ndarray, b: np.ndarray) -> float:
-    """PSNR (dB) of two RGB renders in [-1, 1], mapped to [0, 1]; the same number as
-    :func:`lp3d.training.eval_metrics.psnr` with its peak-to-peak 2."""
-    mse = float(np.mean(((np.clip(a, -1, 1) - np.clip(b, -1, 1)) / 2.0) ** 2))
-    return 10.0 * np.log10(1.0 / max(mse, 1e-12))
+    """PSNR (dB) of two RGB renders (..., 3, H, W) in [-1, 1] as one image: the evaluation's
+    :func:`lp3d.training.eval_metrics.psnr` (peak-to-peak 2, i.e. RGB mapped to [0, 1])."""
+    flat = [torch.from_numpy(np.ascontiguousarray(x, dtype=np.float64)).reshape(1, 1, 1, -1) for x in (a, b)]
+    return float(psnr(*flat)[0])
 
 
 def cameras(views: tuple[tuple[float, float], ...]) -> np.ndarray:

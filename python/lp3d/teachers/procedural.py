@@ -179,13 +179,10 @@ class ProceduralTeacher:
                 f[rows, cols] = _field(part.A, c, lo, hi)
                 fc[...] = 0.0
                 fc[:, rows, cols] = part.fc
-            if k != 1.0:
-                f *= k
+            f *= k
             # Plane 2 samples (z, x): it gets the transposes. Fields that vary along one axis only are
             # stored as (R, 1) or (1, R), so most transposes are cheap broadcasts.
-            g = 0.5 * _field(part.B, c, lo, hi)
-            if k != 1.0:
-                g = g * np.float32(k)
+            g = (0.5 * _field(part.B, c, lo, hi)) * np.float32(k)
             gc = 0.5 * np.asarray(part.gc, dtype=np.float32)
             planes[1, p] = g
             planes[2, p] = g.T

@@ -14,6 +14,7 @@ import torch
 from torch import Tensor, nn
 
 from lp3d.teachers import Teacher
+from lp3d.teachers.procedural_decoder import DEFAULT_VERSION
 from lp3d.training.config import TrainConfig
 from lp3d.training.synthetic_data import DatasetKey, teacher_fingerprint
 
@@ -21,7 +22,7 @@ from lp3d.training.synthetic_data import DatasetKey, teacher_fingerprint
 #: procedural teacher, kept because the shipped ``small`` model was distilled from it (and runs made
 #: before v2 recorded it as ``procedural``: resume or evaluate them with ``--teacher procedural-v1``).
 TEACHERS = ("procedural", "procedural-v1", "eg3d")
-PROCEDURAL_VERSIONS = {"procedural": 2, "procedural-v1": 1}
+PROCEDURAL_VERSIONS = {"procedural": DEFAULT_VERSION, "procedural-v1": 1}
 
 
 def build_teacher(
