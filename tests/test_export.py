@@ -27,14 +27,17 @@ from lp3d.training.losses import build_perceptual
 @pytest.fixture(scope="module")
 def checkpoint(tmp_path_factory):
     """A tiny-configuration checkpoint (untrained except for the mean-triplane start, whose zeroed last
-    layer would hide encoder errors, so it is given random values here; parity needs no training)."""
+    layer would hide encoder errors, so it and the plane generator's are given random values here;
+    parity needs no training)."""
     cfg = TRAIN_CONFIGS["tiny-paper"]
     out = tmp_path_factory.mktemp("run")
     teacher = build_teacher("procedural", triplane_resolution=cfg.triplane_resolution)
     trainer = Trainer(cfg, out, teacher=teacher, perceptual=build_perceptual("none"), progress=False)
-    last = trainer.student.encoder.head.out_convs[-1]
+    enc = trainer.student.encoder
+    g = torch.Generator().manual_seed(0)
     with torch.no_grad():
-        last.weight.normal_(0.0, 0.05, generator=torch.Generator().manual_seed(0))
+        enc.head.out_convs[-1].weight.normal_(0.0, 0.05, generator=g)
+        enc.generator.to_planes.weight.normal_(0.0, 0.05, generator=g)
     return trainer.save_checkpoint()
 
 

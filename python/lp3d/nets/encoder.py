@@ -36,7 +36,7 @@ This module assembles the encoder (:class:`LP3DEncoder`, :func:`build_encoder`, 
 lp3d.nets.encoder --config NAME`` to count its parameters) from :mod:`~lp3d.nets.encoder_config`
 (:class:`EncoderConfig`, :data:`CONFIGS`, re-exported here), :mod:`~lp3d.nets.encoder_blocks`
 (DeepLabV3 and Segformer pieces), :mod:`~lp3d.nets.encoder_stages` (E_low, E_high, the head) and
-:mod:`~lp3d.nets.plane_basis`.
+:mod:`~lp3d.nets.plane_basis` and :mod:`~lp3d.nets.plane_generator`.
 """
 
 from __future__ import annotations
@@ -53,6 +53,7 @@ from lp3d.nets.encoder_blocks import ASPP, BasicBlock, ResNet34Features
 from lp3d.nets.encoder_config import CONFIGS, EncoderConfig
 from lp3d.nets.encoder_stages import HighEncoder, LowEncoder, TriplaneHead
 from lp3d.nets.plane_basis import PlaneBasis
+from lp3d.nets.plane_generator import PlaneGenerator
 
 __all__ = [
     "CONFIGS",
@@ -110,6 +111,7 @@ class LP3DEncoder(nn.Module):
         self.e_high = HighEncoder(config)
         self.head = TriplaneHead(config)
         self.basis = PlaneBasis(config) if config.basis_components > 0 else None
+        self.generator = PlaneGenerator(config) if config.generator_channels else None
         self.reset_parameters()
 
     # -- initialisation ----------------------------------------------------------------------------
@@ -143,6 +145,9 @@ class LP3DEncoder(nn.Module):
             assert isinstance(last, nn.Linear)
             nn.init.zeros_(last.weight)
             nn.init.normal_(self.basis.components, 0.0, 0.01)
+        if self.generator is not None:
+            nn.init.zeros_(self.generator.to_planes.weight)
+            nn.init.zeros_(self.generator.to_planes.bias)
 
     # -- forward -----------------------------------------------------------------------------------
     def check_image(self, image: Tensor) -> None:
@@ -188,6 +193,8 @@ class LP3DEncoder(nn.Module):
         planes = self.head(f, f_high)
         if self.basis is not None:
             planes = planes + self.basis(a)
+        if self.generator is not None:
+            planes = planes + self.generator(a)
         t = self.config.triplane_resolution
         return planes.reshape(b, 3, self.config.plane_channels, t, t)
 
@@ -232,6 +239,8 @@ def parameter_breakdown(encoder: LP3DEncoder) -> dict[str, int]:
         "head.in_convs": count_parameters(encoder.head.in_convs),
         "head.vit (patch embed + blocks)": count_parameters(encoder.head.vit),
         "head.out_convs": count_parameters(encoder.head.out_convs),
+        **({"basis": count_parameters(encoder.basis)} if encoder.basis is not None else {}),
+        **({"generator": count_parameters(encoder.generator)} if encoder.generator is not None else {}),
     }
 
 

@@ -8,7 +8,7 @@ Plain data: imports nothing from lp3d (and no torch).
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, fields, replace
 from typing import Any, Literal
 
 __all__ = ["CONFIGS", "EncoderConfig", "HighSource"]
@@ -87,6 +87,12 @@ class EncoderConfig:
     basis_resolution: int = 32
     basis_pool: int = 4
     basis_hidden: int = 512
+    # The plane generator (CPU configurations; not in the paper; empty turns it off): a code of
+    # ``generator_code`` numbers from the same pooled features, decoded by upsampling convolutions of
+    # these widths (the first at T / 2^(n-1), the last at T) into per-texel planes added to the
+    # head's output (see lp3d.nets.plane_generator for why).
+    generator_channels: tuple[int, ...] = ()
+    generator_code: int = 256
 
     def __post_init__(self) -> None:
         self.validate()
@@ -134,6 +140,8 @@ class EncoderConfig:
             value = getattr(self, f.name)
             if f.name in ("name", "high_source", "low_mlp_ratio", "head_mlp_ratio", "aspp_dropout"):
                 continue
+            if f.name == "generator_channels" and value == ():  # no plane generator
+                continue
             if f.name == "basis_components":  # 0: no plane basis
                 if not isinstance(value, int) or isinstance(value, bool) or value < 0:
                     raise ValueError(f"EncoderConfig.basis_components must be an int >= 0, got {value!r}")
@@ -152,10 +160,20 @@ class EncoderConfig:
                 f"EncoderConfig.basis_resolution ({self.basis_resolution}) must be the triplane_resolution "
                 f"({self.triplane_resolution}) divided by a power of 2"
             )
-        if self.basis_components and (self.image_size // 8) % self.basis_pool:
+        uses_pool = self.basis_components or self.generator_channels
+        if uses_pool and (self.image_size // 8) % self.basis_pool:
             raise ValueError(
                 f"EncoderConfig.basis_pool ({self.basis_pool}) must divide the ASPP's resolution "
                 f"({self.image_size // 8})"
+            )
+        n = len(self.generator_channels)
+        if n and (
+            n < 2 or self.triplane_resolution % (1 << (n - 1)) or self.triplane_resolution >> (n - 1) < 2
+        ):
+            raise ValueError(
+                f"EncoderConfig.generator_channels ({self.generator_channels}) must have 2 or more widths, "
+                f"one per ×2 stage ending at triplane_resolution ({self.triplane_resolution}), the first at "
+                "a side of 2 or more"
             )
 
     def _validate_parts(self) -> None:
@@ -308,6 +326,7 @@ CONFIGS: dict[str, EncoderConfig] = {
         head_heads=2,
         head_out_channels=(192, 64),
         basis_components=64,
+        generator_channels=(128, 128, 128, 96, 64),
     ),
     "tiny": EncoderConfig(
         name="tiny",
@@ -335,5 +354,9 @@ CONFIGS: dict[str, EncoderConfig] = {
         basis_components=32,
         basis_resolution=16,
         basis_hidden=256,
+        generator_channels=(64, 48, 48, 32, 32),
+        generator_code=128,
     ),
 }
+# ``small`` before issue 20 (a plane basis and no generator): the ablation of bench/RESULTS.md.
+CONFIGS["small-basis"] = replace(CONFIGS["small"], name="small-basis", generator_channels=())

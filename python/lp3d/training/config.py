@@ -325,11 +325,17 @@ def _cpu_recipe_config(
     total_steps: int,
     regression_steps: int,
     dataset_identities: int,
+    sizes: str = "",
 ) -> TrainConfig:
     """The CPU recipe (``recipe="cpu"``, see :class:`TrainConfig`) at the ``name`` network sizes."""
     return dataclasses.replace(
         _cpu_config(
-            name, samples=samples, batch_size=batch_size, total_steps=total_steps, lr_rampup_steps=50
+            name,
+            sizes=sizes,
+            samples=samples,
+            batch_size=batch_size,
+            total_steps=total_steps,
+            lr_rampup_steps=50,
         ),
         recipe="cpu",
         lr_encoder=3e-4,
@@ -370,7 +376,16 @@ TRAIN_CONFIGS: dict[str, TrainConfig] = {
         raw_resolution=128,
     ),
     "small": _cpu_recipe_config(
-        "small", samples=16, batch_size=8, total_steps=4_000, regression_steps=4_000, dataset_identities=2048
+        "small", samples=16, batch_size=8, total_steps=3_000, regression_steps=3_000, dataset_identities=2048
+    ),
+    "small-basis": _cpu_recipe_config(
+        "small-basis",
+        sizes="small",
+        samples=16,
+        batch_size=8,
+        total_steps=3_000,
+        regression_steps=3_000,
+        dataset_identities=2048,
     ),
     "tiny": _cpu_recipe_config(
         "tiny", samples=12, batch_size=4, total_steps=1_000, regression_steps=1_000, dataset_identities=512
