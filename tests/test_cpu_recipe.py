@@ -198,8 +198,8 @@ def test_train_cli_runs_the_cpu_recipe(tmp_path, capsys):
     args = ["--config", "tiny", "--dataset-identities", "3", "--data-cache", str(tmp_path / "c")]
     assert train_main([*args, "--max-steps", "1", "--batch", "2", "--out", str(out), "--no-progress"]) == 0
     assert (out / "checkpoints" / "step-000001.pt").is_file() and (out / "heldout.csv").is_file()
-    assert train_main(["--config", "tiny", "--dataset-identities", "0", "--out", str(tmp_path / "x")]) == 1
-    assert "dataset_identities must be a positive int" in capsys.readouterr().err
+    assert train_main(["--config", "tiny", "--dataset-identities", "0", "--out", str(tmp_path / "x")]) == 2
+    assert "argument --dataset-identities: must be in [1, 1000000], got 0" in capsys.readouterr().err
 
 
 @pytest.fixture(scope="module")

@@ -251,3 +251,134 @@ def test_orbit_pitch_range_must_stay_below_the_poles(capsys, tmp_path) -> None:
     err = capsys.readouterr().err
     assert code == 1 and "--pitch 70 with --pitch-range 30 leaves (-90, 90) degrees" in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s.npz"]
+
+
+# ============================================================================== training flags
+
+
+@pytest.mark.parametrize(
+    ("argv", "words"),
+    [
+        # --max-steps -5 was accepted and ran a minute of set-up; a huge batch ended in a MemoryError.
+        (["--max-steps", "-5"], "argument --max-steps: must be in [1, 1000000000], got -5"),
+        (["--max-steps", "0"], "argument --max-steps: must be in [1, "),
+        (["--max-steps", "1e3"], "argument --max-steps: expected an integer, got '1e3'"),
+        (["--total-steps", "-1"], "argument --total-steps: must be in [1, "),
+        (["--batch", "0"], "argument --batch: must be in [1, 4096], got 0"),
+        (["--batch", "100000000"], "argument --batch: must be in [1, 4096], got 100000000"),
+        (["--batch", "9" * 5000], "argument --batch: expected an integer, got '999999999999"),
+        (["--dataset-identities", "0"], "argument --dataset-identities: must be in [1, 1000000], got 0"),
+        (["--dataset-identities", "2000000"], "argument --dataset-identities: must be in [1, 1000000]"),
+        (["--checkpoint-every", "-3"], "argument --checkpoint-every: must be in [1, "),
+    ],
+)
+@pytest.mark.parametrize("entry", ["lp3d train", "python -m lp3d.train"])
+def test_training_flags_are_checked_before_any_set_up(
+    capsys, monkeypatch, tmp_path, entry, argv, words
+) -> None:
+    import lp3d.training.cli
+    from lp3d.train import main as train_main
+
+    def set_up(args: object) -> int:
+        raise AssertionError("training set-up started")
+
+    monkeypatch.setattr(lp3d.training.cli, "run_cli", set_up)
+    full = [*argv, "--out", str(tmp_path / "run")]
+    code = main(["train", *full]) if entry == "lp3d train" else train_main(full)
+    err = capsys.readouterr().err
+    assert code == 2 and words in err and "Traceback" not in err, err
+    assert not (tmp_path / "run").exists()
+
+
+# =============================================================== a machine the renderer cannot use
+
+LAVAPIPE_HINT = "install Mesa's lavapipe (sudo apt install mesa-vulkan-drivers libvulkan1"
+
+
+@pytest.mark.parametrize(
+    ("env", "words"),
+    [
+        # No Vulkan driver: the most common first run on a new machine.
+        (
+            {"VK_DRIVER_FILES": "/nonexistent/lvp_icd.json", "WGPU_BACKEND": "vulkan"},
+            "no GPU adapter (vulkan drivers/libraries could not be loaded; VK_DRIVER_FILES names "
+            f"/nonexistent/lvp_icd.json, which does not exist): the renderer needs a Vulkan, Metal or "
+            f"DirectX 12 driver; on Linux without a GPU {LAVAPIPE_HINT}",
+        ),
+        ({"WGPU_BACKEND": "bogus"}, "the environment variable WGPU_BACKEND='bogus' names no GPU backend"),
+        ({"LP3D_KERNEL": "bogus"}, "the environment variable LP3D_KERNEL='bogus' names no renderer kernel"),
+    ],
+    ids=["no-vulkan-driver", "wgpu-backend", "lp3d-kernel"],
+)
+@pytest.mark.parametrize("command", ["render", "orbit"])
+def test_no_usable_gpu_is_one_line_saying_how_to_install_it(tmp_path, env, words, command) -> None:
+    """Each ended in a RuntimeError traceback; the renderer starts in a fresh process, so each case runs
+    in one."""
+    import os
+
+    sphere = tmp_path / "s.npz"
+    save_triplane(sphere, coloured_sphere(size=8))
+    out = tmp_path / ("v.png" if command == "render" else "o.gif")
+    argv = [sys.executable, "-m", "lp3d.cli", command, str(sphere), "-o", str(out), "--resolution", "16"]
+    if command == "orbit":
+        argv += ["--frames", "2"]
+    proc = subprocess.run(
+        argv, capture_output=True, text=True, timeout=120, env={**os.environ, "LP3D_DEBUG": "", **env}
+    )
+    last = proc.stderr.strip().splitlines()[-1]
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
+    assert last.startswith(f"lp3d {command}: error: ") and words in last, proc.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.npz"]
+
+
+def test_renderer_setup_errors_are_recognised_and_others_are_not(monkeypatch) -> None:
+    """The texts lp3d_render raises (crates/renderer/src/device.rs, kernel.rs) map to one line; any other
+    RuntimeError is a bug and keeps its traceback."""
+    import argparse
+
+    from lp3d.errors import renderer_setup_error, run_command
+
+    monkeypatch.delenv("WGPU_BACKEND", raising=False)
+    monkeypatch.delenv("VK_DRIVER_FILES", raising=False)
+    monkeypatch.delenv("VK_ICD_FILENAMES", raising=False)
+    rust = (
+        "GPU error: no usable GPU adapter (No suitable graphics adapter found; noop not requested, vulkan "
+        "drivers/libraries could not be loaded, gl not requested); adapters seen: []. On a machine ..."
+    )
+    assert renderer_setup_error(rust) == (
+        "no GPU adapter (vulkan drivers/libraries could not be loaded): the renderer needs a Vulkan, Metal "
+        "or DirectX 12 driver; on Linux without a GPU install Mesa's lavapipe (sudo apt install "
+        "mesa-vulkan-drivers libvulkan1, or scripts/install-system-deps.sh) and set WGPU_BACKEND=vulkan"
+    )
+    assert renderer_setup_error("GPU error: request_device failed:\n  out of memory") == (
+        "GPU error: request_device failed: out of memory"
+    )
+    assert renderer_setup_error("internal renderer error: index out of bounds") is None
+
+    def fail(message: str) -> object:
+        def func(args: object) -> int:
+            raise RuntimeError(message)
+
+        parser = argparse.ArgumentParser(prog="t")
+        parser.set_defaults(func=func)
+        return parser
+
+    assert run_command(fail(rust), []) == 1
+    with pytest.raises(RuntimeError, match="internal renderer error"):
+        run_command(fail("internal renderer error: index out of bounds"), [])
+
+
+def test_the_viewer_without_a_vulkan_driver_says_how_to_install_it(tmp_path) -> None:
+    import os
+
+    assert shutil.which("xvfb-run"), "xvfb-run is missing: run scripts/install-system-deps.sh"
+    sphere, shot = tmp_path / "s.npz", tmp_path / "shot.png"
+    save_triplane(sphere, coloured_sphere(size=8))
+    cmd = ["xvfb-run", "-a", "-s", "-screen 0 640x480x24", sys.executable, "-m", "lp3d.cli", "view"]
+    env = {**os.environ, "VK_DRIVER_FILES": "/nonexistent/lvp_icd.json", "WGPU_BACKEND": "vulkan"}
+    proc = subprocess.run(
+        [*cmd, "--screenshot", str(shot), str(sphere)], capture_output=True, text=True, timeout=120, env=env
+    )
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
+    assert "lp3d view: error: no GPU adapter" in proc.stderr and LAVAPIPE_HINT in proc.stderr, proc.stderr
+    assert not shot.exists()

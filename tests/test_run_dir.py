@@ -51,7 +51,7 @@ def test_checkpoint_every_flag_sets_the_interval_and_may_change_on_resume(tmp_pa
     assert train_main([*common, "--max-steps", "3", "--checkpoint-every", "1"]) == 0
     assert _steps(run) == [1, 2, 3]
     assert load_checkpoint(run)["train_config"].checkpoint_every == 1
-    assert train_main([*common, "--max-steps", "4", "--checkpoint-every", "0"]) == 1
+    assert train_main([*common, "--max-steps", "4", "--checkpoint-every", "0"]) == 2  # usage
 
 
 def test_a_killed_write_leaves_no_temporary_behind_for_long(tmp_path, cache, capsys):

@@ -10,6 +10,10 @@ through :func:`run_command`, so they agree:
   raised after parsing (flags that exclude each other), printed with the usage line;
 * **130** interrupted (Ctrl-C).
 
+When the renderer cannot start (no GPU adapter, a ``WGPU_BACKEND`` or ``LP3D_KERNEL`` it does not know),
+every command ends with one line saying what is missing and how to install it
+(:func:`renderer_setup_error`), whichever step first touched the GPU.
+
 This module imports nothing of lp3d, so every module may use it.
 """
 
@@ -17,9 +21,11 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import math
 import os
+import re
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 __all__ = [
     "EXIT_ERROR",
@@ -28,6 +34,9 @@ __all__ = [
     "EXIT_USAGE",
     "UsageError",
     "UserError",
+    "float_in",
+    "int_in",
+    "renderer_setup_error",
     "run_command",
 ]
 
@@ -47,10 +56,108 @@ class UsageError(Exception):
     status 2."""
 
 
+# Argparse types every entry point shares: a bad value is a usage error naming its flag
+# ("argument --max-steps: must be in [1, 1000000000], got -5", exit 2), found at parse time, before
+# any slow work or allocation.
+
+
+def int_in(lo: int, hi: int) -> Callable[[str], int]:
+    """An integer in ``[lo, hi]``."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:  # also an int of more than 4300 digits: shown cut short
+            shown = repr(text) if len(text) <= 40 else f"{text[:20]!r}... ({len(text)} characters)"
+            raise argparse.ArgumentTypeError(f"expected an integer, got {shown}") from None
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"must be in [{lo}, {hi}], got {value}")
+        return value
+
+    return parse
+
+
+def float_in(lo: float, hi: float, *, hi_open: bool = False) -> Callable[[str], float]:
+    """A finite number in ``[lo, hi]`` (``[lo, hi)`` with ``hi_open``)."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not (math.isfinite(value) and lo <= value and (value < hi if hi_open else value <= hi)):
+            raise argparse.ArgumentTypeError(
+                f"must be in [{lo:g}, {hi:g}{')' if hi_open else ']'}, got {text}"
+            )
+        return value
+
+    return parse
+
+
 def _format_error(e: BaseException) -> str:
     if isinstance(e, OSError) and e.filename is not None:
         return f"{e.filename}: {e.strerror or e}"
-    return str(e) or type(e).__name__
+    text = str(e) or type(e).__name__
+    return renderer_setup_error(text) or text
+
+
+#: wgpu's names for its backends (``wgpu::Backends::from_comma_list``); wgpu skips any other name in
+#: ``WGPU_BACKEND`` with a log line, and with none left it finds no adapter.
+_WGPU_BACKENDS = frozenset(
+    {"vulkan", "vk", "dx12", "d3d12", "metal", "mtl", "opengl", "gles", "gl", "webgpu", "noop"}
+)
+_INSTALL_DRIVER = (
+    "the renderer needs a Vulkan, Metal or DirectX 12 driver; on Linux without a GPU install Mesa's "
+    "lavapipe (sudo apt install mesa-vulkan-drivers libvulkan1, or scripts/install-system-deps.sh) "
+    "and set WGPU_BACKEND=vulkan"
+)
+
+
+def _no_adapter_reasons(message: str) -> list[str]:
+    """What the renderer's "no usable GPU adapter (...)" says about each backend it tried (wgpu's
+    "vulkan drivers/libraries could not be loaded"; backends not asked for are left out), and an ICD
+    file named in ``VK_DRIVER_FILES``/``VK_ICD_FILENAMES`` that does not exist."""
+    found = re.search(r"No suitable graphics adapter found; (.*?)\); adapters seen", message)
+    reasons = [r.strip() for r in found.group(1).split(",")] if found else []
+    reasons = [r for r in reasons if r and not r.endswith("not requested")]
+    for var in ("VK_DRIVER_FILES", "VK_ICD_FILENAMES"):
+        missing = [f for f in os.environ.get(var, "").split(os.pathsep) if f and not os.path.exists(f)]
+        reasons += [f"{var} names {f}, which does not exist" for f in missing]
+    seen = re.search(r"adapters seen: (\[[^\]]+\])", message)
+    if seen:
+        reasons.append(f"adapters seen: {seen.group(1)}")
+    return reasons
+
+
+def renderer_setup_error(message: str) -> str | None:
+    """The one line a user sees when ``message`` (an error's text) says the renderer ``lp3d_render``
+    cannot start, else None: no usable GPU adapter (``crates/renderer/src/device.rs``: the most common
+    first-run failure), a ``WGPU_BACKEND`` that names no backend, an ``LP3D_KERNEL`` the renderer does
+    not know (``crates/renderer/src/kernel.rs``), or another GPU failure (``GPU error: ...``, already
+    one line). The renderer raises these as ``RuntimeError`` from whichever call first needs the GPU,
+    so they are recognised here, where every entry point ends (:func:`run_command`)."""
+    if "LP3D_KERNEL: must be" in message:
+        value = os.environ.get("LP3D_KERNEL", "")
+        return (
+            f"the environment variable LP3D_KERNEL={value!r} names no renderer kernel: set it to auto, "
+            "fast or quick, or unset it"
+        )
+    no_adapter = "no usable GPU adapter" in message
+    no_surface = "Failed to create surface for any enabled backend" in message  # the viewer's window
+    if no_adapter or no_surface:
+        backend = os.environ.get("WGPU_BACKEND", "")
+        names = [b.strip().lower() for b in backend.split(",") if b.strip()]
+        if names and not set(names) & _WGPU_BACKENDS:
+            return (
+                f"the environment variable WGPU_BACKEND={backend!r} names no GPU backend: set it to vulkan, "
+                "metal, dx12 or gl, or unset it"
+            )
+        reasons = _no_adapter_reasons(message) if no_adapter else [" ".join(message.split())]
+        why = f" ({'; '.join(reasons)})" if reasons else ""
+        return f"no GPU adapter{why}: {_INSTALL_DRIVER}"
+    if message.startswith("GPU error: "):
+        return " ".join(message.split())
+    return None
 
 
 def run_command(parser: argparse.ArgumentParser, argv: Sequence[str] | None = None) -> int:
@@ -86,4 +193,10 @@ def run_command(parser: argparse.ArgumentParser, argv: Sequence[str] | None = No
         if os.environ.get("LP3D_DEBUG"):
             raise
         print(f"{command.prog}: error: {_format_error(e)}", file=sys.stderr)
+        return EXIT_ERROR
+    except RuntimeError as e:  # the renderer's: no GPU adapter, a bad WGPU_BACKEND or LP3D_KERNEL
+        line = renderer_setup_error(str(e))
+        if line is None or os.environ.get("LP3D_DEBUG"):
+            raise
+        print(f"{command.prog}: error: {line}", file=sys.stderr)
         return EXIT_ERROR

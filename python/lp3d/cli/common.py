@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from lp3d.errors import UsageError, UserError
+from lp3d.errors import UsageError, UserError, float_in, int_in
 from lp3d.outputs import (
     IMAGE_SUFFIXES,
     MESH_SUFFIXES,
@@ -120,34 +120,6 @@ def parse_samples(text: str) -> tuple[int, int]:
             f"samples must be in [2, {MAX_SAMPLES}] (fine may be 0 to skip importance sampling), got {text!r}"
         )
     return coarse, fine
-
-
-def int_in(lo: int, hi: int) -> Callable[[str], int]:
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-        if not lo <= value <= hi:
-            raise argparse.ArgumentTypeError(f"must be in [{lo}, {hi}], got {value}")
-        return value
-
-    return parse
-
-
-def float_in(lo: float, hi: float, *, hi_open: bool = False) -> Callable[[str], float]:
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-        if not (math.isfinite(value) and lo <= value and (value < hi if hi_open else value <= hi)):
-            raise argparse.ArgumentTypeError(
-                f"must be in [{lo:g}, {hi:g}{')' if hi_open else ']'}, got {text}"
-            )
-        return value
-
-    return parse
 
 
 def angle(lo: float | None = None, hi: float | None = None) -> Callable[[str], float]:

@@ -88,13 +88,17 @@ class LoadedEncoder:
     superres: LoadedSuperres | None = None
 
 
-def _reshape_planes(out: np.ndarray, batch: int, where: str) -> np.ndarray:
-    """Encoder output (B, 3, 32, T, T) or (B, 96, T, T) -> (B, 3, 32, T, T) float32, checked."""
+def _reshape_planes(out: np.ndarray, batch: int, where: str, resolution: int) -> np.ndarray:
+    """Encoder output (B, 3, 32, T, T) or (B, 96, T, T) -> (B, 3, 32, T, T) float32, checked: T must
+    be the package's ``resolution`` (its sidecar's ``triplane_resolution``)."""
     out = np.asarray(out, dtype=np.float32)
     if out.ndim == 4 and out.shape[1] == 3 * N_CHANNELS:
         out = out.reshape(out.shape[0], 3, N_CHANNELS, *out.shape[2:])
-    if out.ndim != 5 or out.shape[:3] != (batch, 3, N_CHANNELS) or out.shape[3] != out.shape[4]:
-        raise ModelPackageError(f"{where}: output has shape {out.shape}, expected ({batch}, 3, 32, T, T)")
+    t = resolution
+    if out.ndim != 5 or out.shape != (batch, 3, N_CHANNELS, t, t):
+        raise ModelPackageError(
+            f"{where}: output has shape {out.shape}, but the package says ({batch}, 3, 32, {t}, {t})"
+        )
     if not np.all(np.isfinite(out)):
         raise ModelPackageError(f"{where}: encoder produced NaN/Inf")
     return out

@@ -51,6 +51,8 @@ from lp3d.lift.sidecar import (
     SuperresEntry,
     _check_array,
     _check_bounds,
+    _check_decoder_range,
+    _check_sizes,
     _parse_superres,
     _read_sidecar,
     _sidecar_decoder,
@@ -111,7 +113,12 @@ class ModelPackage:
     def triplane(
         self, planes: np.ndarray, *, source: str | None = None, camera: np.ndarray | None = None
     ) -> TriplaneData:
-        """A self-contained triplane from encoder planes (3, 32, T, T) and this package's decoder/bounds."""
+        """A self-contained triplane from encoder planes (3, 32, T, T) and this package's decoder/bounds.
+        Planes that this decoder would take past float32 (which the renderer refuses) are refused here,
+        before the triplane is written."""
+        peak = float(np.max(np.abs(planes))) if np.size(planes) else 0.0
+        if np.isfinite(peak):  # NaN/Inf planes: TriplaneData names them
+            _check_decoder_range(str(self.model_path), self.decoder, peak)
         return TriplaneData(
             planes=planes,
             w0=self.w0,
@@ -239,6 +246,8 @@ def save_model_package(
         triplane_resolution = int(cfg["triplane_resolution"])
     except (KeyError, TypeError, ValueError) as e:
         raise ModelPackageError(f"config needs image_size and triplane_resolution: {e}") from None
+    _check_sizes("config", image_size, triplane_resolution)
+    _check_decoder_range("decoder", tuple(arrays.values()))
     data: dict[str, Any] = {
         "format": PACKAGE_FORMAT,
         "format_version": PACKAGE_FORMAT_VERSION,
@@ -336,13 +345,13 @@ def load_model_package(path: str | os.PathLike[str]) -> ModelPackage:
 
     image_size = field("image_size", int)
     triplane_resolution = field("triplane_resolution", int)
-    if image_size < 8 or triplane_resolution < 2:
-        raise ModelPackageError(f"{side}: image_size/triplane_resolution out of range")
+    _check_sizes(str(side), image_size, triplane_resolution)
     box_warp, ray_start, ray_end = (
         float(field(k, (int, float))) for k in ("box_warp", "ray_start", "ray_end")
     )
     _check_bounds(str(side), box_warp, ray_start, ray_end)
     arrays = _sidecar_decoder(side, field("decoder", dict))
+    _check_decoder_range(str(side), tuple(arrays.values()))
     model_name = field("model", str) if "model" in data else p.with_suffix(".onnx").name
     if Path(model_name).name != model_name:
         raise ModelPackageError(

@@ -2,8 +2,8 @@
 package's super-resolution network) run by ONNX Runtime on the CPU, its input and output shapes
 checked against the sidecar.
 
-May import :mod:`lp3d.lift.model_package` and :mod:`lp3d.lift.loaded`; onnxruntime only when a
-model is loaded."""
+May import :mod:`lp3d.lift.model_package`, :mod:`lp3d.lift.loaded` and :mod:`lp3d.render`;
+onnxruntime only when a model is loaded."""
 
 from __future__ import annotations
 
@@ -20,6 +20,7 @@ from lp3d.lift.model_package import (
     load_model_package,
     verify_superres_file,
 )
+from lp3d.render.settings import N_CHANNELS
 
 
 def _ort_session(path: Path) -> Any:
@@ -36,6 +37,32 @@ def _ort_session(path: Path) -> Any:
         return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
     except Exception as e:  # onnxruntime raises its own exception types (InvalidProtobuf, Fail, ...)
         raise ModelPackageError(f"{path}: cannot load the ONNX model ({type(e).__name__}: {e})") from None
+
+
+def _run_session(session: Any, feeds: dict[str, np.ndarray], where: object) -> np.ndarray:
+    """The first output of ``session`` on ``feeds``; onnxruntime's own errors (a graph that fails on
+    its input, a shape it cannot take) as a :class:`ModelPackageError` naming the model."""
+    try:
+        return session.run(None, feeds)[0]
+    except Exception as e:  # onnxruntime raises its own types (Fail, InvalidArgument, RuntimeException)
+        raise ModelPackageError(f"{where}: the ONNX model failed to run ({type(e).__name__}: {e})") from None
+
+
+def _check_output(path: Path, output: Any, resolution: int) -> None:
+    """The graph's declared output, (B, 3, 32, T, T) or (B, 96, T, T), agrees with the sidecar's
+    ``triplane_resolution`` T (a symbolic dimension is checked on every run instead)."""
+    shape, t = list(output.shape), resolution
+    fits = len(shape) in (4, 5)
+    if fits:
+        channels, sides = shape[1:-2], shape[-2:]
+        known = all(isinstance(d, int) for d in channels)
+        fits = not (known and channels not in ([3 * N_CHANNELS], [3, N_CHANNELS]))
+        fits = fits and all(d == t for d in sides if isinstance(d, int))
+    if not fits:
+        raise ModelPackageError(
+            f"{path}: output {output.name!r} has shape {shape}, but the package says "
+            f"(B, 3, {N_CHANNELS}, {t}, {t})"
+        )
 
 
 def _load_onnx_superres(package: ModelPackage, entry: SuperresEntry) -> LoadedSuperres:
@@ -71,7 +98,7 @@ def _load_onnx_superres(package: ModelPackage, entry: SuperresEntry) -> LoadedSu
             if fixed_batch != 1:
                 raise ModelPackageError(f"{where}: the model only accepts batches of exactly {fixed_batch}")
             return np.concatenate([run(features[i : i + 1]) for i in range(features.shape[0])])
-        return session.run(None, {name: features})[0]
+        return _run_session(session, {name: features}, where)
 
     return LoadedSuperres(
         package,
@@ -102,6 +129,10 @@ def _load_onnx(path: Path, *, superres: bool = False) -> LoadedEncoder:
             f"{path}: input {inp.name!r} has shape {shape}, but the package says (B, 3, {s}, {s})"
         )
     fixed_batch = shape[0] if isinstance(shape[0], int) else None
+    outputs = session.get_outputs()
+    if len(outputs) != 1:
+        raise ModelPackageError(f"{path}: expected one output (the planes), found {len(outputs)}")
+    _check_output(path, outputs[0], package.triplane_resolution)
 
     def run(images: np.ndarray) -> np.ndarray:
         x = np.ascontiguousarray(images, dtype=np.float32)
@@ -110,8 +141,8 @@ def _load_onnx(path: Path, *, superres: bool = False) -> LoadedEncoder:
             if fixed_batch != 1:
                 raise ModelPackageError(f"{path}: the model only accepts batches of exactly {fixed_batch}")
             return np.concatenate([run(x[i : i + 1]) for i in range(x.shape[0])])
-        out = session.run(None, {inp.name: x})[0]
-        return _reshape_planes(out, x.shape[0], str(path))
+        out = _run_session(session, {inp.name: x}, path)
+        return _reshape_planes(out, x.shape[0], str(path), package.triplane_resolution)
 
     sr = _load_onnx_superres(package, package.superres) if superres and package.superres else None
     return LoadedEncoder(package, "onnx", run, f"{path.name} (onnxruntime {ort.__version__}, CPU)", sr)

@@ -18,6 +18,7 @@ import numpy as np
 
 from lp3d.array_cache import file_sha256
 from lp3d.render.settings import HIDDEN, N_CHANNELS, N_OUT, SceneBounds
+from lp3d.render.triplane_io import MAX_PLANE_SIZE
 
 #: The ``format`` string every sidecar carries.
 PACKAGE_FORMAT = "lp3d-model-package"
@@ -30,6 +31,17 @@ _DECODER_SHAPES: dict[str, tuple[int, ...]] = {
     "w1": (N_OUT, HIDDEN),
     "b1": (N_OUT,),
 }
+
+
+#: Caps on what a package may claim, checked before anything is allocated from a claim (a package
+#: is outside input, like a triplane file: docs/reliability.md). A sidecar is a few hundred KiB.
+MAX_SIDECAR_BYTES = 16 << 20
+#: The encoder's input side S: photos are cropped to (3, S, S) float32 before the model runs.
+MAX_IMAGE_SIZE = 4096
+#: The triplane side T: the triplane files' own cap (``FILE_LIMITS``).
+MAX_TRIPLANE_RESOLUTION = MAX_PLANE_SIZE
+#: float32's largest value; a decoder whose sums could pass it renders Inf/NaN.
+F32_MAX = float(np.finfo(np.float32).max)
 
 
 class ModelPackageError(ValueError):
@@ -65,6 +77,40 @@ def _check_array(where: str, arr: np.ndarray) -> None:
         raise ModelPackageError(f"{where}: shape must be {_DECODER_SHAPES[name]}, got {arr.shape}")
     if not np.all(np.isfinite(arr)):
         raise ModelPackageError(f"{where}: contains NaN/Inf")
+
+
+def _check_sizes(where: str, image_size: int, triplane_resolution: int) -> None:
+    """The encoder's input side and triplane side within :data:`MAX_IMAGE_SIZE` and
+    :data:`MAX_TRIPLANE_RESOLUTION`, before anything is allocated from them."""
+    if not 8 <= image_size <= MAX_IMAGE_SIZE:
+        raise ModelPackageError(f"{where}: image_size must be in [8, {MAX_IMAGE_SIZE}], got {image_size}")
+    t, cap = triplane_resolution, MAX_TRIPLANE_RESOLUTION
+    if not 2 <= t <= cap:
+        raise ModelPackageError(f"{where}: triplane_resolution must be in [2, {cap}], got {t}")
+
+
+def decoder_bound(decoder: tuple[np.ndarray, ...], planes_max: float) -> float:
+    """A float64 bound on every value the decoder ``(w0, b0, w1, b1)`` computes from planes whose
+    values are at most ``planes_max`` in size: the twin of the renderer's ``check_decoder_range``
+    (``crates/renderer/src/renderer/upload.rs``), which refuses a triplane when this reaches float32's
+    maximum."""
+    w0, b0, w1, b1 = (np.abs(np.asarray(a, np.float64)) for a in decoder)
+    p = float(planes_max)
+    hidden = w0.sum(axis=1) * p + b0
+    out = w1 @ (hidden + 1.0) + b1
+    out[0] *= 2.0  # the ray marcher adds two raw densities before halving them
+    return float(max(3.0 * p, out.max(), hidden.max()))
+
+
+def _check_decoder_range(where: str, decoder: tuple[np.ndarray, ...], planes_max: float = 1.0) -> None:
+    """Refuse a decoder that overflows float32 on planes up to ``planes_max`` (at load: 1, the scale of
+    real planes, which sit ~30 orders of magnitude below the limit), as the renderer would, later."""
+    bound = decoder_bound(decoder, planes_max)
+    if not bound * 1.001 < F32_MAX:
+        raise ModelPackageError(
+            f"{where}: the decoder overflows float32: on planes up to {planes_max:.3g} its values reach "
+            f"{bound:.3e}, beyond float32's maximum {F32_MAX:.3e}"
+        )
 
 
 def _check_bounds(where: str, box_warp: float, ray_start: float, ray_end: float) -> None:
@@ -157,10 +203,7 @@ def _read_sidecar(side: Path) -> dict[str, Any]:
             f"{side}: model package sidecar not found (a .onnx model needs its {side.name} beside it, "
             "written by lp3d.lift.model_package.save_model_package; see docs/model-package.md)"
         )
-    try:
-        data = json.loads(side.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise ModelPackageError(f"{side}: unreadable model package sidecar ({e})") from None
+    data = _parse_json(side, _read_capped(side, MAX_SIDECAR_BYTES), "model package sidecar")
     if not isinstance(data, dict) or data.get("format") != PACKAGE_FORMAT:
         got = data.get("format") if isinstance(data, dict) else type(data).__name__
         raise ModelPackageError(
@@ -172,6 +215,29 @@ def _read_sidecar(side: Path) -> dict[str, Any]:
             f"(this reader supports {PACKAGE_FORMAT_VERSION})"
         )
     return data
+
+
+def _read_capped(path: Path, cap: int) -> str:
+    """A text file of at most ``cap`` bytes (its size checked before it is read)."""
+    try:
+        size = path.stat().st_size
+        if size > cap:
+            raise ModelPackageError(f"{path}: {size} bytes, more than a model package sidecar's cap of {cap}")
+        with open(path, "rb") as f:
+            return f.read(cap + 1).decode("utf-8")
+    except (OSError, UnicodeDecodeError) as e:
+        raise ModelPackageError(f"{path}: unreadable model package sidecar ({e})") from None
+
+
+def _parse_json(where: Path | str, text: str, what: str) -> Any:
+    """``json.loads`` with every way it fails as a :class:`ModelPackageError` naming ``where``: bad
+    syntax, nesting deeper than Python's recursion limit, an integer of more than 4300 digits."""
+    try:
+        return json.loads(text)
+    except RecursionError:
+        raise ModelPackageError(f"{where}: unreadable {what} (nested too deeply)") from None
+    except ValueError as e:  # JSONDecodeError, and int() of a huge number
+        raise ModelPackageError(f"{where}: unreadable {what} ({e})") from None
 
 
 def _sidecar_field(side: Path, data: dict[str, Any], name: str, kind: type | tuple[type, ...]) -> Any:

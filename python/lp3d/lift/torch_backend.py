@@ -8,8 +8,7 @@ May import :mod:`lp3d.lift.model_package`, :mod:`lp3d.lift.loaded`, :mod:`lp3d.n
 
 from __future__ import annotations
 
-import json
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -17,16 +16,14 @@ import numpy as np
 
 from lp3d.lift.loaded import LoadedEncoder, LoadedSuperres, _reshape_planes
 from lp3d.lift.model_package import ModelPackage, ModelPackageError, load_model_package, sidecar_path
+from lp3d.lift.sidecar import _DECODER_SHAPES, _check_decoder_range, _check_sizes, _parse_json
 from lp3d.render.settings import N_CHANNELS
 
 
 def _as_mapping(value: Any, what: str, where: Path) -> dict[str, Any]:
     """A dict from a dict or a JSON string (checkpoints store configs either way)."""
     if isinstance(value, str):
-        try:
-            value = json.loads(value)
-        except json.JSONDecodeError as e:
-            raise ModelPackageError(f"{where}: {what} is not valid JSON ({e})") from None
+        value = _parse_json(where, value, f"{what} (JSON)")
     if not isinstance(value, Mapping):
         raise ModelPackageError(f"{where}: {what} must be a dict, got {type(value).__name__}")
     return dict(value)
@@ -34,6 +31,51 @@ def _as_mapping(value: Any, what: str, where: Path) -> dict[str, Any]:
 
 def _strip(state: Mapping[str, Any], prefix: str) -> dict[str, Any]:
     return {k[len(prefix) :]: v for k, v in state.items() if k.startswith(prefix)}
+
+
+def _state_dict(value: Any, what: str, where: Path) -> dict[str, Any]:
+    """A state dict from a checkpoint: a mapping of string names to tensors (a file from someone else
+    may hold anything there: integer keys, lists, None)."""
+    import torch
+
+    if not isinstance(value, Mapping):
+        raise ModelPackageError(f"{where}: {what} must be a state dict, got {type(value).__name__}")
+    for key, tensor in value.items():
+        if not isinstance(key, str):
+            raise ModelPackageError(
+                f"{where}: {what} must map parameter names to tensors; it has the key {key!r} "
+                f"({type(key).__name__})"
+            )
+        if not isinstance(tensor, torch.Tensor):
+            raise ModelPackageError(f"{where}: {what}[{key!r}] must be a tensor, got {type(tensor).__name__}")
+    return dict(value)
+
+
+def _load_weights(build: Callable[[], Any], state: Mapping[str, Any], what: str, where: Path) -> Any:
+    """``build()`` with the weights ``state``, checked first against a copy built on the meta device
+    (shapes only, no memory): a configuration that claims sizes its weights do not have is refused
+    before it allocates anything."""
+    import torch
+
+    with torch.device("meta"):
+        shapes = {k: tuple(v.shape) for k, v in build().state_dict().items()}
+    got = {k: tuple(v.shape) for k, v in state.items()}
+    if shapes != got:
+        missing, extra = sorted(shapes.keys() - got.keys()), sorted(got.keys() - shapes.keys())
+        wrong = sorted(k for k in shapes.keys() & got.keys() if shapes[k] != got[k])
+        first = (
+            f"{wrong[0]!r} has shape {got[wrong[0]]} in the file, {shapes[wrong[0]]} in the configuration"
+            if wrong
+            else f"{len(missing)} missing (e.g. {missing[:1]}), {len(extra)} unexpected (e.g. {extra[:1]})"
+        )
+        raise ModelPackageError(f"{where}: {what} do not fit their configuration: {first}")
+    module = build()
+    try:
+        module.load_state_dict(state, strict=True)
+    except RuntimeError as e:
+        first = str(e).splitlines()[0]
+        raise ModelPackageError(f"{where}: {what} do not fit their configuration: {first}") from None
+    return module.eval()
 
 
 def _checkpoint_file(p: Path) -> Path:
@@ -62,7 +104,7 @@ def _torch_superres(
             raise ModelPackageError(
                 f"{p}: 'superres' must be {{'config': SuperresConfig dict, 'state': state dict}}"
             )
-        raw, state = entry.get("config"), dict(entry["state"])
+        raw, state = entry.get("config"), _state_dict(entry["state"], "'superres.state'", p)
     elif student is not None and train_cfg.get("recipe", "paper") == "paper" and "superres" in train_cfg:
         raw, state = train_cfg["superres"], _strip(student, "superres.")
     else:
@@ -84,15 +126,9 @@ def _build_torch_superres(package: ModelPackage, found: tuple[Any, Any], p: Path
         raise ModelPackageError(
             f"{p}: the super-resolution network reads {config.in_channels} channels, not {N_CHANNELS}"
         )
-    sr = SuperResolution(config)
-    try:
-        sr.load_state_dict({k: torch.as_tensor(v).float() for k, v in state.items()}, strict=True)
-    except RuntimeError as e:
-        first = str(e).splitlines()[0]
-        raise ModelPackageError(
-            f"{p}: super-resolution weights do not fit their configuration: {first}"
-        ) from None
-    folded = FoldedSuperResolution(sr.eval()).eval()
+    state = {k: v.float() for k, v in state.items()}
+    sr = _load_weights(lambda: SuperResolution(config), state, "super-resolution weights", p)
+    folded = FoldedSuperResolution(sr).eval()
 
     def run(features: np.ndarray) -> np.ndarray:
         with torch.inference_mode():
@@ -141,6 +177,7 @@ def _encoder_config(ckpt: Mapping[str, Any], p: Path, layout_hint: str) -> tuple
         raise ModelPackageError(
             f"{p}: the encoder configuration cannot be read by this version ({e})"
         ) from None
+    _check_sizes(str(p), config.image_size, config.triplane_resolution)
     return config, train_cfg
 
 
@@ -171,16 +208,7 @@ def _torch_encoder(config: Any, state: Mapping[str, Any], p: Path) -> Any:
     """The encoder of ``config`` with the weights ``state``, in eval mode."""
     from lp3d.nets.encoder import build_encoder
 
-    encoder = build_encoder(config)
-    try:
-        encoder.load_state_dict(state, strict=True)
-    except RuntimeError as e:
-        first = str(e).splitlines()[0]
-        raise ModelPackageError(
-            f"{p}: encoder weights do not fit configuration {config.name!r}: {first}"
-        ) from None
-    encoder.eval()
-    return encoder
+    return _load_weights(lambda: build_encoder(config), state, f"encoder weights (config {config.name!r})", p)
 
 
 def _torch_package(
@@ -209,6 +237,8 @@ def _torch_package(
             box_warp, ray_start, ray_end = sidecar.box_warp, sidecar.ray_start, sidecar.ray_end
     except (KeyError, TypeError, ValueError) as e:
         raise ModelPackageError(f"{p}: malformed decoder or bounds ({type(e).__name__}: {e})") from None
+    if all(a.shape == want for a, want in zip((w0, b0, w1, b1), _DECODER_SHAPES.values(), strict=True)):
+        _check_decoder_range(str(p), (w0, b0, w1, b1))  # other shapes: named by the check below
     package = ModelPackage(
         sidecar=side,
         model_path=p,
@@ -231,6 +261,20 @@ def _torch_package(
     return package
 
 
+def _plane_offset(offset: Any, config: Any, p: Path) -> Any:
+    """A training checkpoint's mean triplane (3, 32, T, T), float32 and finite."""
+    import torch
+
+    want = (3, N_CHANNELS, config.triplane_resolution, config.triplane_resolution)
+    if not isinstance(offset, torch.Tensor) or tuple(offset.shape) != want:
+        got = tuple(offset.shape) if isinstance(offset, torch.Tensor) else type(offset).__name__
+        raise ModelPackageError(f"{p}: 'plane_offset' must be a {want} tensor, got {got}")
+    offset = offset.float()
+    if not bool(torch.isfinite(offset).all()):
+        raise ModelPackageError(f"{p}: 'plane_offset' contains NaN/Inf")
+    return offset
+
+
 def _load_torch(path: Path, *, superres: bool = False) -> LoadedEncoder:
     try:
         import torch
@@ -246,9 +290,9 @@ def _load_torch(path: Path, *, superres: bool = False) -> LoadedEncoder:
     )
     config, train_cfg = _encoder_config(ckpt, p, layout_hint)
     # The encoder's weights, and the decoder's where the checkpoint has them.
-    student = ckpt.get("student") if isinstance(ckpt.get("student"), Mapping) else None
+    student = _state_dict(ckpt["student"], "'student'", p) if "student" in ckpt else None
     if isinstance(ckpt.get("encoder"), Mapping):
-        state = dict(ckpt["encoder"])
+        state = _state_dict(ckpt["encoder"], "'encoder'", p)
     elif student is not None:
         state = _strip(student, "encoder.")
     else:
@@ -256,17 +300,17 @@ def _load_torch(path: Path, *, superres: bool = False) -> LoadedEncoder:
     # A training checkpoint's student may add a learned mean triplane to the encoder's output.
     offset = student.get("plane_offset") if student is not None else ckpt.get("plane_offset")
     if offset is not None:
-        offset = torch.as_tensor(offset).float()
+        offset = _plane_offset(offset, config, p)
     decoder, bounds, side, sidecar = _decoder_and_bounds(ckpt, student, p)
+    package = _torch_package(config, p, side, decoder, bounds, sidecar)  # cheap checks first
     encoder = _torch_encoder(config, state, p)
-    package = _torch_package(config, p, side, decoder, bounds, sidecar)
 
     def run(images: np.ndarray) -> np.ndarray:
         with torch.inference_mode():
             out = encoder(torch.from_numpy(np.ascontiguousarray(images, dtype=np.float32)))
             if offset is not None:
                 out = out + offset
-        return _reshape_planes(out.float().numpy(), images.shape[0], str(p))
+        return _reshape_planes(out.float().numpy(), images.shape[0], str(p), config.triplane_resolution)
 
     sr = None
     if superres:

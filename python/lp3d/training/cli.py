@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from lp3d.errors import EXIT_ERROR, EXIT_INTERRUPTED, run_command
+from lp3d.errors import EXIT_ERROR, EXIT_INTERRUPTED, int_in, renderer_setup_error, run_command
 from lp3d.training import distributed
 from lp3d.training.checkpoint import CheckpointError, _load_shared_checkpoint
 from lp3d.training.config import TRAIN_CONFIGS, TrainConfig, _scaled_schedule
@@ -21,6 +21,13 @@ from lp3d.training.run_dir import latest_checkpoint
 from lp3d.training.steps import NonFiniteError
 from lp3d.training.teacher_factory import TEACHERS, _recordable, build_teacher, resolve_teacher_args
 from lp3d.training.trainer import Trainer
+
+#: Caps of the numeric flags, checked at parse time (before any set-up or allocation): a batch beyond
+#: this cannot fit any accelerator at the paper's sizes, a step count beyond it is a typo, and the
+#: identities are drawn from the configurations' training seed range, [0, 1,000,000).
+MAX_BATCH = 4096
+MAX_STEPS = 10**9
+MAX_IDENTITIES = 1_000_000
 
 #: ``--help``'s description (``python -m lp3d.train`` and ``lp3d train``).
 DESCRIPTION = "Distil a teacher into the LP3D triplane encoder (paper §3.2)."
@@ -36,12 +43,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--teacher", choices=TEACHERS, default=None, help="teacher (default procedural)")
     p.add_argument(
         "--teacher-pkl",
-        default=None,
         help="EG3D generator pickle for --teacher eg3d (remembered on --resume)",
     )
     p.add_argument(
         "--eg3d-source",
-        default=None,
         help="NVlabs/eg3d's source, to unpickle the generator: the repository root or its inner eg3d/ "
         "folder (the one holding torch_utils/, dnnlib/ and training/); not needed when those are "
         "importable already (remembered on --resume)",
@@ -49,43 +54,45 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--eg3d-conditioning",
         choices=("gen_videos", "gen_samples"),
-        default=None,
         help="whose conditioning camera the EG3D mapping gets: gen_videos.py's (LookAtPoseSampler(3.14/2, "
         "3.14/2), focal 4.2647; default) or gen_samples.py's (exactly frontal, focal 4.26339)",
     )
     p.add_argument("--out", default=None, help="run directory (default runs/<config>)")
-    p.add_argument("--max-steps", type=int, default=None, help="stop at this global step (default: config)")
-    p.add_argument("--batch", type=int, default=None, help="batch size (overrides the config)")
+    p.add_argument(
+        "--max-steps",
+        type=int_in(1, MAX_STEPS),
+        help="stop at this global step (default: config)",
+    )
+    p.add_argument(
+        "--batch",
+        type=int_in(1, MAX_BATCH),
+        help=f"batch size, global over all processes (overrides the config; at most {MAX_BATCH})",
+    )
     p.add_argument(
         "--total-steps",
-        type=int,
-        default=None,
+        type=int_in(1, MAX_STEPS),
         help="rescale the config's schedule (stage boundaries keep the paper's proportions) to this length",
     )
     p.add_argument("--resume", default=None, help="checkpoint file or run directory to continue from")
     p.add_argument(
         "--perceptual",
         choices=PERCEPTUAL_KINDS,
-        default=None,
         help="perceptual loss (default: the config's; lpips needs backbone weights on disk)",
     )
     p.add_argument("--lpips-weights", default=None, help="torchvision VGG16/AlexNet state dict for LPIPS")
     p.add_argument(
         "--data-cache",
-        default=None,
         help="folder of the CPU recipe's cached synthetic datasets (default $LP3D_DATA_CACHE, "
         "$LP3D_CACHE/datasets or ~/.cache/lp3d/datasets)",
     )
     p.add_argument(
         "--dataset-identities",
-        type=int,
-        default=None,
+        type=int_in(1, MAX_IDENTITIES),
         help="identities in the CPU recipe's synthetic dataset (overrides the config)",
     )
     p.add_argument(
         "--checkpoint-every",
-        type=int,
-        default=None,
+        type=int_in(1, MAX_STEPS),
         help="write a checkpoint every N steps (default: the config's; may change on --resume)",
     )
     p.add_argument(
@@ -129,7 +136,7 @@ def run_cli(args: argparse.Namespace) -> int:
 def _error(e: BaseException | str) -> None:
     """Print an error; every process does (one rank may fail alone), and under torchrun names its rank."""
     where = f" (rank {distributed.rank()})" if distributed.world_size() > 1 else ""
-    print(f"error{where}: {e}", file=sys.stderr)
+    print(f"error{where}: {renderer_setup_error(str(e)) or e}", file=sys.stderr)
 
 
 def _main(args: argparse.Namespace) -> int:

@@ -4,7 +4,10 @@
 ``image (B, 3, S, S) in [-1, 1] -> triplane (B, 3, 32, T, T)`` (dynamic batch, opset 17 by default),
 then runs it in onnxruntime on seeded random images and compares with the PyTorch encoder: the
 largest absolute difference on the triplane must be <= ``--tolerance`` (default 1e-3), else the
-command fails (exit 1) and the file is not kept.
+command fails (exit 1) and nothing is written: the package is made in a hidden folder beside ``-o`` and
+moved into place only once every check has passed, so a failed export leaves an existing model at the
+destination as it was. ``-o``, its sidecar, its super-resolution file and ``--weights`` must be distinct
+files, none of them the checkpoint (or ``--superres``) it reads.
 
 **Super-resolution.** When the model has a trained super-resolution network (SR), it is exported
 beside the encoder as ``MODEL.superres.onnx`` (``features (B, 32, R, R) -> image (B, 3, R_out,
@@ -31,10 +34,15 @@ dynamo exporter also needs ``onnxscript``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import copy
+import shutil
+import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from lp3d.atomic import publish_all
 from lp3d.errors import UsageError, UserError, run_command
 from lp3d.lift.model_package import (
     ModelPackageError,
@@ -42,8 +50,11 @@ from lp3d.lift.model_package import (
     load_model_package,
     save_model_package,
     set_package_superres,
+    sidecar_path,
+    superres_path,
 )
 from lp3d.nets.superres import SuperResolution
+from lp3d.outputs import check_distinct
 from lp3d.training.checkpoint import CheckpointError, load_checkpoint, student_from_checkpoint
 from lp3d.training.export_onnx import (
     MIN_OPSET,
@@ -258,44 +269,95 @@ def _shrink_student(
         )
 
 
+def _check_paths(args: argparse.Namespace, checkpoint: str | None) -> None:
+    """Refuse, before any work, an output that would replace an input or another output: ``-o``, its
+    sidecar, its super-resolution file and ``--weights`` against the ``checkpoint`` file read (None in
+    the ``--package`` mode), ``--superres`` and ``--package``. UserError naming the flags."""
+    inputs: list[tuple[str, Path]] = [] if checkpoint is None else [("checkpoint", Path(checkpoint))]
+    if args.superres is not None:
+        inputs.append(("--superres", Path(args.superres)))
+    outputs: list[tuple[str, Path]] = []
+    if args.output is not None:
+        out = Path(args.output)
+        if out.suffix.lower() == ".json":
+            raise UserError(
+                f"-o {out}: a model file must not end in .json (the name of its sidecar); use MODEL.onnx"
+            )
+        if out.is_dir():
+            raise UserError(f"-o {out} is a folder; give a file name such as {out / 'model.onnx'}")
+        outputs += [("-o", out), ("its sidecar", sidecar_path(out))]
+        outputs.append(("its super-resolution model", superres_path(out)))
+    if args.package is not None:
+        inputs.append(("--package", Path(args.package)))
+        outputs.append(("its super-resolution model", superres_path(args.package)))
+    if args.weights is not None:
+        outputs.append(("--weights", Path(args.weights)))
+    check_distinct(inputs, outputs)
+
+
+@contextlib.contextmanager
+def _staging_folder(output: Path) -> Iterator[Path]:
+    """A new hidden folder beside ``output`` (same file system: its files can be renamed into place),
+    deleted with whatever is left in it."""
+    output.parent.mkdir(parents=True, exist_ok=True)
+    folder = Path(tempfile.mkdtemp(prefix=".lp3d-export-", suffix=".tmp", dir=output.parent))
+    try:
+        yield folder
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def _write_package(
+    args: argparse.Namespace, student: Student, sr: SuperResolution | None, about: dict[str, Any], path: Path
+) -> tuple[float, dict[str, Any] | None, float]:
+    """The package at ``path`` (a staging folder): encoder, checked; SR, checked; sidecar. Returns
+    ``(encoder error, superres entry or None, its error)``; ParityError when a check fails."""
+    export_encoder(student, path, opset=args.opset)
+    if args.float16:
+        store_float16(path)
+    err = check_onnx(student, path)
+    if not err <= args.tolerance:
+        raise ParityError(f"ONNX vs PyTorch max abs error {err:.3g} > {args.tolerance:g}")
+    sr_entry, sr_err = None, float("nan")
+    if sr is not None:
+        sr_entry, sr_err = package_superres(sr, path, about=about, opset=args.opset, tolerance=args.tolerance)
+    cfg = student.config
+    save_model_package(
+        path, student.decoder.weights(), cfg.encoder, student.scene, output_name="triplane", superres=sr_entry
+    )
+    return err, sr_entry, sr_err
+
+
+def _export_package(args: argparse.Namespace, notes: list[str]) -> tuple[Student, Any, tuple[Any, ...]]:
+    """Load, check and write the package; moved into place only once every check has passed."""
+    ckpt = load_checkpoint(args.checkpoint)
+    _check_paths(args, ckpt["path"])  # a run directory: the checkpoint file it resolved to
+    student = student_from_checkpoint(ckpt, "cpu")
+    sr, about = _choose_superres(args, ckpt, student, notes)
+    _shrink_student(args, ckpt, student, notes)
+    out = Path(args.output)
+    with _staging_folder(out) as folder:
+        result = _write_package(args, student, sr, about, folder / out.name)
+        names = [superres_path(out).name] if result[1] is not None else []
+        names += [out.name, sidecar_path(out).name]  # the sidecar last: it names the others
+        publish_all([(folder / name, out.parent / name) for name in names])
+    return student, sr, result
+
+
 def run_cli(args: argparse.Namespace) -> int:
     """Export with parsed :func:`add_arguments` options; returns the exit status."""
     if _check_usage(args) == "add-superres":
+        _check_paths(args, None)
         return _add_superres_main(args)
+    _check_paths(args, args.checkpoint)
     notes: list[str] = []
-    sr_entry: dict[str, Any] | None = None
-    sr_err = float("nan")
     try:
-        ckpt = load_checkpoint(args.checkpoint)
-        student = student_from_checkpoint(ckpt, "cpu")
-        sr, about = _choose_superres(args, ckpt, student, notes)
-        _shrink_student(args, ckpt, student, notes)
-        path = export_encoder(student, args.output, opset=args.opset)
-        if args.float16:
-            store_float16(path)
-        err = check_onnx(student, path)
-        if err <= args.tolerance:
-            if sr is not None:
-                sr_entry, sr_err = package_superres(
-                    sr, path, about=about, opset=args.opset, tolerance=args.tolerance
-                )
-            sidecar = save_model_package(
-                path,
-                student.decoder.weights(),
-                student.config.encoder,
-                student.scene,
-                output_name="triplane",
-                superres=sr_entry,
-            )
+        student, sr, (err, sr_entry, sr_err) = _export_package(args, notes)
     except ParityError as e:
-        Path(args.output).unlink(missing_ok=True)  # no package without its super-resolution network
-        raise UserError(f"{e}; removed {args.output}") from None
+        raise UserError(f"{e}; nothing written ({args.output} left as it was)") from None
     except (CheckpointError, ValueError, ExportError) as e:
         raise UserError(str(e)) from None
-    cfg = student.config
-    if not err <= args.tolerance:
-        Path(path).unlink(missing_ok=True)
-        raise UserError(f"ONNX vs PyTorch max abs error {err:.3g} > {args.tolerance:g}; removed {path}")
+    cfg, path = student.config, args.output
     print(
         f"wrote {path} (encoder {cfg.name!r}, image (B, 3, {cfg.image_size}, {cfg.image_size}) -> triplane "
         f"(B, 3, 32, {cfg.triplane_resolution}, {cfg.triplane_resolution}), opset {args.opset}); "
@@ -305,7 +367,7 @@ def run_cli(args: argparse.Namespace) -> int:
         _print_superres(sr_entry, sr_err, args.tolerance)
     for note in notes:
         print(note)
-    print(f"wrote {sidecar} (decoder weights and scene bounds; lp3d encode --model {path})")
+    print(f"wrote {sidecar_path(path)} (decoder weights and scene bounds; lp3d encode --model {path})")
     if args.weights:
         weights = save_weights(student, args.weights, superres=sr)
         print(f"wrote {weights} (float16 inference weights; lp3d encode --backend torch --model {weights})")

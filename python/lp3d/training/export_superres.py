@@ -13,7 +13,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from lp3d.atomic import atomic_path
+from lp3d.atomic import atomic_path, create_temp, discard, publish
 from lp3d.lift.model_package import (
     ModelPackageError,
     decoder_digest,
@@ -79,15 +79,21 @@ def package_superres(
 ) -> tuple[dict[str, Any], float]:
     """Export ``sr`` to ``MODEL.superres.onnx`` beside ``model_path`` and check it with onnxruntime.
 
-    Returns ``(the sidecar's superres entry, max abs error)``. Raises :class:`ParityError` (and removes
-    the file) when the error exceeds ``tolerance``."""
-    path = export_superres(sr, superres_path(model_path), opset=opset)
-    err = check_superres_onnx(sr, path)
-    if not err <= tolerance:
-        path.unlink(missing_ok=True)
-        raise ParityError(
-            f"super-resolution ONNX vs PyTorch max abs error {err:.3g} > {tolerance:g}; removed {path}"
-        )
+    Returns ``(the sidecar's superres entry, max abs error)``. Raises :class:`ParityError` when the
+    error exceeds ``tolerance``: the network is exported and checked under a temporary name and moved
+    into place only when it passes, so an existing ``MODEL.superres.onnx`` is then left as it was."""
+    path = superres_path(model_path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = create_temp(path)
+    try:
+        export_superres(sr, tmp, opset=opset)
+        err = check_superres_onnx(sr, tmp)
+        if not err <= tolerance:
+            raise ParityError(f"super-resolution ONNX vs PyTorch max abs error {err:.3g} > {tolerance:g}")
+    except BaseException:
+        discard(tmp)
+        raise
+    publish(tmp, path)
     cfg = sr.config
     entry = superres_entry(
         path,
