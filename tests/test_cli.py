@@ -152,6 +152,7 @@ def test_help_for_every_command(capsys) -> None:
         "render",
         "orbit",
         "mesh",
+        "share",
         "info",
         "video",
         "view",
@@ -759,7 +760,7 @@ def test_demo_lifts_a_teacher_portrait_and_the_astronaut(capsys, model, tmp_path
     code, out, err = run(capsys, "demo", "--out", out_dir, "--model", model["onnx"], *DEMO_SMALL)
     assert code == 0, err
     names = ("teacher_portrait", "astronaut")
-    expected = {f"{n}{ext}" for n in names for ext in (".npz", ".crop.png")} | {
+    expected = {f"{n}{ext}" for n in names for ext in (".npz", ".html", ".crop.png")} | {
         "side_by_side.png",
         "orbit.gif",
     }
@@ -784,6 +785,8 @@ def test_demo_with_the_shipped_model(capsys, tmp_path) -> None:
     assert "small.onnx" in out and "config 'small'" in out
     written = listing(tmp_path / "demo")
     assert {"teacher_portrait.npz", "astronaut.npz", "side_by_side.png", "orbit.gif"} <= written
+    # The shipped model's 64² head as a web page (lp3d share): within the 3 MB.
+    assert (tmp_path / "demo" / "teacher_portrait.html").stat().st_size <= 3_000_000
 
 
 def test_demo_without_a_model_says_what_to_do(capsys, tmp_path, monkeypatch) -> None:

@@ -97,7 +97,8 @@ def triplane(in_tmp: Path) -> Path:
 
 
 @pytest.mark.parametrize(
-    ("command", "name"), [("render", "view.png"), ("orbit", "orbit.gif"), ("mesh", "head.ply")]
+    ("command", "name"),
+    [("render", "view.png"), ("orbit", "orbit.gif"), ("mesh", "head.ply"), ("share", "head.html")],
 )
 @pytest.mark.parametrize("alias", ["symlink", "hard link"])
 def test_triplane_commands_refuse_an_output_that_is_the_triplane(

@@ -65,6 +65,7 @@ def test_stub_signatures_match_runtime() -> None:
         "last_frame_device_bytes": _lp3d_render.last_frame_device_bytes,
         "Triplane.bake_occupancy": _lp3d_render.Triplane.bake_occupancy,
         "look_at_camera": _lp3d_render.look_at_camera,
+        "shader_sources": _lp3d_render.shader_sources,
         "Triplane.__init__": _lp3d_render.Triplane,
         "Triplane.load": _lp3d_render.Triplane.load,
         "Triplane.save": _lp3d_render.Triplane.save,
@@ -96,6 +97,9 @@ def test_installed_files() -> None:
         "lp3d/__init__.py",
         "lp3d/render/reference.py",
         "lp3d/render/camera.py",
+        "lp3d/share/page.html",  # lp3d share's data files
+        "lp3d/share/gpu.js",
+        "lp3d/share/viewer.js",
     ):
         assert expected in files, expected
     assert any(f.startswith("lp3d_render/_lp3d_render") and f.endswith(".so") for f in files)

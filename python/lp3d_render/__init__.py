@@ -30,6 +30,7 @@ from lp3d_render._lp3d_render import (
     last_frame_device_bytes,
     look_at_camera,
     render,
+    shader_sources,
     view,
     view_options,
 )
@@ -53,6 +54,7 @@ __all__ = [
     "last_frame_device_bytes",
     "look_at_camera",
     "render",
+    "shader_sources",
     "view",
     "view_options",
 ]

@@ -99,6 +99,9 @@ def look_at_camera(
     lookat: tuple[float, float, float] = (0.0, 0.0, 0.2),
     focal: float = 4.2647,
 ) -> npt.NDArray[np.float32]: ...
+
+# The renderer's WGSL stage files, name -> source, in the order it joins them into one module.
+def shader_sources() -> dict[str, str]: ...
 def view(
     path: str | PathLike[str] | None = None,
     *,

@@ -3,14 +3,16 @@
 //! `lp3d-renderer` crate. GPU work runs with the GIL released; no panic crosses into Python.
 //!
 //! One module per Python type or function: `triplane.rs` (`Triplane`), `render.rs` (`render`),
-//! `camera.rs` (`look_at_camera`), `view.rs` (`view`), `device.rs` (the shared GPU,
-//! `adapter_info`, `last_frame_device_bytes`); this file registers them and the constants.
+//! `camera.rs` (`look_at_camera`), `shaders.rs` (`shader_sources`), `view.rs` (`view`),
+//! `device.rs` (the shared GPU, `adapter_info`, `last_frame_device_bytes`); this file registers
+//! them and the constants.
 
 mod camera;
 mod convert;
 mod device;
 mod error;
 mod render;
+mod shaders;
 mod triplane;
 #[cfg(feature = "viewer")]
 mod view;
@@ -31,6 +33,7 @@ fn _lp3d_render(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(device::adapter_info, m)?)?;
     m.add_function(wrap_pyfunction!(device::last_frame_device_bytes, m)?)?;
     m.add_function(wrap_pyfunction!(camera::look_at_camera, m)?)?;
+    m.add_function(wrap_pyfunction!(shaders::shader_sources, m)?)?;
     #[cfg(feature = "viewer")]
     {
         m.add_function(wrap_pyfunction!(view::view, m)?)?;

@@ -4,6 +4,7 @@
     lp3d render head.npz --yaw 30 -o view.png    one view (also --depth, --features-channel)
     lp3d orbit head.npz -o orbit.mp4             a turntable video (.gif or .mp4)
     lp3d mesh head.npz -o head.glb               marching cubes (.ply, .obj or .glb)
+    lp3d share head.npz -o head.html             one web page that renders it in the browser (WebGPU)
     lp3d info head.npz                           what is in a triplane file
     lp3d video in.mp4 -o out.mp4 --yaw 20        lift a talking-head video frame by frame
     lp3d view head.npz                           the interactive viewer (also: lp3d-view)
@@ -123,6 +124,7 @@ COMMANDS: dict[str, ModuleType] = {
         "render",
         "orbit",
         "mesh",
+        "share",
         "info",
         "video",
         "view",

@@ -10,7 +10,8 @@ Two portraits are lifted to triplanes by the encoder (onnxruntime) and rendered 
   *procedural* teacher, so it lifts stylised heads; on a real photo it shows how far that domain
   reaches (a model distilled from EG3D is what lifts real portraits; see the README).
 
-Outputs (in ``--out``, written atomically): ``<name>.npz`` triplanes, ``<name>.crop.png`` encoder
+Outputs (in ``--out``, written atomically): ``<name>.npz`` triplanes, ``<name>.html`` web pages of
+them (``lp3d share``: open one in a WebGPU browser to turn the head), ``<name>.crop.png`` encoder
 inputs, ``side_by_side.png`` (input | views from yaw -35° to 35°; the teacher's own views under its
 row) and ``orbit.gif`` (both heads turning). When the model package has a super-resolution network,
 the lifted heads' views are its images (at its output size unless ``--resolution`` says otherwise);
@@ -48,7 +49,7 @@ from lp3d.render.camera import orbit_angles
 HELP = "photo in, 3D out: lift a teacher portrait and a real photo with the shipped model"
 DESCRIPTION = (
     "Encode a built-in teacher portrait and scikit-image's astronaut with the shipped model; write their "
-    "triplanes, a side-by-side PNG and an orbit GIF."
+    "triplanes, web pages that render them in a browser, a side-by-side PNG and an orbit GIF."
 )
 
 #: The teacher portrait: the first held-out evaluation identity (``TrainConfig.eval_seed_start``).
@@ -196,6 +197,7 @@ def run(args: argparse.Namespace) -> int:
     from lp3d.photo import to_encoder_input
     from lp3d.render.camera import look_at_camera
     from lp3d.render.triplane_io import save_triplane
+    from lp3d.share import write_page
 
     model = resolve_model(args.model)
     t0 = time.perf_counter()
@@ -236,6 +238,7 @@ def run(args: argparse.Namespace) -> int:
     with Staged() as staged:
         for p, tri in zip(portraits, lifted, strict=True):
             save_triplane(staged.temp(args.out / f"{p.name}.npz"), tri)
+            write_page(staged.temp(args.out / f"{p.name}.html"), tri, title=f"lp3d demo: {p.description}")
             save_png(staged.temp(args.out / f"{p.name}.crop.png"), p.crop)
         save_png(staged.temp(args.out / "side_by_side.png"), sheet)
         gif = args.out / "orbit.gif"
@@ -256,7 +259,10 @@ def run(args: argparse.Namespace) -> int:
         written = staged.commit()
     for path in written:
         print(f"wrote {path}")
-    print(f"open {args.out / 'side_by_side.png'} and {gif}; look around with: lp3d-view {written[0]}")
+    print(
+        f"open {args.out / 'side_by_side.png'} and {gif}; look around with: lp3d-view {written[0]}, "
+        f"or open {written[1]} in a WebGPU browser"
+    )
     return 0
 
 

@@ -1,0 +1,312 @@
+// lp3d share: the page's viewer. It renders the embedded triplane with lp3d's own WGSL (the
+// renderer's stage files, embedded by `lp3d share` from lp3d_render.shader_sources()) on WebGPU,
+// with the renderer's bindings (crates/renderer/src/renderer/layouts.rs), its Params uniform
+// (gpu_types.rs) and its dispatches (renderer/frame.rs, render_to_texture): depth_bounds_pass,
+// render_rays, then present into a texture that is copied to the canvas.
+//
+// Everything the page shows comes from the JSON block #lp3d-data, read with JSON.parse and shown
+// with textContent: nothing from the file is ever evaluated as code or inserted as HTML.
+//
+// The page's script is gpu.js (the camera and the Gpu class) followed by this file.
+//
+// Test mode: the URL fragment #probe=YAW,PITCH renders that view at the probe settings (64²,
+// 48+48, exact EG3D semantics) and logs one console line "LP3D_PROBE " + base64 of the float32
+// RGB image (3, 64, 64), the layout of lp3d_render.render(...)["rgb"]. Errors are logged as
+// "LP3D_ERROR <message>".
+"use strict";
+
+async function main() {
+  const statusLine = document.getElementById("status");
+  const messageBox = document.getElementById("message");
+  const fail = (text) => {
+    messageBox.textContent = text;
+    messageBox.hidden = false;
+    document.getElementById("view").hidden = true;
+    document.getElementById("bar").hidden = true;
+    console.error("LP3D_ERROR " + text);
+  };
+
+  let data;
+  try {
+    data = JSON.parse(document.getElementById("lp3d-data").textContent);
+    checkData(data);
+  } catch (e) {
+    fail("This page's data is damaged: " + e.message);
+    return;
+  }
+  document.getElementById("title").textContent = data.title;
+  document.getElementById("source").textContent = data.source === null ? "" : data.source;
+  const probe = parseProbe(location.hash);
+  if (probe !== null && probe.error) {
+    fail(probe.error);
+    return;
+  }
+
+  if (!navigator.gpu) {
+    fail(
+      "This page needs WebGPU, and this browser does not offer it (navigator.gpu is missing). " +
+        "Open it in a current Chrome, Edge or Safari, or in Firefox where WebGPU is enabled; " +
+        "pages opened from a file need no server.",
+    );
+    return;
+  }
+  try {
+    const gpu = await Gpu.create(data, (e) => fail("The GPU reported an error: " + e));
+    if (probe !== null) {
+      await runProbe(gpu, data, probe);
+    } else {
+      runViewer(gpu, data, statusLine, fail);
+    }
+  } catch (e) {
+    fail(e && e.message ? e.message : String(e));
+  }
+}
+
+// ---- data ----------------------------------------------------------------------------------
+
+function checkData(d) {
+  if (d.format !== "lp3d-share" || d.version !== 1) {
+    throw new Error("not an lp3d share page of version 1");
+  }
+  const p = d.planes;
+  const bytesPer = p.dtype === "float16" ? 2 : p.dtype === "float32" ? 4 : 0;
+  if (!bytesPer || !(p.height >= 2 && p.width >= 2)) {
+    throw new Error("bad planes description");
+  }
+  p.bytes = base64Bytes(p.base64);
+  if (p.bytes.length !== 3 * p.height * p.width * 32 * bytesPer) {
+    throw new Error("the planes hold " + p.bytes.length + " bytes, not 3 x H x W x 32 values");
+  }
+  d.decoder.bytes = base64Bytes(d.decoder.base64);
+  if (d.decoder.bytes.length !== DECODER_BYTES) {
+    throw new Error("the decoder holds " + d.decoder.bytes.length + " bytes");
+  }
+  delete p.base64;
+  delete d.decoder.base64;
+}
+
+function base64Bytes(text) {
+  const s = atob(text);
+  const out = new Uint8Array(s.length);
+  for (let i = 0; i < s.length; i++) out[i] = s.charCodeAt(i);
+  return out;
+}
+
+function bytesBase64(bytes) {
+  let s = "";
+  for (let i = 0; i < bytes.length; i += 0x8000) {
+    s += String.fromCharCode.apply(null, bytes.subarray(i, i + 0x8000));
+  }
+  return btoa(s);
+}
+
+// "#probe=YAW,PITCH[&kernel=quick|fast]" -> {yaw, pitch, kernel}; null without a probe.
+function parseProbe(hash) {
+  const params = new URLSearchParams(hash.replace(/^#/, ""));
+  if (!params.has("probe")) return null;
+  const parts = params.get("probe").split(",");
+  const yaw = Number(parts[0]);
+  const pitch = Number(parts[1]);
+  const kernel = params.get("kernel") || "quick";
+  if (parts.length !== 2 || !Number.isFinite(yaw) || !(pitch > -90 && pitch < 90)) {
+    return { error: "probe: expected #probe=YAW,PITCH with pitch in (-90, 90)" };
+  }
+  if (kernel !== "quick" && kernel !== "fast") return { error: "probe: kernel must be quick or fast" };
+  return { yaw, pitch, kernel };
+}
+
+// ---- test mode -------------------------------------------------------------------------------
+
+async function runProbe(gpu, data, probe) {
+  if (probe.kernel === "fast") await gpu.compileFastKernel(() => {});
+  const cam = data.camera;
+  const label = lookAtCamera(probe.yaw, probe.pitch, cam, cam.focal);
+  const t0 = performance.now();
+  const rgb = await gpu.readRgb(data.probe, label);
+  const info = {
+    yaw: probe.yaw,
+    pitch: probe.pitch,
+    kernel: gpu.kernel,
+    adapter: gpu.adapter,
+    ms: performance.now() - t0,
+    camera: Array.from(new Float32Array(label)),
+  };
+  console.log("LP3D_PROBE_INFO " + JSON.stringify(info));
+  console.log(data.probe.prefix + bytesBase64(rgb));
+  document.getElementById("status").textContent = "probe done (" + info.ms.toFixed(0) + " ms)";
+}
+
+// ---- the viewer: orbit, zoom, reset and the quality ladder of crates/viewer ------------------
+
+// crates/viewer/src/quality.rs: (resolution divisor, sample divisor), each rung ~4x the one below.
+const LADDER_STEPS = [[4, 4], [2, 4], [2, 1], [1, 1]];
+// The viewer's default frame budget (--frame-budget-ms): the rung drawn while moving is the
+// costliest predicted to fit it.
+const FRAME_BUDGET_MS = 100;
+// The view counts as moving for this long after its last change.
+const SETTLE_MS = 150;
+
+function ladder(top) {
+  const fine = top.depth_resolution_importance;
+  const minCoarse = Math.min(fine > 0 ? 4 : 2, top.depth_resolution);
+  const rungs = [];
+  for (const [resDiv, sampleDiv] of LADDER_STEPS) {
+    const rung = {
+      resolution: Math.max(Math.ceil(top.resolution / resDiv), Math.min(8, top.resolution)),
+      depth_resolution: Math.max(Math.floor(top.depth_resolution / sampleDiv), minCoarse),
+      depth_resolution_importance: fine === 0 ? 0 : Math.max(Math.floor(fine / sampleDiv), Math.min(2, fine)),
+    };
+    const last = rungs[rungs.length - 1];
+    if (!last || rungLabel(last) !== rungLabel(rung)) rungs.push(rung);
+  }
+  return rungs;
+}
+
+const rungCost = (r) => r.resolution * r.resolution * (r.depth_resolution + r.depth_resolution_importance);
+const rungLabel = (r) =>
+  r.resolution + "² · " + r.depth_resolution + (r.depth_resolution_importance ? "+" + r.depth_resolution_importance : "");
+
+// Measured times per rung (moving average); unmeasured rungs scaled from the nearest in cost.
+class FrameTimes {
+  constructor() {
+    this.ms = new Map();
+  }
+  record(rung, ms) {
+    const key = rungLabel(rung);
+    const old = this.ms.get(key);
+    this.ms.set(key, old === undefined ? { rung, ms } : { rung, ms: 0.5 * old.ms + 0.5 * ms });
+  }
+  predict(rung) {
+    let best = null;
+    for (const m of this.ms.values()) {
+      const d = Math.abs(Math.log(rungCost(m.rung) / rungCost(rung)));
+      if (best === null || d < best.d) best = { d, ms: (m.ms * rungCost(rung)) / rungCost(m.rung) };
+    }
+    return best === null ? null : best.ms;
+  }
+  interactive(rungs) {
+    for (let i = rungs.length - 1; i >= 0; i--) {
+      const ms = this.predict(rungs[i]);
+      if (ms !== null && ms <= FRAME_BUDGET_MS) return i;
+    }
+    return 0;
+  }
+}
+
+function runViewer(gpu, data, statusLine, fail) {
+  const canvas = document.getElementById("view");
+  const context = canvas.getContext("webgpu");
+  context.configure({ device: gpu.device, format: "rgba8unorm", usage: GPUTextureUsage.COPY_DST, alphaMode: "opaque" });
+  const cam = data.camera;
+  const start = { yaw: cam.yaw, pitch: cam.pitch, zoom: 1 };
+  const view = { ...start };
+  const rungs = ladder(data.settings);
+  const top = rungs.length - 1;
+  let times = new FrameTimes();
+  let shown = null; // {key, rung, ms}
+  let lastChange = -Infinity;
+  let running = false;
+  let drag = null;
+
+  const key = () => view.yaw + "," + view.pitch + "," + view.zoom;
+  const changed = () => {
+    lastChange = performance.now();
+    wake();
+  };
+  const wake = () => {
+    if (!running) {
+      running = true;
+      requestAnimationFrame(step);
+    }
+  };
+  const show = (moving) => {
+    const phase = moving ? "moving" : shown.rung === top ? "final" : "refining";
+    const ms = shown.ms;
+    const time = ms < 1000 ? ms.toFixed(1) + " ms (" + (1000 / ms).toFixed(0) + " fps)" : (ms / 1000).toFixed(1) + " s";
+    statusLine.textContent =
+      rungLabel(rungs[shown.rung]) + " (" + phase + ") · " + time + " · " + gpu.kernel + " kernel · " +
+      gpu.adapter + (gpu.fallback ? " (software)" : "");
+  };
+
+  async function step() {
+    const moving = performance.now() - lastChange < SETTLE_MS;
+    const k = key();
+    let rung = null;
+    if (shown === null || shown.key !== k) rung = times.interactive(rungs);
+    else if (!moving && shown.rung < top) rung = shown.rung + 1;
+    if (rung === null) {
+      if (moving) requestAnimationFrame(step);
+      else {
+        running = false;
+        show(false);
+        const final = { yaw: view.yaw, pitch: view.pitch, zoom: view.zoom, ms: shown.ms, kernel: gpu.kernel };
+        if (shown.rung === top) console.log("LP3D_FINAL " + rungLabel(rungs[top]) + " " + JSON.stringify(final));
+      }
+      return;
+    }
+    const label = lookAtCamera(view.yaw, view.pitch, cam, cam.focal * view.zoom);
+    try {
+      const ms = await gpu.draw(rungs[rung], label, context, canvas);
+      times.record(rungs[rung], ms);
+      shown = { key: k, rung, ms };
+      console.debug("LP3D_FRAME " + rungLabel(rungs[rung]) + " " + ms.toFixed(1) + " ms");
+      show(moving);
+    } catch (e) {
+      running = false;
+      fail("Rendering failed: " + e.message);
+      return;
+    }
+    requestAnimationFrame(step);
+  }
+
+  // crates/viewer/src/orbit.rs: a drag across the view turns 120° of yaw, 90° of pitch.
+  canvas.addEventListener("pointerdown", (e) => {
+    drag = { x: e.clientX, y: e.clientY };
+    canvas.setPointerCapture(e.pointerId);
+  });
+  canvas.addEventListener("pointermove", (e) => {
+    if (drag === null) return;
+    const w = canvas.clientWidth || 1;
+    const dx = (e.clientX - drag.x) / w;
+    const dy = (e.clientY - drag.y) / w;
+    drag = { x: e.clientX, y: e.clientY };
+    let yaw = (((view.yaw - 120 * dx) % 360) + 360) % 360;
+    view.yaw = yaw > 180 ? yaw - 360 : yaw;
+    view.pitch = Math.min(85, Math.max(-85, view.pitch + 90 * dy));
+    changed();
+  });
+  const endDrag = () => {
+    drag = null;
+  };
+  canvas.addEventListener("pointerup", endDrag);
+  canvas.addEventListener("pointercancel", endDrag);
+  canvas.addEventListener(
+    "wheel",
+    (e) => {
+      e.preventDefault();
+      view.zoom = Math.min(8, Math.max(0.2, view.zoom * Math.exp(-e.deltaY / 400)));
+      changed();
+    },
+    { passive: false },
+  );
+  const reset = () => {
+    Object.assign(view, start);
+    changed();
+  };
+  canvas.addEventListener("dblclick", reset);
+  document.getElementById("reset").addEventListener("click", reset);
+  document.getElementById("reset").disabled = false;
+
+  // On a CPU adapter the fast kernel's compile would hold up the frames for a minute or more (it
+  // is not compiled on a thread of its own there): the quick kernel draws, as LP3D_KERNEL=quick.
+  if (!gpu.fallback) {
+    gpu
+      .compileFastKernel(() => {
+        times = new FrameTimes(); // the fast kernel's times replace the quick one's
+      })
+      .catch((e) => console.warn("lp3d: the fast kernel did not compile (" + e.message + "); keeping the quick one"));
+  }
+  wake();
+}
+
+main();
