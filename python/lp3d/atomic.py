@@ -32,16 +32,33 @@ _sequence = itertools.count()
 _ATTEMPTS = 100
 
 
+#: Bytes of the destination's name and suffix kept in a temporary name, so that it stays far below
+#: the file system's limit (NAME_MAX, 255 bytes) for any legal destination name.
+_NAME_BYTES = 64
+_SUFFIX_BYTES = 16
+
+
+def _prefix(text: str, limit: int) -> str:
+    """The longest start of ``text`` whose file-system encoding fits ``limit`` bytes (whole characters)."""
+    while len(os.fsencode(text)) > limit:
+        text = text[: max(0, min(len(text) - 1, limit))]
+    return text
+
+
 def create_temp(path: str | os.PathLike[str]) -> Path:
     """Create a new, empty temporary file beside ``path`` and return its path.
 
     The name is ``.<name>.<pid>-<n>-<random>.tmp<suffix>`` (``path``'s suffix kept, for writers that
     read the format from it), unique to this process and call; the file is created exclusively with
-    mode ``0666 & ~umask``. Raises ``OSError`` if the folder cannot be written."""
+    mode ``0666 & ~umask``. ``<name>`` is cut to its first 64 bytes and a suffix longer than 16 bytes
+    is left out, so a destination name of any legal length (up to 255 bytes) has a temporary name
+    within the limit too. Raises ``OSError`` if the folder cannot be written."""
     path = Path(path)
+    name = _prefix(path.name, _NAME_BYTES)
+    suffix = path.suffix if len(os.fsencode(path.suffix)) <= _SUFFIX_BYTES else ""
     for _ in range(_ATTEMPTS):
         tag = f"{os.getpid()}-{next(_sequence)}-{os.urandom(3).hex()}"
-        tmp = path.parent / f".{path.name}.{tag}.tmp{path.suffix}"
+        tmp = path.parent / f".{name}.{tag}.tmp{suffix}"
         try:
             fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o666)
         except FileExistsError:
@@ -102,7 +119,8 @@ def publish_all(files: Sequence[tuple[Path, Path]]) -> None:
 def atomic_path(path: str | os.PathLike[str], *, parents: bool = True) -> Iterator[Path]:
     """Yield a new temporary path beside ``path`` (see :func:`create_temp`) for the block to write.
     When the block succeeds the file is synced and renamed onto ``path``; when it fails it is
-    deleted. ``parents``: create missing folders above ``path`` first (else a missing folder is an
+    deleted; an ``OSError`` that names no file (``write`` on a full disk) is made to name ``path``.
+    ``parents``: create missing folders above ``path`` first (else a missing folder is an
     ``OSError``)."""
     path = Path(path)
     if parents:
@@ -110,8 +128,10 @@ def atomic_path(path: str | os.PathLike[str], *, parents: bool = True) -> Iterat
     tmp = create_temp(path)
     try:
         yield tmp
-    except BaseException:
+    except BaseException as e:
         discard(tmp)
+        if isinstance(e, OSError) and e.filename is None:  # a full disk found by write(): name the file
+            e.filename = str(path)
         raise
     publish(tmp, path)
 

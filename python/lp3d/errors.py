@@ -8,7 +8,15 @@ through :func:`run_command`, so they agree:
   ``PROG: error: <what and where>``, no traceback (``LP3D_DEBUG=1`` shows it);
 * **2** a usage error: argparse's own (an unknown flag, a value out of range) or a :class:`UsageError`
   raised after parsing (flags that exclude each other), printed with the usage line;
-* **130** interrupted (Ctrl-C).
+* **130** interrupted (Ctrl-C), with one line ``PROG: interrupted``, also during start-up (the imports
+  before a command runs: :func:`quiet_startup_interrupts`);
+* **143** terminated (SIGTERM), with one line ``PROG: terminated``.
+
+While a command runs, SIGTERM raises :class:`Terminated` (a ``BaseException``, like Ctrl-C's
+``KeyboardInterrupt``) in the main thread, so every ``finally`` and every atomic writer
+(:mod:`lp3d.atomic`) cleans up: a killed command leaves no temporary file. Its output streams never
+fail on a character the terminal's encoding lacks (``PYTHONIOENCODING=ascii`` and a path or a ``²``):
+such characters are written as backslash escapes.
 
 When the renderer cannot start (no GPU adapter, a ``WGPU_BACKEND`` or ``LP3D_KERNEL`` it does not know),
 every command ends with one line saying what is missing and how to install it
@@ -24,18 +32,23 @@ import contextlib
 import math
 import os
 import re
+import signal
 import sys
-from collections.abc import Callable, Sequence
+import threading
+from collections.abc import Callable, Iterator, Sequence
 
 __all__ = [
     "EXIT_ERROR",
     "EXIT_INTERRUPTED",
     "EXIT_OK",
+    "EXIT_TERMINATED",
     "EXIT_USAGE",
+    "Terminated",
     "UsageError",
     "UserError",
     "float_in",
     "int_in",
+    "quiet_startup_interrupts",
     "renderer_setup_error",
     "run_command",
 ]
@@ -44,6 +57,7 @@ EXIT_OK = 0
 EXIT_ERROR = 1
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
+EXIT_TERMINATED = 128 + 15  # 128 + SIGTERM, as a shell reports a process that SIGTERM ended
 
 
 class UserError(Exception):
@@ -54,6 +68,12 @@ class UserError(Exception):
 class UsageError(Exception):
     """A usage error found after parsing (flags that exclude each other): argparse's format and exit
     status 2."""
+
+
+class Terminated(BaseException):
+    """SIGTERM arrived while a command ran (:func:`run_command`). A ``BaseException``, like
+    ``KeyboardInterrupt``, so that ``except Exception`` does not swallow it and every ``finally`` and
+    atomic writer on the way out cleans up."""
 
 
 # Argparse types every entry point shares: a bad value is a usage error naming its flag
@@ -160,12 +180,92 @@ def renderer_setup_error(message: str) -> str | None:
     return None
 
 
+# ------------------------------------------------------------------------------------ signals
+
+
+def _interrupted_at_startup(signum: int, frame: object) -> None:
+    """SIGINT before a command runs: nothing is written yet, so end at once, with one line (a
+    traceback from whichever import it hit is noise; numpy even turns it into an ImportError about
+    "PyCapsule_Import")."""
+    name = os.path.basename(sys.argv[0]) if sys.argv and sys.argv[0] != "-m" else "lp3d"
+    with contextlib.suppress(OSError):
+        os.write(2, f"{name}: interrupted\n".encode(errors="replace"))
+    os._exit(EXIT_INTERRUPTED)
+
+
+def quiet_startup_interrupts() -> None:
+    """Make Ctrl-C during start-up (the imports before :func:`run_command`: numpy, torch, the renderer)
+    end the process with one line and status 130, no traceback. Called first thing by the command
+    line's package; acts only in the command-line process itself (``python -m ...`` or the ``lp3d``
+    and ``lp3d-view`` scripts), in its main thread, and while Python's own SIGINT handler is in place:
+    a program that imports lp3d keeps its own handling. :func:`run_command` restores Python's handler
+    (``KeyboardInterrupt``) before it parses the arguments."""
+    argv0 = sys.argv[0] if sys.argv else ""
+    if argv0 != "-m" and os.path.basename(argv0) not in ("lp3d", "lp3d-view"):
+        return
+    if threading.current_thread() is not threading.main_thread():
+        return
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        signal.signal(signal.SIGINT, _interrupted_at_startup)
+
+
+def _terminate(signum: int, frame: object) -> None:
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second SIGTERM must not cut the clean-up short
+    raise Terminated
+
+
+@contextlib.contextmanager
+def _command_signals() -> Iterator[None]:
+    """While a command runs (main thread only): Ctrl-C raises ``KeyboardInterrupt`` (Python's own
+    handler, replacing :func:`quiet_startup_interrupts`'), and SIGTERM raises :class:`Terminated`
+    unless someone else already handles it; the previous handlers are restored after."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old_int, old_term = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    if old_int is _interrupted_at_startup:
+        old_int = signal.default_int_handler
+        signal.signal(signal.SIGINT, old_int)
+    if old_term == signal.SIG_DFL:
+        signal.signal(signal.SIGTERM, _terminate)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old_int)
+        signal.signal(signal.SIGTERM, old_term)
+
+
+def _tolerant_streams() -> None:
+    """Output that cannot be encoded (``PYTHONIOENCODING=ascii`` or a C locale, and a path with
+    ``é`` or a ``²``) is written with backslash escapes instead of failing the command after its work
+    is done. stderr already does this by default; stdout and stderr both get it here."""
+    for stream in (sys.stdout, sys.stderr):
+        reconfigure = getattr(stream, "reconfigure", None)
+        if reconfigure is not None and getattr(stream, "errors", None) == "strict":
+            with contextlib.suppress(ValueError, OSError):  # a closed or detached stream
+                reconfigure(errors="backslashreplace")
+
+
 def run_command(parser: argparse.ArgumentParser, argv: Sequence[str] | None = None) -> int:
     """Parse ``argv`` (default ``sys.argv[1:]``) and call ``args.func(args)``, mapping what it raises
     to the exit statuses above; returns the status (it never calls ``sys.exit``).
 
     A subcommand's parser should ``set_defaults(func=..., command_parser=itself)`` so that its name
     (``lp3d encode``) leads its messages; without ``func`` the parser's help is printed (status 2)."""
+    _tolerant_streams()
+    prog = [parser.prog]  # the command's name once it is known, for the interrupted/terminated line
+    with _command_signals():
+        try:
+            return _run(parser, argv, prog)
+        except KeyboardInterrupt:
+            print(f"{prog[0]}: interrupted", file=sys.stderr)
+            return EXIT_INTERRUPTED
+        except Terminated:
+            print(f"{prog[0]}: terminated", file=sys.stderr)
+            return EXIT_TERMINATED
+
+
+def _run(parser: argparse.ArgumentParser, argv: Sequence[str] | None, prog: list[str]) -> int:
     try:
         args = parser.parse_args(None if argv is None else list(argv))
     except SystemExit as e:  # --help/--version (0) or a usage error (2); argparse has printed it
@@ -175,15 +275,13 @@ def run_command(parser: argparse.ArgumentParser, argv: Sequence[str] | None = No
         parser.print_help(sys.stderr)
         return EXIT_USAGE
     command: argparse.ArgumentParser = getattr(args, "command_parser", None) or parser
+    prog[0] = command.prog
     try:
         return int(func(args))
     except UsageError as e:
         with contextlib.suppress(SystemExit):  # error() prints the usage line and the message, exits 2
             command.error(str(e))
         return EXIT_USAGE
-    except KeyboardInterrupt:
-        print(f"{command.prog}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
     except BrokenPipeError:  # the reader of stdout went away (`lp3d info x.npz | head -1`): no message
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # so the exit flush is quiet too
         return EXIT_ERROR

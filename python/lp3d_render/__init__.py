@@ -11,6 +11,7 @@ Renders EG3D-format triplanes exactly as EG3D does (deterministic by default)::
 See ``docs/triplane-format.md`` for the file format and ``lp3d.render.camera`` for cameras.
 """
 
+from lp3d_render._guard import adapter_info, last_frame_device_bytes, render  # fork and size checks
 from lp3d_render._lp3d_render import (
     DEFAULT_BOX_WARP,
     DEFAULT_RAY_END,
@@ -26,10 +27,7 @@ from lp3d_render._lp3d_render import (
     VIEW_USAGE,
     Triplane,
     __version__,
-    adapter_info,
-    last_frame_device_bytes,
     look_at_camera,
-    render,
     shader_sources,
     view,
     view_options,

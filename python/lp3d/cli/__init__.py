@@ -40,6 +40,7 @@ import sys
 from collections.abc import Sequence
 from types import ModuleType
 
+from lp3d.cli import _startup  # noqa: F401  (first: Ctrl-C during the imports below)
 from lp3d.cli.common import (
     IMAGE_SUFFIXES,
     MESH_SUFFIXES,
