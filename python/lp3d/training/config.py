@@ -376,7 +376,7 @@ TRAIN_CONFIGS: dict[str, TrainConfig] = {
         raw_resolution=128,
     ),
     "small": _cpu_recipe_config(
-        "small", samples=16, batch_size=8, total_steps=3_000, regression_steps=3_000, dataset_identities=2048
+        "small", samples=16, batch_size=8, total_steps=1_400, regression_steps=1_400, dataset_identities=2048
     ),
     "small-basis": _cpu_recipe_config(
         "small-basis",
