@@ -26,6 +26,7 @@ class LoadedSuperres:
     ``R = input_resolution``; the image is (B, 3, R_out, R_out) (or (3, R_out, R_out)) float32 in about
     [-1, 1] (``lp3d.images.rgb_to_uint8`` clips), ``R_out = output_resolution``. ``package`` is the
     model package it belongs to: its decoder is the one whose features the network was made for.
+    ``where`` names the network's file in its errors (``description`` when empty).
     """
 
     package: ModelPackage
@@ -35,6 +36,7 @@ class LoadedSuperres:
     in_channels: int
     description: str
     _run: Callable[[np.ndarray], np.ndarray]
+    where: str = ""
 
     def __call__(self, features: np.ndarray) -> np.ndarray:
         x = np.asarray(features)
@@ -55,9 +57,11 @@ class LoadedSuperres:
         out = np.asarray(self._run(x), dtype=np.float32)
         want = (x.shape[0], 3, self.output_resolution, self.output_resolution)
         if out.shape != want:
-            raise ModelPackageError(f"{self.description}: output has shape {out.shape}, expected {want}")
+            raise ModelPackageError(
+                f"{self.where or self.description}: output has shape {out.shape}, expected {want}"
+            )
         if not np.all(np.isfinite(out)):
-            raise ModelPackageError(f"{self.description}: produced NaN/Inf")
+            raise ModelPackageError(f"{self.where or self.description}: produced NaN/Inf")
         return out[0] if single else out
 
     run = __call__

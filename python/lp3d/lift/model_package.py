@@ -55,8 +55,10 @@ from lp3d.lift.sidecar import (
     _check_sizes,
     _parse_superres,
     _read_sidecar,
+    _shown,
     _sidecar_decoder,
     _sidecar_field,
+    _sidecar_number,
     verify_superres_file,
 )
 from lp3d.render.settings import N_CHANNELS, SceneBounds
@@ -347,7 +349,7 @@ def load_model_package(path: str | os.PathLike[str]) -> ModelPackage:
     triplane_resolution = field("triplane_resolution", int)
     _check_sizes(str(side), image_size, triplane_resolution)
     box_warp, ray_start, ray_end = (
-        float(field(k, (int, float))) for k in ("box_warp", "ray_start", "ray_end")
+        _sidecar_number(side, data, k) for k in ("box_warp", "ray_start", "ray_end")
     )
     _check_bounds(str(side), box_warp, ray_start, ray_end)
     arrays = _sidecar_decoder(side, field("decoder", dict))
@@ -355,7 +357,7 @@ def load_model_package(path: str | os.PathLike[str]) -> ModelPackage:
     model_name = field("model", str) if "model" in data else p.with_suffix(".onnx").name
     if Path(model_name).name != model_name:
         raise ModelPackageError(
-            f"{side}: field 'model' must be a file name beside the sidecar, got {model_name!r}"
+            f"{side}: field 'model' must be a file name beside the sidecar, got {_shown(model_name)}"
         )
     cfg = data.get("encoder_config")
     if cfg is not None and not isinstance(cfg, dict):

@@ -108,6 +108,7 @@ def _load_onnx_superres(package: ModelPackage, entry: SuperresEntry) -> LoadedSu
         c,
         f"{entry.path.name} (onnxruntime {ort.__version__}, CPU)",
         run,
+        where,
     )
 
 

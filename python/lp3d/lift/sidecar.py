@@ -48,6 +48,22 @@ class ModelPackageError(ValueError):
     """A missing, unreadable or inconsistent model package; the message names the file and the field."""
 
 
+def _shown(value: Any, limit: int = 80) -> str:
+    """``repr(value)`` for an error message, cut to about ``limit`` characters: a value from a package is
+    outside input (a 16 MiB string, a 4,300-digit integer) and an error stays one short line."""
+    try:
+        text = repr(value)
+    except ValueError:  # an int of more than 4,300 digits (a pickle may hold one) has no repr
+        return f"an integer of {value.bit_length()} bits"
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
+
+
+def _cut(text: object, limit: int = 400) -> str:
+    """A library's error message (which may quote the input) cut to about ``limit`` characters."""
+    s = str(text)
+    return s if len(s) <= limit else f"{s[:limit]}... ({len(s)} characters)"
+
+
 @dataclass(frozen=True)
 class SuperresEntry:
     """A package's super-resolution network (the sidecar's ``superres`` object).
@@ -83,10 +99,12 @@ def _check_sizes(where: str, image_size: int, triplane_resolution: int) -> None:
     """The encoder's input side and triplane side within :data:`MAX_IMAGE_SIZE` and
     :data:`MAX_TRIPLANE_RESOLUTION`, before anything is allocated from them."""
     if not 8 <= image_size <= MAX_IMAGE_SIZE:
-        raise ModelPackageError(f"{where}: image_size must be in [8, {MAX_IMAGE_SIZE}], got {image_size}")
+        raise ModelPackageError(
+            f"{where}: image_size must be in [8, {MAX_IMAGE_SIZE}], got {_shown(image_size)}"
+        )
     t, cap = triplane_resolution, MAX_TRIPLANE_RESOLUTION
     if not 2 <= t <= cap:
-        raise ModelPackageError(f"{where}: triplane_resolution must be in [2, {cap}], got {t}")
+        raise ModelPackageError(f"{where}: triplane_resolution must be in [2, {cap}], got {_shown(t)}")
 
 
 def decoder_bound(decoder: tuple[np.ndarray, ...], planes_max: float) -> float:
@@ -143,25 +161,26 @@ def _parse_superres(where: str, entry: Any, folder: Path) -> SuperresEntry:
     model = field("model", str)
     if Path(model).name != model or not model.lower().endswith(".onnx"):
         raise ModelPackageError(
-            f"{where}: field 'superres.model' must be an .onnx file name beside the sidecar, got {model!r}"
+            f"{where}: field 'superres.model' must be an .onnx file name beside the sidecar, "
+            f"got {_shown(model)}"
         )
     r_in = field("input_resolution", int)
     r_out = field("output_resolution", int)
     channels = field("in_channels", int)
     if not 8 <= r_in <= 4096:
         raise ModelPackageError(
-            f"{where}: field 'superres.input_resolution' must be in [8, 4096], got {r_in}"
+            f"{where}: field 'superres.input_resolution' must be in [8, 4096], got {_shown(r_in)}"
         )
     ratio = r_out // r_in if r_out > 0 else 0
     if r_out % r_in or ratio < 2 or ratio & (ratio - 1) or r_out > 8192:
         raise ModelPackageError(
-            f"{where}: field 'superres.output_resolution' ({r_out}) must be input_resolution ({r_in}) "
-            "times a power of two >= 2 (and at most 8192)"
+            f"{where}: field 'superres.output_resolution' ({_shown(r_out)}) must be input_resolution "
+            f"({r_in}) times a power of two >= 2 (and at most 8192)"
         )
     if channels != N_CHANNELS:
         raise ModelPackageError(
             f"{where}: field 'superres.in_channels' must be {N_CHANNELS} (the renderer's feature image), "
-            f"got {channels}"
+            f"got {_shown(channels)}"
         )
     digest = field("sha256", str)
     if not _SHA256.fullmatch(digest):
@@ -207,11 +226,11 @@ def _read_sidecar(side: Path) -> dict[str, Any]:
     if not isinstance(data, dict) or data.get("format") != PACKAGE_FORMAT:
         got = data.get("format") if isinstance(data, dict) else type(data).__name__
         raise ModelPackageError(
-            f"{side}: not an lp3d model package (format {got!r}, expected {PACKAGE_FORMAT!r})"
+            f"{side}: not an lp3d model package (format {_shown(got)}, expected {PACKAGE_FORMAT!r})"
         )
     if data.get("format_version") != PACKAGE_FORMAT_VERSION:
         raise ModelPackageError(
-            f"{side}: format_version {data.get('format_version')!r} is not supported "
+            f"{side}: format_version {_shown(data.get('format_version'))} is not supported "
             f"(this reader supports {PACKAGE_FORMAT_VERSION})"
         )
     return data
@@ -250,6 +269,26 @@ def _sidecar_field(side: Path, data: dict[str, Any], name: str, kind: type | tup
     return value
 
 
+def _sidecar_number(side: Path, data: dict[str, Any], name: str) -> float:
+    """The sidecar's number ``name`` as a float (an integer too large for one is refused here; the
+    ranges are :func:`_check_bounds`')."""
+    value = _sidecar_field(side, data, name, (int, float))
+    try:
+        return float(value)
+    except OverflowError:
+        raise ModelPackageError(f"{side}: field {name!r} is too large ({_shown(value)})") from None
+
+
+def _as_float32(where: str, value: Any) -> np.ndarray:
+    """``value`` as a float32 array; a finite number beyond float32's range is refused, naming ``where``
+    (a cast would make it Inf). Raises what ``np.asarray`` raises for values that are not numbers."""
+    wide = np.asarray(value, dtype=np.float64)
+    big = np.abs(wide[np.isfinite(wide)])
+    if big.size and big.max() > F32_MAX:
+        raise ModelPackageError(f"{where} has values beyond float32 (up to {big.max():.3e})")
+    return wide.astype(np.float32)
+
+
 def _sidecar_decoder(side: Path, dec: dict[str, Any]) -> dict[str, np.ndarray]:
     """The sidecar's ``decoder`` object as float32 arrays of the decoder's shapes, finite."""
     arrays: dict[str, np.ndarray] = {}
@@ -257,9 +296,11 @@ def _sidecar_decoder(side: Path, dec: dict[str, Any]) -> dict[str, np.ndarray]:
         if name not in dec:
             raise ModelPackageError(f"{side}: decoder.{name} missing")
         try:
-            arr = np.asarray(dec[name], dtype=np.float32)
-        except (TypeError, ValueError) as e:
-            raise ModelPackageError(f"{side}: decoder.{name} is not a numeric array ({e})") from None
+            arr = _as_float32(f"{side}: decoder.{name}", dec[name])
+        except (TypeError, ValueError, OverflowError) as e:
+            if isinstance(e, ModelPackageError):
+                raise
+            raise ModelPackageError(f"{side}: decoder.{name} is not a numeric array ({_cut(e)})") from None
         try:
             _check_array(f"decoder.{name}", arr)
         except ModelPackageError as e:

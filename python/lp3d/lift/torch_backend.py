@@ -16,7 +16,16 @@ import numpy as np
 
 from lp3d.lift.loaded import LoadedEncoder, LoadedSuperres, _reshape_planes
 from lp3d.lift.model_package import ModelPackage, ModelPackageError, load_model_package, sidecar_path
-from lp3d.lift.sidecar import _DECODER_SHAPES, _check_decoder_range, _check_sizes, _parse_json
+from lp3d.lift.sidecar import (
+    _DECODER_SHAPES,
+    _as_float32,
+    _check_array,
+    _check_decoder_range,
+    _check_sizes,
+    _cut,
+    _parse_json,
+    _shown,
+)
 from lp3d.render.settings import N_CHANNELS
 
 
@@ -43,37 +52,87 @@ def _state_dict(value: Any, what: str, where: Path) -> dict[str, Any]:
     for key, tensor in value.items():
         if not isinstance(key, str):
             raise ModelPackageError(
-                f"{where}: {what} must map parameter names to tensors; it has the key {key!r} "
+                f"{where}: {what} must map parameter names to tensors; it has the key {_shown(key)} "
                 f"({type(key).__name__})"
             )
         if not isinstance(tensor, torch.Tensor):
-            raise ModelPackageError(f"{where}: {what}[{key!r}] must be a tensor, got {type(tensor).__name__}")
+            raise ModelPackageError(
+                f"{where}: {what}[{_shown(key)}] must be a tensor, got {type(tensor).__name__}"
+            )
+        if tensor.is_complex():  # loading would drop the imaginary part with only a warning
+            raise ModelPackageError(f"{where}: {what}[{_shown(key)}] must be real, got {tensor.dtype}")
     return dict(value)
 
 
-def _load_weights(build: Callable[[], Any], state: Mapping[str, Any], what: str, where: Path) -> Any:
+def _layers(config: Any) -> int:
+    """How many layers a configuration asks to be built: its depths (``*_depth``, ``*_depths``,
+    ``*_convs``) and the lengths of its lists (one stage or branch each). Each builds at least one
+    tensor, so a file with fewer tensors cannot fit it."""
+    total = 0
+    for name, value in config.to_dict().items():
+        counts = name.endswith(("_depth", "_depths", "_convs"))
+        if isinstance(value, list):
+            total += len(value) + (sum(value) if counts else 0)
+        elif counts and isinstance(value, int):
+            total += value
+    return total
+
+
+def _skip_normal_init() -> Any:
+    """A mode that skips the normal initialisers while a network is built on the meta device: ``normal_``
+    has no meta kernel, and its Python reference imports torch._dynamo (~3 s on the first load of a
+    process); a meta tensor's values are never read."""
+    import torch
+    from torch.overrides import TorchFunctionMode
+
+    skipped = {torch.Tensor.normal_, torch.nn.init.normal_, torch.nn.init.trunc_normal_}
+
+    class SkipNormal(TorchFunctionMode):
+        def __torch_function__(self, func: Any, types: Any, args: Any = (), kwargs: Any = None) -> Any:
+            if func in skipped:  # nn.init's functions are called with the tensor as a keyword
+                return args[0] if args else (kwargs or {}).get("tensor")
+            return func(*args, **(kwargs or {}))
+
+    return SkipNormal()
+
+
+def _load_weights(
+    build: Callable[[], Any], config: Any, state: Mapping[str, Any], what: str, where: Path
+) -> Any:
     """``build()`` with the weights ``state``, checked first against a copy built on the meta device
     (shapes only, no memory): a configuration that claims sizes its weights do not have is refused
-    before it allocates anything."""
+    before it allocates anything, and one that claims more layers than the file has tensors (2^63
+    convolutions) before it is built at all."""
     import torch
 
-    with torch.device("meta"):
-        shapes = {k: tuple(v.shape) for k, v in build().state_dict().items()}
+    layers = _layers(config)
+    if layers > len(state):
+        raise ModelPackageError(
+            f"{where}: {what} do not fit their configuration: it asks for {_shown(layers)} layers, "
+            f"the file has {len(state)} tensors"
+        )
+    try:
+        with torch.device("meta"), _skip_normal_init():
+            shapes = {k: tuple(v.shape) for k, v in build().state_dict().items()}
+    except (ArithmeticError, RuntimeError, TypeError, ValueError) as e:
+        raise ModelPackageError(f"{where}: {what}: the configuration cannot be built ({_cut(e)})") from None
     got = {k: tuple(v.shape) for k, v in state.items()}
     if shapes != got:
         missing, extra = sorted(shapes.keys() - got.keys()), sorted(got.keys() - shapes.keys())
         wrong = sorted(k for k in shapes.keys() & got.keys() if shapes[k] != got[k])
         first = (
-            f"{wrong[0]!r} has shape {got[wrong[0]]} in the file, {shapes[wrong[0]]} in the configuration"
+            f"{_shown(wrong[0])} has shape {got[wrong[0]]} in the file, {shapes[wrong[0]]} in the "
+            "configuration"
             if wrong
-            else f"{len(missing)} missing (e.g. {missing[:1]}), {len(extra)} unexpected (e.g. {extra[:1]})"
+            else f"{len(missing)} missing (e.g. {_shown(missing[:1])}), {len(extra)} unexpected "
+            f"(e.g. {_shown(extra[:1])})"
         )
         raise ModelPackageError(f"{where}: {what} do not fit their configuration: {first}")
     module = build()
     try:
         module.load_state_dict(state, strict=True)
     except RuntimeError as e:
-        first = str(e).splitlines()[0]
+        first = _cut(str(e).splitlines()[0])
         raise ModelPackageError(f"{where}: {what} do not fit their configuration: {first}") from None
     return module.eval()
 
@@ -112,7 +171,9 @@ def _torch_superres(
     try:
         config = SuperresConfig.from_dict(_as_mapping(raw, "superres config", p))
     except (TypeError, ValueError) as e:
-        raise ModelPackageError(f"{p}: the super-resolution configuration cannot be read ({e})") from None
+        raise ModelPackageError(
+            f"{p}: the super-resolution configuration cannot be read ({_cut(e)})"
+        ) from None
     return config, state
 
 
@@ -127,7 +188,7 @@ def _build_torch_superres(package: ModelPackage, found: tuple[Any, Any], p: Path
             f"{p}: the super-resolution network reads {config.in_channels} channels, not {N_CHANNELS}"
         )
     state = {k: v.float() for k, v in state.items()}
-    sr = _load_weights(lambda: SuperResolution(config), state, "super-resolution weights", p)
+    sr = _load_weights(lambda: SuperResolution(config), config, state, "super-resolution weights", p)
     folded = FoldedSuperResolution(sr).eval()
 
     def run(features: np.ndarray) -> np.ndarray:
@@ -142,6 +203,7 @@ def _build_torch_superres(package: ModelPackage, found: tuple[Any, Any], p: Path
         config.in_channels,
         f"{p.name} super-resolution (torch {torch.__version__}, CPU)",
         run,
+        f"{p} (its super-resolution network)",
     )
 
 
@@ -152,7 +214,7 @@ def _read_checkpoint(p: Path) -> Mapping[str, Any]:
     try:
         ckpt = torch.load(p, map_location="cpu", weights_only=True)
     except Exception as e:  # torch raises many types for non-checkpoints (UnpicklingError, RuntimeError, ...)
-        raise ModelPackageError(f"{p}: cannot be read as a plain state-dict checkpoint ({e})") from None
+        raise ModelPackageError(f"{p}: cannot be read as a plain state-dict checkpoint ({_cut(e)})") from None
     if not isinstance(ckpt, Mapping):
         raise ModelPackageError(f"{p}: a checkpoint must hold a dict, got {type(ckpt).__name__}")
     return ckpt
@@ -175,7 +237,7 @@ def _encoder_config(ckpt: Mapping[str, Any], p: Path, layout_hint: str) -> tuple
         config = EncoderConfig.from_dict(cfg_dict)
     except (TypeError, ValueError) as e:
         raise ModelPackageError(
-            f"{p}: the encoder configuration cannot be read by this version ({e})"
+            f"{p}: the encoder configuration cannot be read by this version ({_cut(e)})"
         ) from None
     _check_sizes(str(p), config.image_size, config.triplane_resolution)
     return config, train_cfg
@@ -208,7 +270,8 @@ def _torch_encoder(config: Any, state: Mapping[str, Any], p: Path) -> Any:
     """The encoder of ``config`` with the weights ``state``, in eval mode."""
     from lp3d.nets.encoder import build_encoder
 
-    return _load_weights(lambda: build_encoder(config), state, f"encoder weights (config {config.name!r})", p)
+    what = f"encoder weights (config {_shown(config.name)})"
+    return _load_weights(lambda: build_encoder(config), config, state, what, p)
 
 
 def _torch_package(
@@ -222,11 +285,14 @@ def _torch_package(
     """The :class:`ModelPackage` of a checkpoint: its decoder and bounds, or the sidecar's, checked."""
 
     def array(v: Any) -> np.ndarray:
-        return v.detach().cpu().numpy() if hasattr(v, "detach") else np.asarray(v)
+        a = v.detach().cpu().numpy() if hasattr(v, "detach") else np.asarray(v)
+        if np.iscomplexobj(a):
+            raise TypeError(f"complex values ({a.dtype})")
+        return a
 
     try:
         if decoder is not None:
-            w0, b0, w1, b1 = (np.asarray(array(decoder[k]), np.float32) for k in ("w0", "b0", "w1", "b1"))
+            w0, b0, w1, b1 = (_as_float32(f"{p}: decoder.{k}", array(decoder[k])) for k in _DECODER_SHAPES)
         else:
             assert sidecar is not None
             w0, b0, w1, b1 = sidecar.decoder
@@ -235,10 +301,16 @@ def _torch_package(
         else:
             assert sidecar is not None
             box_warp, ray_start, ray_end = sidecar.box_warp, sidecar.ray_start, sidecar.ray_end
-    except (KeyError, TypeError, ValueError) as e:
-        raise ModelPackageError(f"{p}: malformed decoder or bounds ({type(e).__name__}: {e})") from None
-    if all(a.shape == want for a, want in zip((w0, b0, w1, b1), _DECODER_SHAPES.values(), strict=True)):
-        _check_decoder_range(str(p), (w0, b0, w1, b1))  # other shapes: named by the check below
+    except (KeyError, TypeError, ValueError, OverflowError) as e:
+        if isinstance(e, ModelPackageError):
+            raise
+        raise ModelPackageError(f"{p}: malformed decoder or bounds ({type(e).__name__}: {_cut(e)})") from None
+    for name, arr in zip(_DECODER_SHAPES, (w0, b0, w1, b1), strict=True):
+        try:
+            _check_array(f"decoder.{name}", arr)  # shapes and NaN/Inf before the range
+        except ModelPackageError as e:
+            raise ModelPackageError(f"{p}: {e}") from None
+    _check_decoder_range(str(p), (w0, b0, w1, b1))
     package = ModelPackage(
         sidecar=side,
         model_path=p,
@@ -257,7 +329,7 @@ def _torch_package(
     try:
         package.triplane(np.zeros((3, N_CHANNELS, 2, 2), np.float32))  # validates decoder and bounds
     except ValueError as e:
-        raise ModelPackageError(f"{p}: bad decoder or bounds ({e})") from None
+        raise ModelPackageError(f"{p}: bad decoder or bounds ({_cut(e)})") from None
     return package
 
 
@@ -269,6 +341,8 @@ def _plane_offset(offset: Any, config: Any, p: Path) -> Any:
     if not isinstance(offset, torch.Tensor) or tuple(offset.shape) != want:
         got = tuple(offset.shape) if isinstance(offset, torch.Tensor) else type(offset).__name__
         raise ModelPackageError(f"{p}: 'plane_offset' must be a {want} tensor, got {got}")
+    if offset.is_complex():
+        raise ModelPackageError(f"{p}: 'plane_offset' must be real, got {offset.dtype}")
     offset = offset.float()
     if not bool(torch.isfinite(offset).all()):
         raise ModelPackageError(f"{p}: 'plane_offset' contains NaN/Inf")
@@ -283,8 +357,9 @@ def _load_torch(path: Path, *, superres: bool = False) -> LoadedEncoder:
 
     p = _checkpoint_file(path)
     ckpt = _read_checkpoint(p)
+    keys = sorted(_shown(k, 40) for k in ckpt)[:12]  # any key: str() fails on a 5,000-digit int
     layout_hint = (
-        f"{p}: checkpoint layout not understood (keys {sorted(map(str, ckpt))[:12]}); expected "
+        f"{p}: checkpoint layout not understood (keys {', '.join(keys)}); expected "
         "{'config': EncoderConfig dict, 'encoder': state dict, 'decoder': {w0, b0, w1, b1}, "
         "'bounds': {box_warp, ray_start, ray_end}} or a python -m lp3d.train checkpoint"
     )
