@@ -378,15 +378,6 @@ TRAIN_CONFIGS: dict[str, TrainConfig] = {
     "small": _cpu_recipe_config(
         "small", samples=16, batch_size=8, total_steps=1_400, regression_steps=1_400, dataset_identities=2048
     ),
-    "small-basis": _cpu_recipe_config(
-        "small-basis",
-        sizes="small",
-        samples=16,
-        batch_size=8,
-        total_steps=3_000,
-        regression_steps=3_000,
-        dataset_identities=2048,
-    ),
     "tiny": _cpu_recipe_config(
         "tiny", samples=12, batch_size=4, total_steps=1_000, regression_steps=1_000, dataset_identities=512
     ),
@@ -401,6 +392,12 @@ TRAIN_CONFIGS: dict[str, TrainConfig] = {
         "tiny-paper", sizes="tiny", samples=12, batch_size=2, total_steps=1_000, lr_rampup_steps=10
     ),
 }
+
+
+# ``small`` without its plane generator (the shipped head before issue 20): the generator's ablation.
+TRAIN_CONFIGS["small-basis"] = dataclasses.replace(
+    TRAIN_CONFIGS["small"], name="small-basis", encoder=ENCODER_CONFIGS["small-basis"]
+)
 
 
 def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
