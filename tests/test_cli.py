@@ -526,6 +526,24 @@ def test_encode_onnx_single_photo(capsys, model, photos, tmp_path) -> None:
     assert listing(tmp_path) == {"head.npz", "head.crop.png"}
 
 
+def test_encode_refine_fits_the_head_to_its_photo(capsys, model, photos, tmp_path) -> None:
+    """``--refine N`` (issue 21): N steps of the torch fit after the ONNX encoder; the file records
+    them, keeps the package's decoder and differs from the feed-forward planes."""
+    plain, refined = tmp_path / "plain.npz", tmp_path / "refined.npz"
+    common = ("--model", model["onnx"], "--no-detect")
+    code, _, err = run(capsys, "encode", photos["face"], "-o", plain, *common)
+    assert code == 0, err
+    code, stdout, err = run(capsys, "encode", photos["face"], "-o", refined, *common, "--refine", 2)
+    assert code == 0, err
+    assert "refined 2 steps" in stdout and "input view" in stdout and "refine" in stdout
+    a, b = load_triplane(plain), load_triplane(refined)
+    assert "refined 2 steps" in (b.source or "") and b.camera is not None
+    np.testing.assert_array_equal(a.w0, b.w0)
+    assert not np.array_equal(a.planes, b.planes)
+    code, _, err = run(capsys, "encode", photos["face"], "-o", refined, *common, "--refine", -1)
+    assert code == 2 and "--refine" in err
+
+
 def test_encode_and_the_python_api_write_the_same_permissions(capsys, model, photos, tmp_path) -> None:
     """``lp3d encode`` and ``save_triplane`` publish through one writer (lp3d.atomic): the outputs get
     the mode of any new file, ``0666 & ~umask``. The umask 027 is unusual on purpose: its 0640 is
@@ -730,7 +748,31 @@ def test_video_gif_no_detect_and_bad_inputs(capsys, model, face_video, photos, t
     assert code == 1 and "unsupported format" in err
     code, _, err = run(capsys, "video", face_video, "-o", tmp_path / "x.mp4", "--smooth", 1.0)
     assert code == 2
+    for bad in ("-1", "nan", "1e9"):
+        code, _, err = run(capsys, "video", face_video, "-o", tmp_path / "x.mp4", "--steady", bad)
+        assert code == 2 and "--steady" in err
     assert listing(tmp_path) == {"o.gif"}
+
+
+def test_video_steady_keeps_every_frame_and_changes_them(capsys, model, face_video, tmp_path) -> None:
+    """``--steady`` (issue 21) holds frames back until their window is whole, then flushes: the same
+    frames come out, in order, and (σ large against 4 frames) nearer to each other than without it."""
+    import imageio_ffmpeg
+
+    outs = {}
+    for sigma in ("0", "30"):
+        out = tmp_path / f"steady{sigma}.mp4"
+        code, stdout, err = run(
+            capsys, "video", face_video, "-o", out, "--steady", sigma, "--model", model["onnx"], *SMALL
+        )
+        assert code == 0, err
+        assert "lifted 4 frames" in stdout
+        reader = imageio_ffmpeg.read_frames(str(out))
+        w, h = next(reader)["size"]
+        outs[sigma] = np.stack([np.frombuffer(f, np.uint8).reshape(h, w, 3) for f in reader]).astype(float)
+    assert outs["0"].shape == outs["30"].shape and outs["0"].shape[0] == 4
+    change = {k: np.abs(np.diff(v, axis=0)).mean() for k, v in outs.items()}
+    assert change["30"] < change["0"], change
 
 
 def test_video_without_faces(capsys, model, tmp_path) -> None:
@@ -776,6 +818,23 @@ def test_demo_lifts_a_teacher_portrait_and_the_astronaut(capsys, model, tmp_path
     assert gif.n_frames == 2 and gif.size == (2 * 16, 16)  # both heads side by side
     sheet = np.asarray(Image.open(out_dir / "side_by_side.png"))
     assert sheet.shape[0] > 3 * 16  # student rows and the teacher's own views
+
+
+def test_demo_refine_adds_refined_heads_and_rows(capsys, model, tmp_path) -> None:
+    """``lp3d demo --refine 2`` (issue 21): the refined triplanes beside the feed-forward ones, and
+    one more row per head in the contact sheet."""
+    plain, refined = tmp_path / "plain", tmp_path / "refined"
+    assert run(capsys, "demo", "--out", plain, "--model", model["onnx"], *DEMO_SMALL)[0] == 0
+    code, out, err = run(
+        capsys, "demo", "--out", refined, "--model", model["onnx"], *DEMO_SMALL, "--refine", 2
+    )
+    assert code == 0, err
+    assert "teacher_portrait: refined 2 steps" in out and "astronaut: refined 2 steps" in out
+    assert {"teacher_portrait.refined.npz", "astronaut.refined.npz"} <= listing(refined)
+    a, b = load_triplane(refined / "astronaut.npz"), load_triplane(refined / "astronaut.refined.npz")
+    assert "refined 2 steps" in (b.source or "") and not np.array_equal(a.planes, b.planes)
+    rows = {d: np.asarray(Image.open(d / "side_by_side.png")).shape[0] for d in (plain, refined)}
+    assert rows[refined] > rows[plain]
 
 
 def test_demo_with_the_shipped_model(capsys, tmp_path) -> None:

@@ -280,3 +280,31 @@ def test_total_steps_keeps_the_regression_share_of_the_schedule():
     partial = dataclasses.replace(small, regression_steps=small.total_steps // 4)
     assert _scaled_schedule(2400, partial)["regression_steps"] == 600
     assert "regression_steps" not in _scaled_schedule(2400)  # the paper's configs have no such phase
+
+
+def test_a_resumed_run_may_lengthen_its_schedule_only():
+    """``--resume RUN --total-steps N`` continues a finished run whose curve was still rising: the
+    cosine is stretched to N, stage boundaries stay; shortening and any other change are refused."""
+    from lp3d.training.checkpoint import CheckpointError
+    from lp3d.training.resume import check_resumable, extended_schedule
+
+    small = TRAIN_CONFIGS["small"]
+    longer = extended_schedule(small, 3 * small.total_steps)
+    assert longer.total_steps == longer.regression_steps == 3 * small.total_steps
+    assert (longer.warmup_steps, longer.dense_reference_from) == (
+        small.warmup_steps,
+        small.dense_reference_from,
+    )
+    partial = dataclasses.replace(small, regression_steps=100)
+    assert extended_schedule(partial, 5000).regression_steps == 100
+    with pytest.raises(CheckpointError, match="lengthen its schedule, not shorten it"):
+        extended_schedule(small, small.total_steps - 1)
+    ckpt = {"train_config": small, "teacher": "procedural", "path": "run/checkpoints/step-001400.pt"}
+    check_resumable(ckpt, longer, "procedural")
+    check_resumable(ckpt, small, "procedural")
+    for other in (
+        dataclasses.replace(longer, warmup_steps=small.warmup_steps + 1),
+        dataclasses.replace(longer, batch_size=small.batch_size * 2),
+    ):
+        with pytest.raises(CheckpointError, match="differs from the requested"):
+            check_resumable(ckpt, other, "procedural")

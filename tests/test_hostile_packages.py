@@ -262,6 +262,30 @@ def test_hostile_torch_weights_are_refused_at_load(package, tmp_path, case) -> N
     assert str(path) in str(caught.value)
 
 
+@pytest.mark.parametrize(
+    "change, words",
+    [
+        ({"output_resolution": 1 << 20}, "SuperresConfig.output_resolution must be an int in [1, 4096]"),
+        ({"input_resolution": 1 << 30}, "SuperresConfig.input_resolution must be an int in [1, 1024]"),
+        ({"block_channels": [1 << 40]}, "SuperresConfig.block_channels must be ints in [1, 4096]"),
+        ({"w_dim": True}, "SuperresConfig.w_dim must be an int"),
+        ({"antialias": "yes"}, "SuperresConfig.antialias must be true or false"),
+    ],
+)
+def test_a_torch_superres_config_is_capped_before_it_is_built(package, tmp_path, change, words) -> None:
+    """Issue 25: a torch package's SR claiming a huge image is refused by name, not allocated."""
+    from lp3d.lift.inference import load_encoder
+    from lp3d.lift.model_package import ModelPackageError
+    from lp3d.nets.superres import SUPERRES_CONFIGS
+
+    config = {**SUPERRES_CONFIGS["tiny"].to_dict(), **change}
+    path = tmp_path / "w.pt"
+    torch.save(weights_with(package, superres={"config": config, "state": {}}), path)
+    with pytest.raises(ModelPackageError, match=re.escape(words)) as caught:
+        load_encoder(path, superres=True)
+    assert str(path) in str(caught.value)
+
+
 def test_good_torch_weights_still_load(package, tmp_path) -> None:
     import numpy as np
 

@@ -13,7 +13,9 @@ Two portraits are lifted to triplanes by the encoder (onnxruntime) and rendered 
 Outputs (in ``--out``, written atomically): ``<name>.npz`` triplanes, ``<name>.html`` web pages of
 them (``lp3d share``: open one in a WebGPU browser to turn the head), ``<name>.crop.png`` encoder
 inputs, ``side_by_side.png`` (input | views from yaw -35° to 35°; the teacher's own views under its
-row) and ``orbit.gif`` (both heads turning). When the model package has a super-resolution network,
+row) and ``orbit.gif`` (both heads turning). ``--refine N`` fits each lifted head to its portrait
+(:mod:`lp3d.lift.refine`) and adds ``<name>.refined.npz``, a row of refined views under each head's
+row, and the refined heads to the orbit. When the model package has a super-resolution network,
 the lifted heads' views are its images (at its output size unless ``--resolution`` says otherwise);
 ``--raw`` shows the plain volume renders. The teacher's own views are always its volume renders.
 
@@ -43,6 +45,7 @@ from lp3d.cli.common import (
     renderer,
     resolve_model,
 )
+from lp3d.cli.refining import add_refine_argument, refine_triplanes
 from lp3d.photo import prepare_photo
 from lp3d.render.camera import orbit_angles
 
@@ -99,6 +102,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="coarse+fine samples per ray, e.g. 48+48 (default: 24+24, quick on a CPU)",
     )
     p.add_argument("--frames", type=int_in(2, 720), default=24, help="orbit frames (default: 24)")
+    add_refine_argument(p, "its portrait")
 
 
 def teacher_portrait(size: int, samples: tuple[int, int]) -> Portrait:
@@ -163,10 +167,15 @@ def _label(image: np.ndarray, text: str) -> np.ndarray:
 
 
 def _side_by_side(
-    portraits: list[Portrait], native: list[Any], args: argparse.Namespace, sr: Any, r: int
+    portraits: list[Portrait],
+    native: list[Any],
+    args: argparse.Namespace,
+    sr: Any,
+    r: int,
+    refined: list[Any] | None = None,
 ) -> np.ndarray:
-    """The contact sheet: input | lp3d's views of each portrait, and the teacher's own views under the
-    teacher portrait's row."""
+    """The contact sheet: input | lp3d's views of each portrait, its ``refined`` views (``--refine``)
+    under them, and the teacher's own views under the teacher portrait's rows."""
     from lp3d.images import tile
     from lp3d.render.camera import look_at_camera
 
@@ -178,6 +187,10 @@ def _side_by_side(
         views = final_images(tri, cams, args, sr, r)[0]
         rows += [_label(_fit(p.crop, r), "input")]
         rows += [_label(v, f"lp3d {y:+.0f}°") for v, y in zip(views, VIEW_YAWS, strict=True)]
+        if refined is not None:
+            views = final_images(refined[portraits.index(p)], cams, args, sr, r)[0]
+            rows += [_label(np.full((r, r, 3), 255, np.uint8), f"refined ({args.refine} steps)")]
+            rows += [_label(v, f"refined {y:+.0f}°") for v, y in zip(views, VIEW_YAWS, strict=True)]
         if p.truth is not None:
             rows += [_label(np.full((r, r, 3), 255, np.uint8), "teacher's own")]
             truth = _views(native_triplane(p.truth), cams, r, samples)
@@ -190,12 +203,32 @@ def _side_by_side(
     return sheet
 
 
+def _write_orbit(path: Path, heads: list[Any], args: argparse.Namespace, sr: Any, r: int) -> None:
+    """``orbit.gif``: the heads side by side, turning through yaw ±35° and pitch ±10°."""
+    from lp3d.render.camera import look_at_camera
+
+    writer = VideoWriter(path, ".gif", fps=12)
+    bar = progress(args.frames, "orbit")
+    orbit = np.stack(
+        [look_at_camera(yaw_deg=y, pitch_deg=p) for y, p in orbit_angles(args.frames, 35.0, 10.0)]
+    )
+    try:
+        for i in range(0, len(orbit), ORBIT_BATCH):
+            batch = orbit[i : i + ORBIT_BATCH]
+            frames = [final_images(tri, batch, args, sr, r)[0] for tri in heads]
+            for frame in zip(*frames, strict=True):
+                writer.add(np.concatenate(frame, axis=1))  # the heads side by side
+            bar.update(len(frames[0]))
+        writer.close()
+    finally:
+        bar.close()
+
+
 def run(args: argparse.Namespace) -> int:
     """The demo; raises :class:`lp3d.errors.UserError` (or a ValueError) with a clear message."""
     from lp3d.images import save_png
     from lp3d.lift.inference import load_encoder
     from lp3d.photo import to_encoder_input
-    from lp3d.render.camera import look_at_camera
     from lp3d.render.triplane_io import save_triplane
     from lp3d.share import write_page
 
@@ -232,7 +265,13 @@ def run(args: argparse.Namespace) -> int:
     ]
 
     native = [native_triplane(tri) for tri in lifted]  # uploaded once, rendered many times
-    sheet = _side_by_side(portraits, native, args, sr, r)
+    refined: list[Any] = []
+    if args.refine > 0:
+        refined = refine_triplanes(
+            lifted, [p.crop for p in portraits], args.refine, [p.name for p in portraits]
+        )
+    native_refined = [native_triplane(tri) for tri in refined]
+    sheet = _side_by_side(portraits, native, args, sr, r, native_refined or None)
 
     args.out.mkdir(parents=True, exist_ok=True)
     with Staged() as staged:
@@ -240,22 +279,11 @@ def run(args: argparse.Namespace) -> int:
             save_triplane(staged.temp(args.out / f"{p.name}.npz"), tri)
             write_page(staged.temp(args.out / f"{p.name}.html"), tri, title=f"lp3d demo: {p.description}")
             save_png(staged.temp(args.out / f"{p.name}.crop.png"), p.crop)
+        for p, tri in zip(portraits, refined, strict=False):
+            save_triplane(staged.temp(args.out / f"{p.name}.refined.npz"), tri)
         save_png(staged.temp(args.out / "side_by_side.png"), sheet)
         gif = args.out / "orbit.gif"
-        writer = VideoWriter(staged.temp(gif), ".gif", fps=12)
-        bar = progress(args.frames, "orbit")
-        orbit = np.stack(
-            [look_at_camera(yaw_deg=y, pitch_deg=p) for y, p in orbit_angles(args.frames, 35.0, 10.0)]
-        )
-        try:
-            for i in range(0, len(orbit), ORBIT_BATCH):
-                heads = [final_images(tri, orbit[i : i + ORBIT_BATCH], args, sr, r)[0] for tri in native]
-                for frame in zip(*heads, strict=True):
-                    writer.add(np.concatenate(frame, axis=1))  # both heads side by side
-                bar.update(len(heads[0]))
-            writer.close()
-        finally:
-            bar.close()
+        _write_orbit(staged.temp(gif), native_refined or native, args, sr, r)
         written = staged.commit()
     for path in written:
         print(f"wrote {path}")

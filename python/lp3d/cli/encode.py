@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -21,6 +22,7 @@ from lp3d.cli.common import (
     warn,
     write_image,
 )
+from lp3d.cli.refining import add_refine_argument, refine_triplanes
 
 HELP = "photo(s) -> triplane .npz (detect, align, crop, encode)"
 DESCRIPTION = (
@@ -62,6 +64,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--batch-size", type=int_in(1, 256), default=4, help="images per encoder call (default: 4)"
     )
+    add_refine_argument(p)
     p.add_argument("--half", action="store_true", help="store the planes as float16 (half the file size)")
     p.add_argument(
         "--save-crop", action="store_true", help="also write the aligned input crop as <name>.crop.png"
@@ -161,14 +164,22 @@ def run(args: argparse.Namespace) -> int:
         [encoder.run(batch[i : i + args.batch_size]) for i in range(0, len(batch), args.batch_size)]
     )
     t_enc = time.perf_counter() - t0
+    tris = [
+        pkg.triplane(plane, source=f"lp3d encode {img.name} (model {pkg.config_name}, {encoder.backend})")
+        for img, plane in zip(images, planes, strict=True)
+    ]
+    t0 = time.perf_counter()
+    if args.refine > 0:
+        tris = refine_triplanes(tris, crops, args.refine, [str(img) for img in images])
+    t_refine = time.perf_counter() - t0
 
     t0 = time.perf_counter()
     with Staged() as staged:
         if new_folder is not None:
             staged.mkdir(new_folder)
-        for img, dest, plane, crop in zip(images, destinations, planes, crops, strict=True):
-            source = f"lp3d encode {img.name} (model {pkg.config_name}, {encoder.backend})"
-            tri = pkg.triplane(plane.astype(np.float16) if args.half else plane, source=source)
+        for dest, tri, crop in zip(destinations, tris, crops, strict=True):
+            if args.half:
+                tri = dataclasses.replace(tri, planes=tri.planes.astype(np.float16))
             save_triplane(staged.temp(dest), tri)
             if args.save_crop:
                 write_image(staged.temp(_crop_path(dest)), crop, ".png")
@@ -177,7 +188,9 @@ def run(args: argparse.Namespace) -> int:
     n = len(images)
     say(
         f"timings: detect+crop {t_prep:.2f} s ({t_prep / n:.3f} s/image), encode {t_enc:.2f} s "
-        f"({t_enc / n:.3f} s/image, {encoder.backend}), write {t_write:.2f} s"
+        f"({t_enc / n:.3f} s/image, {encoder.backend}), "
+        + (f"refine {t_refine:.2f} s ({t_refine / n:.2f} s/image), " if args.refine else "")
+        + f"write {t_write:.2f} s"
     )
     for path in written:
         say(f"wrote {path}")

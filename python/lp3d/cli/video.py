@@ -30,6 +30,11 @@ from lp3d.cli.common import (
     say,
     warn,
 )
+from lp3d.cli.refining import add_refine_argument, require_torch
+from lp3d.lift.steady import MAX_SIGMA, SteadyPlanes
+
+#: ``--steady``'s default width in frames (``bench/video_steadiness.py``, ``bench/RESULTS.md``).
+DEFAULT_STEADY = 2.0
 
 HELP = "lift a portrait video to a new viewpoint, frame by frame"
 DESCRIPTION = (
@@ -42,12 +47,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", type=Path, help="input video (anything ffmpeg reads)")
     p.add_argument("-o", "--output", type=Path, required=True, help="output video (.mp4 or .gif)")
     p.add_argument(
+        "--steady",
+        type=float_in(0.0, MAX_SIGMA),
+        default=DEFAULT_STEADY,
+        metavar="SIGMA",
+        help="average each frame's triplane with its neighbours', Gaussian weights of width SIGMA frames "
+        f"looking both ways (no lag; default {DEFAULT_STEADY:g}, measured in bench/RESULTS.md; 0 = off)",
+    )
+    p.add_argument(
         "--smooth",
         type=float_in(0.0, 1.0, hi_open=True),
         default=0.0,
-        help="temporal smoothing of the triplane, state = s * state + (1 - s) * new "
-        "(0 = off, default; 0.5 is moderate)",
+        help="causal smoothing of the triplane, state = s * state + (1 - s) * new, applied before "
+        "--steady (0 = off, default; it lags behind a turning head: prefer --steady)",
     )
+    add_refine_argument(p, "each frame")
     p.add_argument("--no-detect", action="store_true", help="skip face detection (centre square crop)")
     p.add_argument("--model", type=Path, default=None, help="as for encode")
     p.add_argument("--backend", choices=("onnx", "torch"), default=None, help="as for encode")
@@ -84,24 +98,40 @@ def _lift_frames(
     _, frames = read_video(args.input, args.max_frames)
     t_enc = t_render = 0.0
     state: np.ndarray | None = None
+    refine_settings = None
+    if args.refine > 0:
+        from lp3d.lift.refine import RefineSettings, refine
+
+        require_torch()
+        refine_settings = RefineSettings(steps=args.refine)
+    steady = SteadyPlanes(args.steady)
     with Staged() as staged:
         writer = VideoWriter(staged.temp(out_path), out_path.suffix, fps)
         bar = progress(len(crops) if crops else expected_frames(meta, args.max_frames), "video")
+
+        def write(face: np.ndarray, planes: np.ndarray) -> float:
+            """Render one lifted frame from the new view and add it; its render seconds."""
+            t0 = time.perf_counter()
+            image = final_images(native_triplane(pkg.triplane(planes)), camera, args, sr, size)[0][0]
+            seconds = time.perf_counter() - t0
+            if args.side_by_side:
+                image = np.concatenate([resize_image(face, size), image], axis=1)
+            writer.add(image)
+            bar.update()
+            return seconds
+
         try:
             for i, frame in enumerate(frames):
                 crop = crops[min(i, len(crops) - 1)] if crops else centre_crop(frame.shape)
                 face = crop_image(frame, crop, pkg.image_size)
                 t0 = time.perf_counter()
                 planes = encoder.run(to_encoder_input(face[None]))[0]
+                if refine_settings is not None:  # counted as encoding: both make the frame's planes
+                    planes = refine(pkg.triplane(planes), face, refine_settings).triplane.planes
                 t_enc += time.perf_counter() - t0
                 state = planes if state is None else args.smooth * state + (1.0 - args.smooth) * planes
-                t0 = time.perf_counter()
-                image = final_images(native_triplane(pkg.triplane(state)), camera, args, sr, size)[0][0]
-                t_render += time.perf_counter() - t0
-                if args.side_by_side:
-                    image = np.concatenate([resize_image(face, size), image], axis=1)
-                writer.add(image)
-                bar.update()
+                t_render += sum(write(*ready) for ready in steady.push(face, state))
+            t_render += sum(write(*ready) for ready in steady.flush())
             if writer.count == 0:
                 raise CLIError(_no_frames(args.input, meta))
             writer.close()

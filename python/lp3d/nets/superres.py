@@ -51,6 +51,12 @@ __all__ = [
 NoiseMode = Literal["none", "const", "random"]
 
 
+#: Upper bounds of :class:`SuperresConfig`'s sizes (EG3D's own module is 32 channels, 128 -> 512, w 512).
+SUPERRES_CAPS = {"in_channels": 256, "input_resolution": 1024, "output_resolution": 4096, "w_dim": 4096}
+#: Upper bound of one block's width.
+MAX_SUPERRES_WIDTH = 4096
+
+
 @dataclass(frozen=True)
 class SuperresConfig:
     """Sizes of the super-resolution network; ``eg3d`` is EG3D's 128 -> 512 module."""
@@ -71,6 +77,8 @@ class SuperresConfig:
     antialias: bool = True
 
     def __post_init__(self) -> None:
+        if isinstance(self.block_channels, list):  # from JSON or argparse
+            object.__setattr__(self, "block_channels", tuple(self.block_channels))
         self.validate()
 
     @property
@@ -78,10 +86,22 @@ class SuperresConfig:
         return int(round(math.log2(self.output_resolution / self.input_resolution)))
 
     def validate(self) -> None:
-        for name in ("in_channels", "input_resolution", "output_resolution", "w_dim"):
+        # Caps before anything is built from a config read from someone's checkpoint: a claimed
+        # 10^6-pixel output would otherwise allocate gigabytes before any shape check.
+        for name, cap in SUPERRES_CAPS.items():
             v = getattr(self, name)
-            if not isinstance(v, int) or isinstance(v, bool) or v <= 0:
-                raise ValueError(f"SuperresConfig.{name} must be a positive int, got {v!r}")
+            if not isinstance(v, int) or isinstance(v, bool) or not 0 < v <= cap:
+                raise ValueError(f"SuperresConfig.{name} must be an int in [1, {cap}], got {v!r}")
+        widths = self.block_channels
+        if not isinstance(widths, tuple) or not all(
+            isinstance(c, int) and not isinstance(c, bool) and 0 < c <= MAX_SUPERRES_WIDTH for c in widths
+        ):
+            raise ValueError(
+                f"SuperresConfig.block_channels must be ints in [1, {MAX_SUPERRES_WIDTH}], got {widths!r}"
+            )
+        for name in ("learn_w", "use_noise", "antialias"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"SuperresConfig.{name} must be true or false, got {getattr(self, name)!r}")
         if self.in_channels < 3:
             raise ValueError("SuperresConfig.in_channels must be >= 3 (rgb is the first 3 channels)")
         ratio = self.output_resolution // self.input_resolution
@@ -90,7 +110,7 @@ class SuperresConfig:
                 f"SuperresConfig.output_resolution ({self.output_resolution}) must be input_resolution "
                 f"({self.input_resolution}) times a power of two >= 2"
             )
-        if len(self.block_channels) != self.num_blocks or any(c <= 0 for c in self.block_channels):
+        if len(self.block_channels) != self.num_blocks:
             raise ValueError(
                 f"SuperresConfig.block_channels needs {self.num_blocks} positive widths (one per ×2), "
                 f"got {self.block_channels!r}"

@@ -17,6 +17,7 @@ from lp3d.training import distributed
 from lp3d.training.checkpoint import CheckpointError, _load_shared_checkpoint
 from lp3d.training.config import TRAIN_CONFIGS, TrainConfig, _scaled_schedule
 from lp3d.training.losses import PERCEPTUAL_KINDS, build_perceptual
+from lp3d.training.resume import extended_schedule
 from lp3d.training.run_dir import latest_checkpoint
 from lp3d.training.steps import NonFiniteError
 from lp3d.training.teacher_factory import TEACHERS, _recordable, build_teacher, resolve_teacher_args
@@ -71,7 +72,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--total-steps",
         type=int_in(1, MAX_STEPS),
-        help="rescale the config's schedule (stage boundaries keep the paper's proportions) to this length",
+        help="rescale the config's schedule (stage boundaries keep the paper's proportions) to this "
+        "length; with --resume, lengthen the run's learning-rate schedule to it",
     )
     p.add_argument("--resume", default=None, help="checkpoint file or run directory to continue from")
     p.add_argument(
@@ -206,14 +208,12 @@ def _with_overrides(args: argparse.Namespace, cfg: TrainConfig, ckpt: dict[str, 
     may not change its schedule or dataset."""
     if args.batch is not None:
         cfg = dataclasses.replace(cfg, batch_size=args.batch)
-    if args.total_steps is not None:
-        if ckpt is not None and args.total_steps != cfg.total_steps:
-            raise CheckpointError(
-                f"--total-steps {args.total_steps}: the checkpoint's schedule has {cfg.total_steps} "
-                "steps; a resumed run keeps its schedule"
-            )
-        if args.total_steps < 1:
-            raise ValueError(f"--total-steps must be >= 1, got {args.total_steps}")
+    if args.total_steps is not None and args.total_steps < 1:
+        raise ValueError(f"--total-steps must be >= 1, got {args.total_steps}")
+    if args.total_steps is not None and ckpt is not None and args.total_steps != cfg.total_steps:
+        cfg = extended_schedule(cfg, args.total_steps)
+        distributed.note(f"note: schedule extended to {args.total_steps} steps")
+    elif args.total_steps is not None:
         cfg = dataclasses.replace(cfg, **_scaled_schedule(args.total_steps, cfg))
     if args.perceptual is not None:
         cfg = dataclasses.replace(cfg, perceptual=args.perceptual)

@@ -69,7 +69,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from lp3d.errors import UsageError, UserError, run_command
+from lp3d.errors import UsageError, UserError, int_in, run_command
+from lp3d.lift.refine import MAX_STEPS as REFINE_MAX_STEPS
+from lp3d.lift.refine import RefineSettings
 from lp3d.teachers import Teacher
 from lp3d.training.checkpoint import load_checkpoint, student_from_checkpoint
 from lp3d.training.config import TrainConfig
@@ -86,6 +88,7 @@ from lp3d.training.eval_report import (
 from lp3d.training.eval_run import (
     _fit_baseline,
     _mean_triplane,
+    _refine,
     _report,
     _Run,
     _to_u8,
@@ -204,7 +207,12 @@ def _evaluate(
     if settings.progress:
         from tqdm import tqdm
 
-        run.bar = tqdm(total=n * (1 + settings.baseline_steps), desc="eval", unit="step", file=sys.stderr)
+        run.bar = tqdm(
+            total=n * (1 + settings.refine.steps + settings.baseline_steps),
+            desc="eval",
+            unit="step",
+            file=sys.stderr,
+        )
     for k, seed in enumerate(seeds):
         _evaluate_identity(run, teacher, seed, yaws[k], show=k < settings.figure_identities)
     if run.bar is not None:
@@ -255,6 +263,10 @@ def _evaluate_identity(run: _Run, teacher: Teacher, seed: int, yaw: float, *, sh
             [_to_u8(image[0])] + [_to_u8(v) for v in truth_nv["high"]],
             [_to_u8(pred_in["high"][0])] + [_to_u8(v) for v in pred_nv["high"]],
         ]
+    if settings.refine.steps > 0:
+        ref_in, ref_nv = _refine(run, planes_s, image, cam, truth_in, truth_nv)
+        if show:
+            figure.append([_to_u8(ref_in["high"][0])] + [_to_u8(v) for v in ref_nv["high"]])
     if settings.baseline_steps > 0:
         base_in, base_nv = _fit_baseline(run, cam, truth_in, truth_nv)
         if show:
@@ -364,6 +376,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="optimisation steps of the baseline (0: skip)",
     )
     p.add_argument(
+        "--refine",
+        type=int_in(0, REFINE_MAX_STEPS),
+        default=0,
+        metavar="N",
+        help="also score lp3d encode --refine N (N steps of fitting the student's planes to the input "
+        "view; default 0: skip)",
+    )
+    p.add_argument(
         "--lpips-weights", default=None, help="torchvision AlexNet/VGG16 state dict for the LPIPS metric"
     )
     p.add_argument(
@@ -411,7 +431,10 @@ def run_cli(args: argparse.Namespace) -> int:
     if args.baseline_steps < 0:
         raise UsageError("--baseline-steps must be >= 0")
     settings = EvalSettings(
-        n_identities=args.n_identities, baseline_steps=args.baseline_steps, progress=not args.no_progress
+        n_identities=args.n_identities,
+        baseline_steps=args.baseline_steps,
+        refine=RefineSettings(steps=args.refine),
+        progress=not args.no_progress,
     )
     try:
         report_path, png, report = run(
@@ -432,6 +455,9 @@ def run_cli(args: argparse.Namespace) -> int:
     print(summary_table(report))
     s = report["student"]
     print(f"student  : encode {s['encode_ms']:.1f} ms, render {s['render_ms']:.1f} ms per view")
+    if "refined" in report:
+        r = report["refined"]
+        print(f"refined  : fit {r['refine_s']:.1f} s ({r['settings']['steps']} steps)")
     if "baseline" in report:
         b = report["baseline"]
         print(f"baseline : fit {b['fit_s']:.1f} s ({b['steps']} steps)")

@@ -58,7 +58,8 @@ def comparison_figure(
 
 def figure_labels(report: dict[str, Any]) -> list[str]:
     """The row labels of :func:`evaluate`'s figure rows for ``report``."""
-    return ["teacher", "student"] + (["baseline"] if "baseline" in report else []) + ["ceiling"]
+    optional = [m for m in ("refined", "baseline") if m in report]
+    return ["teacher", "student", *optional, "ceiling"]
 
 
 def _atomic_json(path: Path, data: dict[str, Any]) -> None:
@@ -86,7 +87,8 @@ def write_outputs(
 
 
 def summary_table(report: dict[str, Any]) -> str:
-    """The printed summary: method | novel PSNR own | vs other identities | specificity | SSIM."""
+    """The printed summary: method | input PSNR | novel PSNR own | vs other identities | specificity |
+    SSIM."""
 
     def db(v: float | None, sign: bool = False) -> str:
         return "n/a" if v is None else (f"{v:+.2f} dB" if sign else f"{v:.2f} dB")
@@ -94,15 +96,16 @@ def summary_table(report: dict[str, Any]) -> str:
     def num(v: float | None) -> str:
         return "n/a" if v is None else f"{v:.3f}"
 
-    head = ("method", "novel PSNR own", "vs other identities", "specificity", "SSIM")
+    head = ("method", "input PSNR", "novel PSNR own", "vs other identities", "specificity", "SSIM")
     lines = [head]
-    for method in ("student", "baseline", "floor", "ceiling"):
+    for method in ("student", "refined", "baseline", "floor", "ceiling"):
         s = report.get(method)
         if s is None:
             continue
         lines.append(
             (
                 method,
+                db(s.get("input_psnr")),
                 db(s.get("novel_psnr")),
                 db(s.get("novel_psnr_other")),
                 db(s.get("identity_specificity_db"), sign=True),

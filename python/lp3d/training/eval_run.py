@@ -16,6 +16,8 @@ import torch
 from torch import Tensor, nn
 
 from lp3d.images import rgb_to_uint8
+from lp3d.lift.refine import estimate_pose, refine_planes
+from lp3d.render.camera import look_at_camera
 from lp3d.teachers import Teacher
 from lp3d.training.config import TrainConfig
 from lp3d.training.eval_metrics import (
@@ -77,7 +79,7 @@ def fit_triplane(
     return planes.detach()
 
 
-METHODS = ("student", "baseline", "floor", "ceiling")
+METHODS = ("student", "refined", "baseline", "floor", "ceiling")
 
 
 @dataclass
@@ -107,6 +109,8 @@ class _Run:
     encode_s: list[float] = field(default_factory=list)
     render_s: list[float] = field(default_factory=list)
     fit_s: list[float] = field(default_factory=list)
+    refine_s: list[float] = field(default_factory=list)
+    refine_poses: list[tuple[float, float]] = field(default_factory=list)
     rows: list[list[list[np.ndarray]]] = field(default_factory=list)
     truth_resolution: int | None = None
 
@@ -149,6 +153,43 @@ def _fit_baseline(
     return base_in, base_nv
 
 
+def _refine(
+    run: _Run,
+    planes_s: Tensor,
+    image: Tensor,
+    cam: Tensor,
+    truth_in: dict[str, Tensor],
+    truth_nv: dict[str, Tensor],
+) -> tuple[dict[str, Tensor], dict[str, Tensor]]:
+    """``lp3d encode --refine`` for one identity as a user gets it (the pose estimated from the image,
+    not the known one): fitted, timed, scored on the true input camera; returns its renders."""
+    student, settings = run.student, run.settings
+    planes, image0 = planes_s[0].detach().cpu(), image[0].detach().cpu()
+    decoder = tuple(w.detach().cpu().float() for w in student.decoder.weights())
+    t0 = time.perf_counter()
+    with torch.enable_grad():
+        pose = estimate_pose(planes, decoder, student.scene, image0, settings.refine)
+        camera = torch.from_numpy(look_at_camera(yaw_deg=pose[0], pitch_deg=pose[1])).float()
+        refined = refine_planes(
+            planes,
+            decoder,
+            student.scene,
+            image0,
+            camera,
+            settings.refine,
+            on_step=None if run.bar is None else run.bar.update,
+        )
+    run.refine_s.append(time.perf_counter() - t0)
+    run.refine_poses.append(pose)
+    planes_r = refined[None].to(planes_s.device)
+    with torch.no_grad():
+        ref_in = _render_student(student, planes_r, cam)
+        ref_nv = _render_student(student, planes_r, run.views)
+    run.metrics["refined"].add("input", ref_in, truth_in, run.lpips)
+    run.add("refined", ref_nv, truth_nv)
+    return ref_in, ref_nv
+
+
 def _per_identity(
     run: _Run, cross: dict[str, _Cross], seeds: list[int], yaws: list[float]
 ) -> list[dict[str, Any]]:
@@ -175,6 +216,13 @@ def _per_identity(
             "floor_novel_psnr": per_method["floor"][k]["novel_psnr"],
             "ceiling_novel_psnr": per_method["ceiling"][k]["novel_psnr"],
         }
+        row["input_psnr"] = run.metrics["student"].values["input_psnr"][k]
+        if "refined" in per_method:
+            r = per_method["refined"][k]
+            row["refined_input_psnr"] = run.metrics["refined"].values["input_psnr"][k]
+            row["refined_novel_psnr"] = r["novel_psnr"]
+            row["refined_identity_specificity_db"] = r["identity_specificity_db"]
+            row["refined_pose_yaw_pitch_deg"] = list(run.refine_poses[k])
         if "baseline" in per_method:
             b = per_method["baseline"][k]
             row["baseline_novel_psnr"] = b["novel_psnr"]
@@ -236,6 +284,15 @@ def _report(run: _Run, seeds: list[int], yaws: list[float]) -> dict[str, Any]:
         },
         "per_identity": _per_identity(run, cross, seeds, yaws),
     }
+    if settings.refine.steps > 0:
+        report["refined"] = {
+            "method": "lp3d encode --refine: the student's planes fitted to the input view (Adam, L1 on "
+            "raw RGB plus a prior that holds them near the student's), at a pose estimated from the image",
+            "settings": run.settings.refine.to_dict(),
+            **metrics["refined"].summary(),
+            **cross["refined"].summary(),
+            "refine_s": statistics.median(run.refine_s),
+        }
     if settings.baseline_steps > 0:
         report["baseline"] = {
             "method": "per-identity triplane optimisation (Adam) on the input view, from the mean triplane",

@@ -9,7 +9,7 @@ import math
 import statistics
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -17,6 +17,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from lp3d.lift.refine import RefineSettings
 from lp3d.render.camera import FFHQ_FOCAL, look_at_camera
 from lp3d.teachers import ProceduralTeacher, Teacher
 from lp3d.teachers.procedural import RESOLUTION as PROCEDURAL_RESOLUTION
@@ -46,6 +47,8 @@ class EvalSettings:
     baseline_steps: int = 100
     baseline_lr: float = 0.02
     baseline_mean_of: int = 16
+    #: ``lp3d encode --refine``'s fit, scored as the method "refined" (``steps = 0``: skipped).
+    refine: RefineSettings = field(default_factory=lambda: RefineSettings(steps=0))
     timing_repeats: int = 3
     figure_identities: int = 8
     #: A progress bar (stderr) over identities and baseline fits.

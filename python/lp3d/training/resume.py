@@ -5,17 +5,35 @@ May import the modules of :mod:`lp3d.training` before it (``config``, ``checkpoi
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 from lp3d.training.checkpoint import CheckpointError
 from lp3d.training.config import TrainConfig, config_differences
 
 
+def extended_schedule(cfg: TrainConfig, total: int) -> TrainConfig:
+    """``cfg``'s schedule lengthened to ``total`` steps, for a resumed run whose curve was still
+    rising: the learning-rate cosine is stretched, stage boundaries stay where they were (a config
+    that regresses for its whole schedule still does). Shortening is refused: steps already taken at
+    a higher learning rate cannot be undone."""
+    if total < cfg.total_steps:
+        raise CheckpointError(
+            f"--total-steps {total}: the checkpoint's schedule has {cfg.total_steps} steps; a resumed "
+            "run may lengthen its schedule, not shorten it"
+        )
+    regression = total if cfg.regression_steps == cfg.total_steps else cfg.regression_steps
+    return dataclasses.replace(cfg, total_steps=total, regression_steps=regression)
+
+
 def check_resumable(ckpt: dict[str, Any], cfg: TrainConfig, teacher_name: str) -> None:
     """Raise :class:`CheckpointError` when the loaded checkpoint ``ckpt`` (its ``train_config``,
     ``teacher`` and ``path``) was trained with another configuration than ``cfg`` or another teacher
     than ``teacher_name``."""
-    diff = config_differences(ckpt["train_config"], cfg)
+    recorded: TrainConfig = ckpt["train_config"]
+    if cfg.total_steps > recorded.total_steps:
+        recorded = extended_schedule(recorded, cfg.total_steps)
+    diff = config_differences(recorded, cfg)
     if diff:
         shown = "\n  ".join(diff[:12]) + ("\n  ..." if len(diff) > 12 else "")
         raise CheckpointError(

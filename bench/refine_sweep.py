@@ -1,0 +1,127 @@
+"""How ``lp3d encode --refine`` should fit: a sweep of its learning rate, prior weight and steps.
+
+    python bench/refine_sweep.py CHECKPOINT.pt --n-identities 4     # about 4 min on a 2-core CPU
+
+For held-out identities *outside* ``lp3d eval``'s (teacher seeds ``eval_seed_start + 100 ..``, so
+the defaults are not tuned on the identities that score them), inputs rendered as ``lp3d eval``
+renders them, the student's planes are refined as a user's are (pose estimated from the image) with
+each setting. Printed: per setting, the mean input-view and novel-view PSNR (128², against the
+teacher at its native planes) and their gains over the encoder alone, and seconds per image; a
+Markdown table for ``bench/RESULTS.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import itertools
+import statistics
+import sys
+import time
+
+import numpy as np
+import torch
+
+from lp3d.lift.refine import RefineSettings, estimate_pose, refine_planes
+from lp3d.render.camera import look_at_camera
+from lp3d.training.checkpoint import load_checkpoint, student_from_checkpoint
+from lp3d.training.eval_metrics import psnr
+from lp3d.training.eval_setup import (
+    EvalSettings,
+    _render_student,
+    _render_truth,
+    _views,
+    input_camera,
+    input_yaws,
+    reference_teachers,
+)
+from lp3d.training.teacher_factory import build_teacher
+
+
+def _floats(text: str) -> list[float]:
+    return [float(v) for v in text.split(",")]
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("checkpoint", help="training checkpoint (.pt) of the student")
+    p.add_argument("--n-identities", type=int, default=4)
+    p.add_argument("--steps", default="40", help="comma-separated step counts (default 40)")
+    p.add_argument("--lr", default="0.005,0.01,0.02", help="comma-separated learning rates")
+    p.add_argument("--prior", default="0,0.05,0.2,1", help="comma-separated prior weights")
+    args = p.parse_args(argv)
+
+    ckpt = load_checkpoint(args.checkpoint)
+    student = student_from_checkpoint(ckpt)
+    cfg = student.config
+    teacher = build_teacher(ckpt["teacher"], triplane_resolution=cfg.triplane_resolution)
+    truth_teacher, _ = reference_teachers(teacher, cfg)
+    truth_dec = [torch.as_tensor(a) for a in truth_teacher.decoder()]
+    decoder = tuple(w.detach().float() for w in student.decoder.weights())
+    views = _views(EvalSettings(), torch.device("cpu"))
+    seeds = [cfg.eval_seed_start + 100 + i for i in range(args.n_identities)]
+    yaws = input_yaws(args.n_identities)
+
+    items = []
+    for seed, yaw in zip(seeds, yaws, strict=True):
+        planes_t = torch.from_numpy(truth_teacher.sample(seed).planes.astype(np.float32)).unsqueeze(0)
+        cam = torch.from_numpy(input_camera(cfg, seed, float(yaw))[0]).float().unsqueeze(0)
+        truth_in = _render_truth(truth_teacher, planes_t, truth_dec, cam, cfg, student.scene)
+        truth_nv = _render_truth(truth_teacher, planes_t, truth_dec, views, cfg, student.scene)
+        with torch.no_grad():
+            planes = student.encode(truth_in["high"])[0]
+            base_in = float(
+                psnr(_render_student(student, planes[None], cam)["high"], truth_in["high"]).mean()
+            )
+            base_nv = float(
+                psnr(_render_student(student, planes[None], views)["high"], truth_nv["high"]).mean()
+            )
+        pose = estimate_pose(planes, decoder, student.scene, truth_in["high"][0], RefineSettings())
+        items.append((seed, cam, truth_in, truth_nv, planes, pose, base_in, base_nv))
+        print(f"identity {seed}: yaw {yaw:+.0f}, estimated pose {pose}", file=sys.stderr)
+
+    rows = []
+    grid = list(
+        itertools.product([int(s) for s in _floats(args.steps)], _floats(args.lr), _floats(args.prior))
+    )
+    for steps, lr, prior in grid:
+        settings = dataclasses.replace(RefineSettings(), steps=steps, lr=lr, prior_weight=prior)
+        d_in, d_nv, secs = [], [], []
+        for _, cam, truth_in, truth_nv, planes, pose, base_in, base_nv in items:
+            camera = torch.from_numpy(look_at_camera(yaw_deg=pose[0], pitch_deg=pose[1])).float()
+            t0 = time.perf_counter()
+            refined = refine_planes(planes, decoder, student.scene, truth_in["high"][0], camera, settings)
+            secs.append(time.perf_counter() - t0)
+            with torch.no_grad():
+                r_in = float(
+                    psnr(_render_student(student, refined[None], cam)["high"], truth_in["high"]).mean()
+                )
+                r_nv = float(
+                    psnr(_render_student(student, refined[None], views)["high"], truth_nv["high"]).mean()
+                )
+            d_in.append(r_in - base_in)
+            d_nv.append(r_nv - base_nv)
+        rows.append(
+            (steps, lr, prior, statistics.fmean(d_in), statistics.fmean(d_nv), statistics.median(secs))
+        )
+        print(
+            f"steps {steps} lr {lr} prior {prior}: input {rows[-1][3]:+.2f} dB, novel {rows[-1][4]:+.2f} dB, "
+            f"{rows[-1][5]:.1f} s",
+            file=sys.stderr,
+        )
+
+    base_in = statistics.fmean(it[6] for it in items)
+    base_nv = statistics.fmean(it[7] for it in items)
+    print(
+        f"\nencoder alone: input view {base_in:.2f} dB, novel views {base_nv:.2f} dB "
+        f"({len(items)} identities, seeds {seeds[0]}..{seeds[-1]}, torch threads {torch.get_num_threads()})\n"
+    )
+    print("| steps | lr | prior weight | input view gain | novel view gain | s / image |")
+    print("|---:|---:|---:|---:|---:|---:|")
+    for steps, lr, prior, gi, gn, s in rows:
+        print(f"| {steps} | {lr:g} | {prior:g} | {gi:+.2f} dB | {gn:+.2f} dB | {s:.1f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,274 @@
+"""Fitting a lifted head to its own photo: a short optimisation of the encoder's triplane on the input
+view (``lp3d encode --refine N``), as the inversion methods the paper compares against do (PTI; the
+hybrid encoders GOAE and TriPlaneNet start from an encoder's output too).
+
+The encoder gets the head's shape and rough colours; it misses what its training never showed it.
+:func:`refine` starts from its planes and takes ``steps`` Adam steps through the torch twin of the
+renderer (:mod:`lp3d.render.torch_twin`) on the input view, with two terms:
+
+* **photo**: L1 between the raw RGB render and the photo (downsampled to ``resolution``), on
+  ``rays_per_step`` random rays of the view per step; a quarter of the rays per step makes each
+  step 4x cheaper, and over the steps every pixel is seen;
+* **prior**: the mean squared change of the planes, in units of each channel's spread in the
+  encoder's output, times ``prior_weight``. The input view sees only one side of the head and the
+  three planes are shared by all sides, so an unheld fit buys the input view with broken side views;
+  the prior keeps what the photo does not ask to change at the encoder's prediction.
+
+Only the planes change: the decoder and scene bounds are the model package's, so the refined head
+still renders the feature space its super-resolution network was made for.
+
+The photo's camera is not known. :func:`estimate_pose` renders the encoder's head from a grid of
+yaws and pitches around the training framing (the crop of :mod:`lp3d.photo` puts every face there)
+and keeps the one whose render is closest to the photo.
+
+May import :mod:`lp3d.render`; torch is needed (``pip install torch``), onnxruntime is not.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, fields
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from lp3d.render.camera import look_at_camera
+from lp3d.render.settings import RenderSettings, SceneBounds
+from lp3d.render.torch_stages import rays_from_cameras
+from lp3d.render.torch_twin import render_rays
+from lp3d.render.triplane import TriplaneData
+
+__all__ = ["RefineResult", "RefineSettings", "estimate_pose", "psnr_db", "refine", "refine_planes"]
+
+#: Most refinement steps one call may ask for (a typo such as 50000 would run for hours).
+MAX_STEPS = 10_000
+
+
+@dataclass(frozen=True)
+class RefineSettings:
+    """How :func:`refine` fits a triplane to its photo (module docstring). The defaults are the ones
+    ``bench/refine.py`` measured on held-out teacher identities (``bench/RESULTS.md``)."""
+
+    steps: int = 40
+    lr: float = 0.01
+    prior_weight: float = 0.2
+    resolution: int = 64
+    rays_per_step: int = 1024
+    depth_resolution: int = 16
+    depth_resolution_importance: int = 16
+    search_yaws_deg: tuple[float, ...] = (-40.0, -30.0, -20.0, -10.0, 0.0, 10.0, 20.0, 30.0, 40.0)
+    search_pitches_deg: tuple[float, ...] = (-10.0, 0.0, 10.0, 20.0)
+    search_resolution: int = 32
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        ints = {
+            "steps": (0, MAX_STEPS),
+            "resolution": (8, 512),
+            "rays_per_step": (1, 1 << 20),
+            "depth_resolution": (4, 256),
+            "depth_resolution_importance": (0, 256),
+            "search_resolution": (8, 256),
+            "seed": (0, 2**31 - 1),
+        }
+        for name, (lo, hi) in ints.items():
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= hi:
+                raise ValueError(f"RefineSettings.{name} must be an int in [{lo}, {hi}], got {v!r}")
+        for name in ("lr", "prior_weight"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, float)) or isinstance(v, bool) or not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"RefineSettings.{name} must be a finite number >= 0, got {v!r}")
+        for name in ("search_yaws_deg", "search_pitches_deg"):
+            v = getattr(self, name)
+            if not v or not all(isinstance(a, (int, float)) and math.isfinite(a) and abs(a) < 90 for a in v):
+                raise ValueError(f"RefineSettings.{name} must be a non-empty tuple of angles in (-90, 90)")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    def render_settings(self, resolution: int) -> RenderSettings:
+        return RenderSettings(
+            resolution=resolution,
+            depth_resolution=self.depth_resolution,
+            depth_resolution_importance=self.depth_resolution_importance,
+        )
+
+
+@dataclass
+class RefineResult:
+    """What :func:`refine` returns: the refined ``triplane`` (the input's decoder, bounds and source,
+    with the estimated input camera), the pose it fitted at, and the input view's PSNR (dB, raw RGB at
+    ``RefineSettings.resolution``) before and after."""
+
+    triplane: TriplaneData
+    yaw_deg: float
+    pitch_deg: float
+    psnr_before: float
+    psnr_after: float
+    seconds: float
+
+
+def psnr_db(a: np.ndarray | Tensor, b: np.ndarray | Tensor) -> float:
+    """PSNR (dB) of two images in [-1, 1] (peak-to-peak 2), clipped to that range first."""
+    x = torch.as_tensor(a, dtype=torch.float64).clamp(-1, 1)
+    y = torch.as_tensor(b, dtype=torch.float64).clamp(-1, 1)
+    mse = float((x - y).square().mean())
+    return 10.0 * math.log10(4.0 / max(mse, 1e-12))
+
+
+def _target(image: np.ndarray | Tensor, resolution: int) -> Tensor:
+    """The photo (3, S, S) float in [-1, 1] at ``resolution`` rays per side (area average), (3, R, R)."""
+    x = torch.as_tensor(np.asarray(image, np.float32) if not isinstance(image, Tensor) else image)
+    if x.ndim != 3 or x.shape[0] != 3 or x.shape[1] != x.shape[2] or x.shape[1] < 8:
+        raise ValueError(f"image must be (3, S, S) float in [-1, 1] with S >= 8, got shape {tuple(x.shape)}")
+    x = x.float()
+    if not bool(torch.isfinite(x).all()):
+        raise ValueError("image contains NaN/Inf")
+    if x.shape[1] == resolution:
+        return x
+    return F.interpolate(
+        x[None], size=(resolution, resolution), mode="area" if x.shape[1] > resolution else "bilinear"
+    )[0]
+
+
+def _camera(yaw: float, pitch: float) -> Tensor:
+    return torch.from_numpy(look_at_camera(yaw_deg=yaw, pitch_deg=pitch)).float()
+
+
+def _render_rgb(
+    planes: Tensor,
+    decoder: tuple[Tensor, ...],
+    origins: Tensor,
+    dirs: Tensor,
+    bounds: SceneBounds,
+    settings: RenderSettings,
+) -> Tensor:
+    """Raw RGB (B, M, 3) of rays (B, M, 3) through shared planes (1, 3, 32, T, T)."""
+    out = render_rays(planes, *decoder, origins, dirs, bounds=bounds, settings=settings, clamp=False)
+    return out["features"][..., :3]
+
+
+def estimate_pose(
+    planes: Tensor,
+    decoder: tuple[Tensor, ...],
+    bounds: SceneBounds,
+    image: np.ndarray | Tensor,
+    settings: RefineSettings,
+) -> tuple[float, float]:
+    """``(yaw, pitch)`` in degrees of the grid camera whose render of ``planes`` (3, 32, T, T) is
+    closest (L1) to ``image`` (3, S, S) in [-1, 1]; :class:`RefineSettings` names the grid."""
+    r = settings.search_resolution
+    target = _target(image, r).reshape(3, -1).T[None]  # (1, M, 3)
+    poses = [(y, p) for p in settings.search_pitches_deg for y in settings.search_yaws_deg]
+    rs = settings.render_settings(r)
+    errors = []
+    with torch.no_grad():
+        for yaw, pitch in poses:
+            o, d = rays_from_cameras(_camera(yaw, pitch)[None], r)
+            rgb = _render_rgb(planes[None], decoder, o, d, bounds, rs)
+            errors.append(float((rgb - target).abs().mean()))
+    return poses[int(np.argmin(errors))]
+
+
+def refine_planes(
+    planes: Tensor,
+    decoder: tuple[Tensor, ...],
+    bounds: SceneBounds,
+    image: np.ndarray | Tensor,
+    camera: Tensor,
+    settings: RefineSettings,
+    *,
+    on_step: Callable[[], Any] | None = None,
+) -> Tensor:
+    """``planes`` (3, 32, T, T) float32 fitted to ``image`` (3, S, S) seen from ``camera`` (25,) by
+    :class:`RefineSettings` (module docstring); returns new planes, the input untouched."""
+    r = settings.resolution
+    target = _target(image, r).reshape(3, -1).T  # (M, 3)
+    origins, dirs = rays_from_cameras(camera.float()[None], r)
+    start = planes.detach().float()
+    # The prior's unit: each channel's spread over the encoder's planes, so that weight 1 means "a
+    # change of one standard deviation everywhere costs as much as an L1 photo error of 1".
+    spread = start.std(dim=(-2, -1), keepdim=True).clamp_min(1e-6)
+    x = start.clone().requires_grad_(True)
+    opt = torch.optim.Adam([x], lr=settings.lr)
+    gen = torch.Generator().manual_seed(settings.seed)
+    n = min(settings.rays_per_step, r * r)
+    rs = settings.render_settings(r)
+    for _ in range(settings.steps):
+        idx = torch.randperm(r * r, generator=gen)[:n]
+        rgb = _render_rgb(x[None], decoder, origins[:, idx], dirs[:, idx], bounds, rs)[0]
+        photo = (rgb - target[idx]).abs().mean()
+        prior = ((x - start) / spread).square().mean()
+        loss = photo + settings.prior_weight * prior
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        if on_step is not None:
+            on_step()
+    return x.detach()
+
+
+def _input_view_psnr(
+    planes: Tensor,
+    decoder: tuple[Tensor, ...],
+    bounds: SceneBounds,
+    camera: Tensor,
+    target: Tensor,
+    settings: RefineSettings,
+) -> float:
+    r = settings.resolution
+    o, d = rays_from_cameras(camera[None], r)
+    with torch.no_grad():
+        rgb = _render_rgb(planes[None], decoder, o, d, bounds, settings.render_settings(r))[0]
+    return psnr_db(rgb, target.reshape(3, -1).T)
+
+
+def refine(
+    triplane: TriplaneData,
+    image: np.ndarray,
+    settings: RefineSettings | None = None,
+    *,
+    pose: tuple[float, float] | None = None,
+    on_step: Callable[[], Any] | None = None,
+) -> RefineResult:
+    """Fit ``triplane`` (the encoder's output) to ``image``, the photo it was lifted from: (3, S, S)
+    float in [-1, 1] (``lp3d.photo.to_encoder_input`` of the crop) or (S, S, 3) uint8 (the crop).
+    ``pose`` ``(yaw, pitch)`` in degrees, when known; else :func:`estimate_pose`. ``on_step`` is
+    called after every step (a progress bar). Raises ValueError for a bad image or settings."""
+    settings = settings if settings is not None else RefineSettings()
+    img = np.asarray(image)
+    if img.ndim == 3 and img.shape[-1] == 3 and img.dtype == np.uint8:
+        img = img.transpose(2, 0, 1).astype(np.float32) / 127.5 - 1.0
+    t0 = time.perf_counter()
+    planes = torch.from_numpy(np.asarray(triplane.planes, np.float32))
+    decoder = tuple(
+        torch.from_numpy(np.asarray(getattr(triplane, k), np.float32)) for k in ("w0", "b0", "w1", "b1")
+    )
+    bounds = triplane.bounds
+    yaw, pitch = pose if pose is not None else estimate_pose(planes, decoder, bounds, img, settings)
+    camera = _camera(yaw, pitch)
+    target = _target(img, settings.resolution)
+    before = _input_view_psnr(planes, decoder, bounds, camera, target, settings)
+    refined = refine_planes(planes, decoder, bounds, img, camera, settings, on_step=on_step)
+    after = _input_view_psnr(refined, decoder, bounds, camera, target, settings)
+    out_planes = refined.numpy().astype(triplane.planes.dtype)
+    source = (triplane.source or "lp3d") + f"; refined {settings.steps} steps"
+    result = TriplaneData(
+        planes=out_planes,
+        w0=triplane.w0,
+        b0=triplane.b0,
+        w1=triplane.w1,
+        b1=triplane.b1,
+        box_warp=triplane.box_warp,
+        ray_start=triplane.ray_start,
+        ray_end=triplane.ray_end,
+        camera=camera.double().numpy(),
+        source=source[:200],
+    )
+    return RefineResult(result, float(yaw), float(pitch), before, after, time.perf_counter() - t0)
