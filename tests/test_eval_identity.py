@@ -30,6 +30,7 @@ import pytest
 import torch
 from torch import Tensor
 
+from lp3d.lift.refine import RefineSettings
 from lp3d.teachers import ProceduralTeacher
 from lp3d.train import TRAIN_CONFIGS, SceneBounds, Student, TrainConfig, build_teacher, render_teacher
 from lp3d.training.eval import (
@@ -113,7 +114,7 @@ def oracle_report(teacher, scene):
 
 @pytest.fixture(scope="module")
 def mean_report(teacher, scene):
-    settings = dataclasses.replace(SETTINGS, baseline_steps=2)
+    settings = dataclasses.replace(SETTINGS, baseline_steps=2, refine=RefineSettings(steps=6))
     torch.manual_seed(0)
     student = Student(CFG, teacher.decoder(), scene)
     student.start_from_mean(_mean_planes(teacher, settings.baseline_mean_of))
@@ -191,15 +192,28 @@ def test_report_holds_per_identity_rows_and_every_section(mean_report, tmp_path)
         ):
             assert np.isfinite(data[method][key]), (method, key)
     assert data["student"]["encode_ms"] > 0 and data["baseline"]["fit_s"] > 0
+    # --refine: scored per identity beside the student, as users get it (the pose estimated).
+    for r in per:
+        for key in (
+            "input_psnr",
+            "refined_input_psnr",
+            "refined_novel_psnr",
+            "refined_identity_specificity_db",
+        ):
+            assert np.isfinite(r[key]), key
+        assert len(r["refined_pose_yaw_pitch_deg"]) == 2
+    assert data["refined"]["settings"]["steps"] == 6 and data["refined"]["refine_s"] > 0
+    # Six steps from the mean head already move the input view towards its photo.
+    assert data["refined"]["input_psnr"] > data["student"]["input_psnr"]
     assert np.isfinite(data["identity_specificity_db"])
-    # The figure: per identity teacher, student, baseline, ceiling rows of (input + 2 views).
+    # The figure: per identity teacher, student, refined, baseline, ceiling rows of (input + 2 views).
     from PIL import Image
 
     im = Image.open(png)
     s = CFG.image_size
-    assert im.height >= N * 4 * s and im.width >= 3 * s
+    assert im.height >= N * 5 * s and im.width >= 3 * s
     table = summary_table(data)
-    for method in ("student", "baseline", "floor", "ceiling"):
+    for method in ("student", "refined", "baseline", "floor", "ceiling"):
         assert f"\n{method}" in table
 
 
