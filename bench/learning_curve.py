@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import csv
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 
@@ -30,7 +31,15 @@ def _column(rows: list[dict[str, str]], key: str) -> tuple[list[int], list[float
     return steps, values
 
 
-def plot(run: Path, out: Path, also: Path | None = None, also_label: str = "") -> Path:
+def plot(
+    run: Path,
+    out: Path,
+    also: Path | None = None,
+    also_label: str = "",
+    *,
+    title: str | None = None,
+    marks: Sequence[int] = (),
+) -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -54,7 +63,10 @@ def plot(run: Path, out: Path, also: Path | None = None, also_label: str = "") -
     ax2.set_ylabel("identity specificity (dB)", color="tab:green")
     ax.set_xlabel("step")
     ax.set_ylabel("held-out novel-view PSNR (dB)")
-    ax.set_title(f"{run.name}: {len(held)} evaluations on held-out identities")
+    ax.set_title(f"{title or run.name}: {len(held)} evaluations on held-out identities", fontsize=10)
+    for step in marks:  # e.g. where a resumed run's schedule was lengthened
+        for axis in (ax, bx):
+            axis.axvline(step, color="grey", lw=0.8, ls=":")
     lines = ax.get_legend_handles_labels()[0] + ax2.get_legend_handles_labels()[0]
     labels = ax.get_legend_handles_labels()[1] + ax2.get_legend_handles_labels()[1]
     ax.legend(lines, labels, loc="lower right", fontsize=8)
@@ -87,6 +99,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("-o", "--out", type=Path, required=True, help="PNG to write")
     p.add_argument("--also", type=Path, default=None, help="a branch run directory to overlay (dashed)")
     p.add_argument("--also-label", default="branch", help="legend label of --also")
+    p.add_argument("--title", default=None, help="the left plot's title (default: the run folder's name)")
+    p.add_argument("--mark", type=int, nargs="*", default=[], help="steps to mark with a dotted line")
     args = p.parse_args(argv)
     for name in ("heldout.csv", "log.csv"):
         if not (args.run / name).is_file():
@@ -94,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
                 f"error: {args.run / name} not found (is this a CPU-recipe run directory?)", file=sys.stderr
             )
             return 1
-    print(plot(args.run, args.out, args.also, args.also_label))
+    print(plot(args.run, args.out, args.also, args.also_label, title=args.title, marks=args.mark))
     return 0
 
 

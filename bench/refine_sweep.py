@@ -49,6 +49,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--steps", default="40", help="comma-separated step counts (default 40)")
     p.add_argument("--lr", default="0.005,0.01,0.02", help="comma-separated learning rates")
     p.add_argument("--prior", default="0,0.05,0.2,1", help="comma-separated prior weights")
+    p.add_argument(
+        "--known-pose",
+        action="store_true",
+        help="fit at the input view's true camera (as lp3d eval's baseline does), not the estimated pose",
+    )
     args = p.parse_args(argv)
 
     ckpt = load_checkpoint(args.checkpoint)
@@ -88,7 +93,10 @@ def main(argv: list[str] | None = None) -> int:
         settings = dataclasses.replace(RefineSettings(), steps=steps, lr=lr, prior_weight=prior)
         d_in, d_nv, secs = [], [], []
         for _, cam, truth_in, truth_nv, planes, pose, base_in, base_nv in items:
-            camera = torch.from_numpy(look_at_camera(yaw_deg=pose[0], pitch_deg=pose[1])).float()
+            if args.known_pose:
+                camera = cam[0]
+            else:
+                camera = torch.from_numpy(look_at_camera(yaw_deg=pose[0], pitch_deg=pose[1])).float()
             t0 = time.perf_counter()
             refined = refine_planes(planes, decoder, student.scene, truth_in["high"][0], camera, settings)
             secs.append(time.perf_counter() - t0)
@@ -114,7 +122,8 @@ def main(argv: list[str] | None = None) -> int:
     base_nv = statistics.fmean(it[7] for it in items)
     print(
         f"\nencoder alone: input view {base_in:.2f} dB, novel views {base_nv:.2f} dB "
-        f"({len(items)} identities, seeds {seeds[0]}..{seeds[-1]}, torch threads {torch.get_num_threads()})\n"
+        f"({len(items)} identities, seeds {seeds[0]}..{seeds[-1]}, torch threads {torch.get_num_threads()}; "
+        f"fitted at {'the true camera' if args.known_pose else 'the estimated pose'})\n"
     )
     print("| steps | lr | prior weight | input view gain | novel view gain | s / image |")
     print("|---:|---:|---:|---:|---:|---:|")

@@ -192,7 +192,7 @@ def test_report_holds_per_identity_rows_and_every_section(mean_report, tmp_path)
         ):
             assert np.isfinite(data[method][key]), (method, key)
     assert data["student"]["encode_ms"] > 0 and data["baseline"]["fit_s"] > 0
-    # --refine: scored per identity beside the student, as users get it (the pose estimated).
+    # --refine: scored per identity beside the student (at the true camera, as the baseline).
     for r in per:
         for key in (
             "input_psnr",
@@ -201,7 +201,7 @@ def test_report_holds_per_identity_rows_and_every_section(mean_report, tmp_path)
             "refined_identity_specificity_db",
         ):
             assert np.isfinite(r[key]), key
-        assert len(r["refined_pose_yaw_pitch_deg"]) == 2
+        assert len(r["estimated_pose_yaw_pitch_deg"]) == 2
     assert data["refined"]["settings"]["steps"] == 6 and data["refined"]["refine_s"] > 0
     # Six steps from the mean head already move the input view towards its photo.
     assert data["refined"]["input_psnr"] > data["student"]["input_psnr"]

@@ -10,15 +10,14 @@ from typing import Any
 import numpy as np
 
 from lp3d.cli.common import CLIError, int_in, progress, say
+from lp3d.lift.refine_settings import MAX_STEPS, RefineSettings
 
-#: The steps a user who asks for refinement without a number gets (``bench/RESULTS.md``: the fit
-#: that stays within 5 s per image on a 2-core CPU).
-DEFAULT_STEPS = 40
+#: The steps a user who asks for refinement without a number gets: ``RefineSettings``' default
+#: (``bench/RESULTS.md``, "Refinement": within 5 s per image on a 2-core CPU).
+DEFAULT_STEPS = RefineSettings().steps
 
 
 def add_refine_argument(p: argparse.ArgumentParser, what: str = "each photo") -> None:
-    from lp3d.lift.refine import MAX_STEPS
-
     p.add_argument(
         "--refine",
         type=int_in(0, MAX_STEPS),
@@ -46,7 +45,7 @@ def refine_triplanes(
     """Each ``TriplaneData`` fitted to its crop (S, S, 3) uint8 for ``steps`` steps; one progress bar
     over all of them and a line per image (estimated pose, input-view PSNR before and after)."""
     require_torch()
-    from lp3d.lift.refine import RefineSettings, refine
+    from lp3d.lift.refine import refine
 
     settings = RefineSettings(steps=steps)
     bar = progress(steps * len(triplanes), "refine")

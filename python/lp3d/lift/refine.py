@@ -29,7 +29,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -37,67 +37,22 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from lp3d.lift.refine_settings import MAX_STEPS, RefineSettings
 from lp3d.render.camera import look_at_camera
 from lp3d.render.settings import RenderSettings, SceneBounds
 from lp3d.render.torch_stages import rays_from_cameras
 from lp3d.render.torch_twin import render_rays
 from lp3d.render.triplane import TriplaneData
 
-__all__ = ["RefineResult", "RefineSettings", "estimate_pose", "psnr_db", "refine", "refine_planes"]
-
-#: Most refinement steps one call may ask for (a typo such as 50000 would run for hours).
-MAX_STEPS = 10_000
-
-
-@dataclass(frozen=True)
-class RefineSettings:
-    """How :func:`refine` fits a triplane to its photo (module docstring). The defaults are the ones
-    ``bench/refine.py`` measured on held-out teacher identities (``bench/RESULTS.md``)."""
-
-    steps: int = 40
-    lr: float = 0.01
-    prior_weight: float = 0.2
-    resolution: int = 64
-    rays_per_step: int = 1024
-    depth_resolution: int = 16
-    depth_resolution_importance: int = 16
-    search_yaws_deg: tuple[float, ...] = (-40.0, -30.0, -20.0, -10.0, 0.0, 10.0, 20.0, 30.0, 40.0)
-    search_pitches_deg: tuple[float, ...] = (-10.0, 0.0, 10.0, 20.0)
-    search_resolution: int = 32
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        ints = {
-            "steps": (0, MAX_STEPS),
-            "resolution": (8, 512),
-            "rays_per_step": (1, 1 << 20),
-            "depth_resolution": (4, 256),
-            "depth_resolution_importance": (0, 256),
-            "search_resolution": (8, 256),
-            "seed": (0, 2**31 - 1),
-        }
-        for name, (lo, hi) in ints.items():
-            v = getattr(self, name)
-            if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= hi:
-                raise ValueError(f"RefineSettings.{name} must be an int in [{lo}, {hi}], got {v!r}")
-        for name in ("lr", "prior_weight"):
-            v = getattr(self, name)
-            if not isinstance(v, (int, float)) or isinstance(v, bool) or not (math.isfinite(v) and v >= 0):
-                raise ValueError(f"RefineSettings.{name} must be a finite number >= 0, got {v!r}")
-        for name in ("search_yaws_deg", "search_pitches_deg"):
-            v = getattr(self, name)
-            if not v or not all(isinstance(a, (int, float)) and math.isfinite(a) and abs(a) < 90 for a in v):
-                raise ValueError(f"RefineSettings.{name} must be a non-empty tuple of angles in (-90, 90)")
-
-    def to_dict(self) -> dict[str, Any]:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
-
-    def render_settings(self, resolution: int) -> RenderSettings:
-        return RenderSettings(
-            resolution=resolution,
-            depth_resolution=self.depth_resolution,
-            depth_resolution_importance=self.depth_resolution_importance,
-        )
+__all__ = [
+    "MAX_STEPS",
+    "RefineResult",
+    "RefineSettings",
+    "estimate_pose",
+    "psnr_db",
+    "refine",
+    "refine_planes",
+]
 
 
 @dataclass
