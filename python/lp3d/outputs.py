@@ -307,8 +307,8 @@ class _Ffmpeg:
         self._reader.join()
 
 
-def progress(total: int | None, desc: str) -> Any:
-    """A tqdm progress bar on stderr (a no-op object when tqdm is missing)."""
+def progress(total: int | None, desc: str, unit: str = "frame") -> Any:
+    """A tqdm progress bar on stderr counting ``unit``s (a no-op object when tqdm is missing)."""
     try:
         from tqdm import tqdm
     except ImportError:  # pragma: no cover - tqdm is a dependency
@@ -319,4 +319,4 @@ def progress(total: int | None, desc: str) -> Any:
             def set_postfix_str(self, s: str) -> None: ...
 
         return _Null()
-    return tqdm(total=total, desc=desc, unit="frame", file=sys.stderr, dynamic_ncols=True, leave=True)
+    return tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, dynamic_ncols=True, leave=True)

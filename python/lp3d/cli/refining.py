@@ -48,7 +48,7 @@ def refine_triplanes(
     from lp3d.lift.refine import refine
 
     settings = RefineSettings(steps=steps)
-    bar = progress(steps * len(triplanes), "refine")
+    bar = progress(steps * len(triplanes), "refine", unit="step")
     out = []
     try:
         for tri, crop, name in zip(triplanes, crops, names, strict=True):
