@@ -81,6 +81,14 @@ def test_the_prior_holds_the_planes_at_the_encoders_output(scene) -> None:
     assert np.abs(held).mean() < 0.1 * np.abs(free).mean()
 
 
+def test_the_occupancy_grid_of_the_old_planes_is_not_kept(scene) -> None:
+    """A baked grid bounds the encoder's planes' density; the refined planes may exceed it."""
+    _, guess, photo = scene
+    baked = dataclasses.replace(guess, occupancy=np.ones((4, 4, 4), np.float32))
+    result = refine(baked, photo, dataclasses.replace(SMALL, steps=1), pose=(0.0, 0.0))
+    assert result.triplane.occupancy is None
+
+
 def test_zero_steps_is_the_encoders_triplane(scene) -> None:
     _, guess, photo = scene
     result = refine(guess, photo, dataclasses.replace(SMALL, steps=0), pose=(0.0, 0.0))

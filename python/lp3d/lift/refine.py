@@ -26,6 +26,7 @@ May import :mod:`lp3d.render`; torch is needed (``pip install torch``), onnxrunt
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable
@@ -214,16 +215,8 @@ def refine(
     after = _input_view_psnr(refined, decoder, bounds, camera, target, settings)
     out_planes = refined.numpy().astype(triplane.planes.dtype)
     source = (triplane.source or "lp3d") + f"; refined {settings.steps} steps"
-    result = TriplaneData(
-        planes=out_planes,
-        w0=triplane.w0,
-        b0=triplane.b0,
-        w1=triplane.w1,
-        b1=triplane.b1,
-        box_warp=triplane.box_warp,
-        ray_start=triplane.ray_start,
-        ray_end=triplane.ray_end,
-        camera=camera.double().numpy(),
-        source=source[:200],
+    # The occupancy grid bounds the old planes' density, not the refined ones': it is dropped.
+    result = dataclasses.replace(
+        triplane, planes=out_planes, camera=camera.double().numpy(), source=source[:200], occupancy=None
     )
     return RefineResult(result, float(yaw), float(pitch), before, after, time.perf_counter() - t0)
