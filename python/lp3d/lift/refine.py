@@ -122,14 +122,12 @@ def estimate_pose(
     r = settings.search_resolution
     target = _target(image, r).reshape(3, -1).T[None]  # (1, M, 3)
     poses = [(y, p) for p in settings.search_pitches_deg for y in settings.search_yaws_deg]
-    rs = settings.render_settings(r)
-    errors = []
+    # One batched render of every grid camera through the shared planes, not one call per pose.
+    o, d = rays_from_cameras(torch.stack([_camera(y, p) for y, p in poses]), r)
     with torch.no_grad():
-        for yaw, pitch in poses:
-            o, d = rays_from_cameras(_camera(yaw, pitch)[None], r)
-            rgb = _render_rgb(planes[None], decoder, o, d, bounds, rs)
-            errors.append(float((rgb - target).abs().mean()))
-    return poses[int(np.argmin(errors))]
+        rgb = _render_rgb(planes[None], decoder, o, d, bounds, settings.render_settings(r))
+    errors = (rgb - target).abs().mean(dim=(1, 2))
+    return poses[int(torch.argmin(errors))]
 
 
 def refine_planes(
