@@ -775,6 +775,37 @@ def test_video_steady_keeps_every_frame_and_changes_them(capsys, model, face_vid
     assert change["30"] < change["0"], change
 
 
+def test_video_refine_fits_every_frame(capsys, model, face_video, tmp_path) -> None:
+    """``lp3d video --refine 1`` (issue 21): each frame's head is fitted to its crop (the camera searched
+    for on the first frame, then followed), so the frames differ from plain lifting."""
+    import imageio_ffmpeg
+
+    frames = {}
+    for name, extra in (("plain", ()), ("refined", ("--refine", 1))):
+        out = tmp_path / f"{name}.mp4"
+        code, stdout, err = run(
+            capsys,
+            "video",
+            face_video,
+            "-o",
+            out,
+            "--model",
+            model["onnx"],
+            "--max-frames",
+            2,
+            "--steady",
+            0,
+            *SMALL,
+            *extra,
+        )
+        assert code == 0, err
+        reader = imageio_ffmpeg.read_frames(str(out))
+        w, h = next(reader)["size"]
+        frames[name] = np.stack([np.frombuffer(f, np.uint8).reshape(h, w, 3) for f in reader]).astype(float)
+    assert frames["plain"].shape == frames["refined"].shape and frames["plain"].shape[0] == 2
+    assert np.abs(frames["plain"] - frames["refined"]).mean() > 0.1
+
+
 def test_video_without_faces(capsys, model, tmp_path) -> None:
     import imageio_ffmpeg
 

@@ -114,7 +114,7 @@ def oracle_report(teacher, scene):
 
 @pytest.fixture(scope="module")
 def mean_report(teacher, scene):
-    settings = dataclasses.replace(SETTINGS, baseline_steps=2, refine=RefineSettings(steps=6))
+    settings = dataclasses.replace(SETTINGS, baseline_steps=2, refine=RefineSettings(steps=6, pose_steps=4))
     torch.manual_seed(0)
     student = Student(CFG, teacher.decoder(), scene)
     student.start_from_mean(_mean_planes(teacher, settings.baseline_mean_of))
@@ -192,17 +192,23 @@ def test_report_holds_per_identity_rows_and_every_section(mean_report, tmp_path)
         ):
             assert np.isfinite(data[method][key]), (method, key)
     assert data["student"]["encode_ms"] > 0 and data["baseline"]["fit_s"] > 0
-    # --refine: scored per identity beside the student (at the true camera, as the baseline).
+    # --refine: scored per identity beside the student, at the true camera (as the baseline) and at
+    # the camera found from the image (as a photo's).
     for r in per:
         for key in (
             "input_psnr",
             "refined_input_psnr",
             "refined_novel_psnr",
             "refined_identity_specificity_db",
+            "photo_refined_input_psnr",
+            "photo_refined_novel_psnr",
         ):
             assert np.isfinite(r[key]), key
-        assert len(r["estimated_pose_yaw_pitch_deg"]) == 2
+        assert len(r["found_camera_yaw_pitch_deg"]) == 2
+        assert r["true_camera_yaw_pitch_deg"] == pytest.approx([r["input_yaw_deg"], r["input_pitch_deg"]])
     assert data["refined"]["settings"]["steps"] == 6 and data["refined"]["refine_s"] > 0
+    photo = data["refined_photo"]
+    assert photo["refine_s"] > 0 and 0 <= photo["camera_yaw_error_deg"] < 90
     # Six steps from the mean head already move the input view towards its photo.
     assert data["refined"]["input_psnr"] > data["student"]["input_psnr"]
     assert np.isfinite(data["identity_specificity_db"])
@@ -213,7 +219,7 @@ def test_report_holds_per_identity_rows_and_every_section(mean_report, tmp_path)
     s = CFG.image_size
     assert im.height >= N * 5 * s and im.width >= 3 * s
     table = summary_table(data)
-    for method in ("student", "refined", "baseline", "floor", "ceiling"):
+    for method in ("student", "refined", "refined_photo", "baseline", "floor", "ceiling"):
         assert f"\n{method}" in table
 
 

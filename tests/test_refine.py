@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 import torch
 
+from lp3d.lift.pose import camera_at, fit_pose, moved_camera
 from lp3d.lift.refine import RefineSettings, estimate_pose, psnr_db, refine
-from lp3d.render.camera import look_at_camera
+from lp3d.render.camera import camera_summary, look_at_camera
 from lp3d.render.sample_scenes import coloured_sphere
 from lp3d.render.torch_twin import render_torch
 
@@ -33,10 +34,11 @@ def _weights(tri):
     return [torch.from_numpy(np.asarray(getattr(tri, k), np.float32)) for k in ("w0", "b0", "w1", "b1")]
 
 
-def _photo(tri, yaw: float, pitch: float, resolution: int = 24) -> np.ndarray:
-    """The truth's raw RGB (3, R, R) in [-1, 1] from (yaw, pitch): the "photo" a refinement fits."""
+def _photo(tri, yaw: float, pitch: float, resolution: int = 24, **camera) -> np.ndarray:
+    """The truth's raw RGB (3, R, R) in [-1, 1] from (yaw, pitch) (and other ``look_at_camera``
+    arguments): the "photo" a refinement fits."""
     planes = torch.from_numpy(np.asarray(tri.planes, np.float32))
-    cam = torch.from_numpy(look_at_camera(yaw_deg=yaw, pitch_deg=pitch)).float()
+    cam = torch.from_numpy(look_at_camera(yaw_deg=yaw, pitch_deg=pitch, **camera)).float()
     out = render_torch(
         planes, *_weights(tri), cam, resolution=resolution, depth_resolution=8, depth_resolution_importance=8
     )
@@ -144,3 +146,60 @@ def test_bad_photos_are_refused(scene, image, what) -> None:
     _, guess, _ = scene
     with pytest.raises(ValueError, match=what):
         refine(guess, image, SMALL, pose=(0.0, 0.0))
+
+
+def test_a_moved_camera_is_the_camera_when_nothing_moves_and_an_orbit_when_it_turns() -> None:
+    start = torch.from_numpy(look_at_camera(yaw_deg=10.0, pitch_deg=5.0))
+    np.testing.assert_array_equal(
+        moved_camera(start, torch.zeros(6, dtype=torch.float64)).numpy(), start.numpy()
+    )
+    # A turn about the world's +y axis is a change of yaw: the centre orbits, the camera stays a camera.
+    turned = moved_camera(
+        start, torch.tensor([0.0, np.radians(7.0), 0.0, 0.0, 0.0, 0.0], dtype=torch.float64)
+    )
+    a, b = camera_summary(start.numpy()), camera_summary(turned.numpy())
+    assert b["yaw_deg"] == pytest.approx(a["yaw_deg"] + 7.0, abs=1e-9)
+    assert b["pitch_deg"] == pytest.approx(a["pitch_deg"], abs=1e-9)
+    rot = turned[:16].reshape(4, 4)[:3, :3].numpy()
+    np.testing.assert_allclose(rot @ rot.T, np.eye(3), atol=1e-12)
+    # Principal point and focal length move as documented.
+    k = moved_camera(start, torch.tensor([0, 0, 0, 0.02, -0.01, np.log(1.1)], dtype=torch.float64))[16:]
+    np.testing.assert_allclose(
+        k.numpy()[[0, 2, 4, 5]], [start[16] * 1.1, start[18] + 0.02, start[20] * 1.1, start[21] - 0.01]
+    )
+    # Its gradient is finite at zero, where the rotation's series take over.
+    delta = torch.zeros(6, dtype=torch.float64, requires_grad=True)
+    moved_camera(start, delta).square().sum().backward()
+    assert delta.grad is not None and bool(torch.isfinite(delta.grad).all())
+
+
+def test_the_pose_fit_finds_a_camera_off_the_grid() -> None:
+    """A photo from yaw 27°, pitch 4°, a longer lens and a shifted crop: the grid camera is several
+    degrees off; the fit, with the truth's own planes, comes back close to the truth."""
+    truth = coloured_sphere(size=32)
+    planes = torch.from_numpy(np.asarray(truth.planes, np.float32))
+    photo = _photo(truth, 27.0, 4.0, focal=4.6, cx=0.52)
+    start = camera_at(30.0, 0.0)
+    settings = dataclasses.replace(SMALL, pose_steps=60, pose_lr=0.02, pose_resolution=24)
+    found = fit_pose(planes, tuple(_weights(truth)), truth.bounds, photo, start, settings)
+    s = camera_summary(found.double().numpy())
+    assert abs(s["yaw_deg"] - 27.0) < 1.0 and abs(s["pitch_deg"] - 4.0) < 1.0, s
+    assert s["focal"] == pytest.approx(4.6, rel=0.03)
+
+
+def test_refine_finds_the_camera_when_none_is_given() -> None:
+    truth = coloured_sphere(size=32)
+    photo = _photo(truth, 23.0, 3.0)
+    steps = []
+    settings = dataclasses.replace(SMALL, steps=2, pose_steps=30)
+    result = refine(truth, photo, settings, on_step=lambda: steps.append(1))
+    assert len(steps) == settings.total_steps() == 32  # the pose's steps, then the planes'
+    assert abs(result.yaw_deg - 23.0) < 1.0 and abs(result.pitch_deg - 3.0) < 1.0, result
+    np.testing.assert_array_equal(result.triplane.camera, result.camera)
+    # A video's next frame starts from the last camera: no grid search, the pose steps only.
+    steps.clear()
+    start = look_at_camera(yaw_deg=26.0, pitch_deg=3.0)
+    again = refine(truth, photo, settings, start_camera=start, on_step=lambda: steps.append(1))
+    assert len(steps) == 32 and abs(again.yaw_deg - 23.0) < 1.0, again
+    with pytest.raises(ValueError, match="start_camera"):
+        refine(truth, photo, SMALL, start_camera=np.stack([start] * 2))

@@ -48,13 +48,14 @@ def refine_triplanes(
     from lp3d.lift.refine import refine
 
     settings = RefineSettings(steps=steps)
-    bar = progress(steps * len(triplanes), "refine", unit="step")
+    bar = progress(settings.total_steps() * len(triplanes), "refine", unit="step")
     out = []
     try:
         for tri, crop, name in zip(triplanes, crops, names, strict=True):
             result = refine(tri, crop, settings, on_step=bar.update)
             say(
-                f"{name}: refined {steps} steps in {result.seconds:.1f} s at yaw {result.yaw_deg:+.0f}°, "
+                f"{name}: refined {steps} steps in {result.seconds:.1f} s; camera found at "
+                f"yaw {result.yaw_deg:+.0f}°, "
                 f"pitch {result.pitch_deg:+.0f}°; input view {result.psnr_before:.1f} -> "
                 f"{result.psnr_after:.1f} dB"
             )

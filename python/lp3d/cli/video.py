@@ -99,6 +99,7 @@ def _lift_frames(
     t_enc = t_render = 0.0
     state: np.ndarray | None = None
     refine_settings = None
+    fit_camera: np.ndarray | None = None
     if args.refine > 0:
         from lp3d.lift.refine import RefineSettings, refine
 
@@ -127,7 +128,9 @@ def _lift_frames(
                 t0 = time.perf_counter()
                 planes = encoder.run(to_encoder_input(face[None]))[0]
                 if refine_settings is not None:  # counted as encoding: both make the frame's planes
-                    planes = refine(pkg.triplane(planes), face, refine_settings).triplane.planes
+                    # The camera is searched for once, then followed from frame to frame.
+                    fitted = refine(pkg.triplane(planes), face, refine_settings, start_camera=fit_camera)
+                    planes, fit_camera = fitted.triplane.planes, fitted.camera
                 t_enc += time.perf_counter() - t0
                 state = planes if state is None else args.smooth * state + (1.0 - args.smooth) * planes
                 t_render += sum(write(*ready) for ready in steady.push(face, state))

@@ -17,9 +17,8 @@ renderer (:mod:`lp3d.render.torch_twin`) on the input view, with two terms:
 Only the planes change: the decoder and scene bounds are the model package's, so the refined head
 still renders the feature space its super-resolution network was made for.
 
-The photo's camera is not known. :func:`estimate_pose` renders the encoder's head from a grid of
-yaws and pitches around the training framing (the crop of :mod:`lp3d.photo` puts every face there)
-and keeps the one whose render is closest to the photo.
+The photo's camera is not known: :func:`lp3d.lift.pose.find_camera` fits it first, with the
+encoder's planes held fixed (a grid search, then gradient descent on a small move of the camera).
 
 May import :mod:`lp3d.render`; torch is needed (``pip install torch``), onnxruntime is not.
 """
@@ -35,14 +34,13 @@ from typing import Any
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from torch import Tensor
 
+from lp3d.lift.pose import camera_at, estimate_pose, find_camera, fit_pose, photo_target, render_rgb
 from lp3d.lift.refine_settings import MAX_STEPS, RefineSettings
-from lp3d.render.camera import look_at_camera
-from lp3d.render.settings import RenderSettings, SceneBounds
+from lp3d.render.camera import camera_summary, validate_camera
+from lp3d.render.settings import SceneBounds
 from lp3d.render.torch_stages import rays_from_cameras
-from lp3d.render.torch_twin import render_rays
 from lp3d.render.triplane import TriplaneData
 
 __all__ = [
@@ -50,6 +48,8 @@ __all__ = [
     "RefineResult",
     "RefineSettings",
     "estimate_pose",
+    "find_camera",
+    "fit_pose",
     "psnr_db",
     "refine",
     "refine_planes",
@@ -59,10 +59,11 @@ __all__ = [
 @dataclass
 class RefineResult:
     """What :func:`refine` returns: the refined ``triplane`` (the input's decoder, bounds and source,
-    with the estimated input camera), the pose it fitted at, and the input view's PSNR (dB, raw RGB at
-    ``RefineSettings.resolution``) before and after."""
+    with the photo's camera), that ``camera`` (25,) float64 and its yaw and pitch, and the input
+    view's PSNR (dB, raw RGB at ``RefineSettings.resolution``, seen from ``camera``) before and after."""
 
     triplane: TriplaneData
+    camera: np.ndarray
     yaw_deg: float
     pitch_deg: float
     psnr_before: float
@@ -78,58 +79,6 @@ def psnr_db(a: np.ndarray | Tensor, b: np.ndarray | Tensor) -> float:
     return 10.0 * math.log10(4.0 / max(mse, 1e-12))
 
 
-def _target(image: np.ndarray | Tensor, resolution: int) -> Tensor:
-    """The photo (3, S, S) float in [-1, 1] at ``resolution`` rays per side (area average), (3, R, R)."""
-    x = torch.as_tensor(np.asarray(image, np.float32) if not isinstance(image, Tensor) else image)
-    if x.ndim != 3 or x.shape[0] != 3 or x.shape[1] != x.shape[2] or x.shape[1] < 8:
-        raise ValueError(f"image must be (3, S, S) float in [-1, 1] with S >= 8, got shape {tuple(x.shape)}")
-    x = x.float()
-    if not bool(torch.isfinite(x).all()):
-        raise ValueError("image contains NaN/Inf")
-    if x.shape[1] == resolution:
-        return x
-    return F.interpolate(
-        x[None], size=(resolution, resolution), mode="area" if x.shape[1] > resolution else "bilinear"
-    )[0]
-
-
-def _camera(yaw: float, pitch: float) -> Tensor:
-    return torch.from_numpy(look_at_camera(yaw_deg=yaw, pitch_deg=pitch)).float()
-
-
-def _render_rgb(
-    planes: Tensor,
-    decoder: tuple[Tensor, ...],
-    origins: Tensor,
-    dirs: Tensor,
-    bounds: SceneBounds,
-    settings: RenderSettings,
-) -> Tensor:
-    """Raw RGB (B, M, 3) of rays (B, M, 3) through shared planes (1, 3, 32, T, T)."""
-    out = render_rays(planes, *decoder, origins, dirs, bounds=bounds, settings=settings, clamp=False)
-    return out["features"][..., :3]
-
-
-def estimate_pose(
-    planes: Tensor,
-    decoder: tuple[Tensor, ...],
-    bounds: SceneBounds,
-    image: np.ndarray | Tensor,
-    settings: RefineSettings,
-) -> tuple[float, float]:
-    """``(yaw, pitch)`` in degrees of the grid camera whose render of ``planes`` (3, 32, T, T) is
-    closest (L1) to ``image`` (3, S, S) in [-1, 1]; :class:`RefineSettings` names the grid."""
-    r = settings.search_resolution
-    target = _target(image, r).reshape(3, -1).T[None]  # (1, M, 3)
-    poses = [(y, p) for p in settings.search_pitches_deg for y in settings.search_yaws_deg]
-    # One batched render of every grid camera through the shared planes, not one call per pose.
-    o, d = rays_from_cameras(torch.stack([_camera(y, p) for y, p in poses]), r)
-    with torch.no_grad():
-        rgb = _render_rgb(planes[None], decoder, o, d, bounds, settings.render_settings(r))
-    errors = (rgb - target).abs().mean(dim=(1, 2))
-    return poses[int(torch.argmin(errors))]
-
-
 def refine_planes(
     planes: Tensor,
     decoder: tuple[Tensor, ...],
@@ -143,7 +92,7 @@ def refine_planes(
     """``planes`` (3, 32, T, T) float32 fitted to ``image`` (3, S, S) seen from ``camera`` (25,) by
     :class:`RefineSettings` (module docstring); returns new planes, the input untouched."""
     r = settings.resolution
-    target = _target(image, r).reshape(3, -1).T  # (M, 3)
+    target = photo_target(image, r).reshape(3, -1).T  # (M, 3)
     origins, dirs = rays_from_cameras(camera.float()[None], r)
     start = planes.detach().float()
     # The prior's unit: each channel's spread over the encoder's planes, so that weight 1 means "a
@@ -156,7 +105,7 @@ def refine_planes(
     rs = settings.render_settings(r)
     for _ in range(settings.steps):
         idx = torch.randperm(r * r, generator=gen)[:n]
-        rgb = _render_rgb(x[None], decoder, origins[:, idx], dirs[:, idx], bounds, rs)[0]
+        rgb = render_rgb(x[None], decoder, origins[:, idx], dirs[:, idx], bounds, rs)[0]
         photo = (rgb - target[idx]).abs().mean()
         prior = ((x - start) / spread).square().mean()
         loss = photo + settings.prior_weight * prior
@@ -179,7 +128,7 @@ def _input_view_psnr(
     r = settings.resolution
     o, d = rays_from_cameras(camera[None], r)
     with torch.no_grad():
-        rgb = _render_rgb(planes[None], decoder, o, d, bounds, settings.render_settings(r))[0]
+        rgb = render_rgb(planes[None], decoder, o, d, bounds, settings.render_settings(r))[0]
     return psnr_db(rgb, target.reshape(3, -1).T)
 
 
@@ -189,12 +138,16 @@ def refine(
     settings: RefineSettings | None = None,
     *,
     pose: tuple[float, float] | None = None,
+    start_camera: np.ndarray | None = None,
     on_step: Callable[[], Any] | None = None,
 ) -> RefineResult:
     """Fit ``triplane`` (the encoder's output) to ``image``, the photo it was lifted from: (3, S, S)
     float in [-1, 1] (``lp3d.photo.to_encoder_input`` of the crop) or (S, S, 3) uint8 (the crop).
-    ``pose`` ``(yaw, pitch)`` in degrees, when known; else :func:`estimate_pose`. ``on_step`` is
-    called after every step (a progress bar). Raises ValueError for a bad image or settings."""
+    ``pose`` ``(yaw, pitch)`` in degrees, when known, is used as it is; else the camera is found
+    (:func:`lp3d.lift.pose.find_camera`), or fitted from ``start_camera`` (25,) when given (a video's
+    previous frame: no grid search). ``on_step`` is called after every pose and plane step
+    (``settings.total_steps(pose is not None)`` calls: a progress bar). Raises ValueError for a bad
+    image or settings."""
     settings = settings if settings is not None else RefineSettings()
     img = np.asarray(image)
     if img.ndim == 3 and img.shape[-1] == 3 and img.dtype == np.uint8:
@@ -205,16 +158,29 @@ def refine(
         torch.from_numpy(np.asarray(getattr(triplane, k), np.float32)) for k in ("w0", "b0", "w1", "b1")
     )
     bounds = triplane.bounds
-    yaw, pitch = pose if pose is not None else estimate_pose(planes, decoder, bounds, img, settings)
-    camera = _camera(yaw, pitch)
-    target = _target(img, settings.resolution)
+    target = photo_target(img, settings.resolution)  # checks the image before any work
+    if pose is not None:
+        camera = camera_at(*pose)
+    elif start_camera is not None:
+        start, batched = validate_camera(start_camera)
+        if batched:
+            raise ValueError(f"start_camera must be one camera (25,), got shape {np.shape(start_camera)}")
+        camera = fit_pose(
+            planes, decoder, bounds, img, torch.from_numpy(start[0]).float(), settings, on_step=on_step
+        )
+    else:
+        camera = find_camera(planes, decoder, bounds, img, settings, on_step=on_step)
     before = _input_view_psnr(planes, decoder, bounds, camera, target, settings)
     refined = refine_planes(planes, decoder, bounds, img, camera, settings, on_step=on_step)
     after = _input_view_psnr(refined, decoder, bounds, camera, target, settings)
     out_planes = refined.numpy().astype(triplane.planes.dtype)
     source = (triplane.source or "lp3d") + f"; refined {settings.steps} steps"
+    label = camera.double().numpy()
     # The occupancy grid bounds the old planes' density, not the refined ones': it is dropped.
     result = dataclasses.replace(
-        triplane, planes=out_planes, camera=camera.double().numpy(), source=source[:200], occupancy=None
+        triplane, planes=out_planes, camera=label, source=source[:200], occupancy=None
     )
-    return RefineResult(result, float(yaw), float(pitch), before, after, time.perf_counter() - t0)
+    angles = camera_summary(label)
+    return RefineResult(
+        result, label, angles["yaw_deg"], angles["pitch_deg"], before, after, time.perf_counter() - t0
+    )

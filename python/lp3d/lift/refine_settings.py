@@ -30,7 +30,10 @@ class RefineSettings:
     depth_resolution_importance: int = 16
     search_yaws_deg: tuple[float, ...] = (-40.0, -30.0, -20.0, -10.0, 0.0, 10.0, 20.0, 30.0, 40.0)
     search_pitches_deg: tuple[float, ...] = (-10.0, 0.0, 10.0, 20.0)
-    search_resolution: int = 32
+    search_resolution: int = 16
+    pose_steps: int = 30
+    pose_lr: float = 0.02
+    pose_resolution: int = 32
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -41,13 +44,15 @@ class RefineSettings:
             "depth_resolution": (4, 256),
             "depth_resolution_importance": (0, 256),
             "search_resolution": (8, 256),
+            "pose_steps": (0, MAX_STEPS),
+            "pose_resolution": (8, 256),
             "seed": (0, 2**31 - 1),
         }
         for name, (lo, hi) in ints.items():
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= hi:
                 raise ValueError(f"RefineSettings.{name} must be an int in [{lo}, {hi}], got {v!r}")
-        for name in ("lr", "prior_weight"):
+        for name in ("lr", "prior_weight", "pose_lr"):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or isinstance(v, bool) or not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"RefineSettings.{name} must be a finite number >= 0, got {v!r}")
@@ -55,6 +60,10 @@ class RefineSettings:
             v = getattr(self, name)
             if not v or not all(isinstance(a, (int, float)) and math.isfinite(a) and abs(a) < 90 for a in v):
                 raise ValueError(f"RefineSettings.{name} must be a non-empty tuple of angles in (-90, 90)")
+
+    def total_steps(self, pose_known: bool = False) -> int:
+        """Optimisation steps of one :func:`refine` (the pose's, unless known, then the planes')."""
+        return self.steps + (0 if pose_known else self.pose_steps)
 
     def to_dict(self) -> dict[str, Any]:
         return {f.name: getattr(self, f.name) for f in fields(self)}

@@ -208,7 +208,7 @@ def _evaluate(
         from tqdm import tqdm
 
         run.bar = tqdm(
-            total=n * (1 + settings.refine.steps + settings.baseline_steps),
+            total=n * (1 + _refine_steps(settings.refine) + settings.baseline_steps),
             desc="eval",
             unit="step",
             file=sys.stderr,
@@ -218,6 +218,12 @@ def _evaluate(
     if run.bar is not None:
         run.bar.close()
     return _report(run, seeds, yaws), run.rows
+
+
+def _refine_steps(refine: RefineSettings) -> int:
+    """Progress steps of one identity's refinements: at the true camera, then as a photo (the camera's
+    steps, then the planes')."""
+    return 0 if refine.steps == 0 else refine.steps + refine.total_steps()
 
 
 def _evaluate_identity(run: _Run, teacher: Teacher, seed: int, yaw: float, *, show: bool) -> None:
@@ -456,8 +462,12 @@ def run_cli(args: argparse.Namespace) -> int:
     s = report["student"]
     print(f"student  : encode {s['encode_ms']:.1f} ms, render {s['render_ms']:.1f} ms per view")
     if "refined" in report:
-        r = report["refined"]
+        r, p = report["refined"], report["refined_photo"]
         print(f"refined  : fit {r['refine_s']:.1f} s ({r['settings']['steps']} steps)")
+        print(
+            f"refined_photo: camera found and fitted in {p['refine_s']:.1f} s; camera error yaw "
+            f"{p['camera_yaw_error_deg']:.1f}°, pitch {p['camera_pitch_error_deg']:.1f}°"
+        )
     if "baseline" in report:
         b = report["baseline"]
         print(f"baseline : fit {b['fit_s']:.1f} s ({b['steps']} steps)")
