@@ -31,17 +31,17 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from lp3d.lift.inference import load_encoder
-from lp3d.train import TRAIN_CONFIGS, SceneBounds, build_teacher
-from lp3d.training.eval_metrics import psnr
-from lp3d.training.eval_setup import (
+from lp3d.evaluation.metrics import psnr
+from lp3d.evaluation.protocol import (
     EvalSettings,
-    _render_truth,
-    _views,
     input_camera,
     input_yaws,
+    novel_view_cameras,
     reference_teachers,
+    render_truth,
 )
+from lp3d.lift.inference import load_encoder
+from lp3d.train import TRAIN_CONFIGS, SceneBounds, build_teacher
 
 METHODS = ("ceiling", "basis oracle", "ceiling + noise", "student", "mean head")
 MODEL = Path(__file__).resolve().parents[1] / "python" / "lp3d" / "lift" / "models" / "small.pt"
@@ -91,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
     scene = SceneBounds.of(teacher.sample(0))
     dec = [torch.as_tensor(a) for a in teacher.decoder()]
     truth_dec = [torch.as_tensor(a) for a in truth_teacher.decoder()]
-    views = _views(EvalSettings(), torch.device("cpu"))
+    views = novel_view_cameras(EvalSettings(), torch.device("cpu"))
     n = args.n_identities
     yaws = input_yaws(n)
     first = {"training": cfg.train_seeds[0], "held-out": cfg.eval_seed_start}
@@ -105,8 +105,8 @@ def main(argv: list[str] | None = None) -> int:
             planes_t = torch.from_numpy(truth_teacher.sample(seed).planes.astype(np.float32)).unsqueeze(0)
             label, _ = input_camera(cfg, seed, float(yaws[k]))
             cam = torch.from_numpy(label).float().unsqueeze(0)
-            image = _render_truth(truth_teacher, planes_t, truth_dec, cam, cfg, scene)["high"]
-            truth = _render_truth(truth_teacher, planes_t, truth_dec, views, cfg, scene)["high"]
+            image = render_truth(truth_teacher, planes_t, truth_dec, cam, cfg, scene)["high"]
+            truth = render_truth(truth_teacher, planes_t, truth_dec, views, cfg, scene)["high"]
             ceiling = torch.from_numpy(ceiling_teacher.sample(seed).planes.astype(np.float32)).unsqueeze(0)
             student = torch.from_numpy(enc.run(image.numpy()))
             items.append(
@@ -135,7 +135,7 @@ def main(argv: list[str] | None = None) -> int:
             "mean head": offset,
         }
         for m, pl in planes.items():
-            high = _render_truth(teacher, pl, dec, views, cfg, scene)["high"]
+            high = render_truth(teacher, pl, dec, views, cfg, scene)["high"]
             l_tri = float(((pl - ceiling).abs() / scale.reshape(1, 1, -1, 1, 1)).mean())
             scores[it["split"]][m].append((float(psnr(high, it["truth"]).mean()), l_tri))
         print(

@@ -23,20 +23,20 @@ import time
 import numpy as np
 import torch
 
+from lp3d.evaluation.metrics import psnr
+from lp3d.evaluation.protocol import (
+    EvalSettings,
+    input_camera,
+    input_yaws,
+    novel_view_cameras,
+    reference_teachers,
+    render_student,
+    render_truth,
+)
 from lp3d.lift.pose import camera_at, estimate_pose, fit_pose
 from lp3d.lift.refine import RefineSettings, refine_planes
 from lp3d.render.camera import camera_summary
 from lp3d.training.checkpoint import load_checkpoint, student_from_checkpoint
-from lp3d.training.eval_metrics import psnr
-from lp3d.training.eval_setup import (
-    EvalSettings,
-    _render_student,
-    _render_truth,
-    _views,
-    input_camera,
-    input_yaws,
-    reference_teachers,
-)
 from lp3d.training.teacher_factory import build_teacher
 
 
@@ -68,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     truth_teacher, _ = reference_teachers(teacher, cfg)
     truth_dec = [torch.as_tensor(a) for a in truth_teacher.decoder()]
     decoder = tuple(w.detach().float() for w in student.decoder.weights())
-    views = _views(EvalSettings(), torch.device("cpu"))
+    views = novel_view_cameras(EvalSettings(), torch.device("cpu"))
     seeds = [cfg.eval_seed_start + 100 + i for i in range(args.n_identities)]
     yaws = input_yaws(args.n_identities)
 
@@ -76,15 +76,13 @@ def main(argv: list[str] | None = None) -> int:
     for seed, yaw in zip(seeds, yaws, strict=True):
         planes_t = torch.from_numpy(truth_teacher.sample(seed).planes.astype(np.float32)).unsqueeze(0)
         cam = torch.from_numpy(input_camera(cfg, seed, float(yaw))[0]).float().unsqueeze(0)
-        truth_in = _render_truth(truth_teacher, planes_t, truth_dec, cam, cfg, student.scene)
-        truth_nv = _render_truth(truth_teacher, planes_t, truth_dec, views, cfg, student.scene)
+        truth_in = render_truth(truth_teacher, planes_t, truth_dec, cam, cfg, student.scene)
+        truth_nv = render_truth(truth_teacher, planes_t, truth_dec, views, cfg, student.scene)
         with torch.no_grad():
             planes = student.encode(truth_in["high"])[0]
-            base_in = float(
-                psnr(_render_student(student, planes[None], cam)["high"], truth_in["high"]).mean()
-            )
+            base_in = float(psnr(render_student(student, planes[None], cam)["high"], truth_in["high"]).mean())
             base_nv = float(
-                psnr(_render_student(student, planes[None], views)["high"], truth_nv["high"]).mean()
+                psnr(render_student(student, planes[None], views)["high"], truth_nv["high"]).mean()
             )
         image = truth_in["high"][0]
         t0 = time.perf_counter()
@@ -118,10 +116,10 @@ def main(argv: list[str] | None = None) -> int:
             secs.append(pose_s + time.perf_counter() - t0)
             with torch.no_grad():
                 r_in = float(
-                    psnr(_render_student(student, refined[None], cam)["high"], truth_in["high"]).mean()
+                    psnr(render_student(student, refined[None], cam)["high"], truth_in["high"]).mean()
                 )
                 r_nv = float(
-                    psnr(_render_student(student, refined[None], views)["high"], truth_nv["high"]).mean()
+                    psnr(render_student(student, refined[None], views)["high"], truth_nv["high"]).mean()
                 )
             d_in.append(r_in - base_in)
             d_nv.append(r_nv - base_nv)

@@ -29,13 +29,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from lp3d.evaluation.metrics import psnr
+from lp3d.evaluation.protocol import NOVEL_VIEWS
 from lp3d.render.camera import look_at_camera
 from lp3d.render.native import render
 from lp3d.render.triplane import TriplaneData
 from lp3d.teachers.procedural import TEACHER_VERSIONS, ProceduralTeacher
 from lp3d.training.config import TrainConfig
-from lp3d.training.eval_metrics import psnr
-from lp3d.training.eval_setup import NOVEL_VIEWS
 
 #: Held-out identities (TrainConfig.eval_seed_start; no configuration trains on them).
 EVAL_SEED_START = TrainConfig.__dataclass_fields__["eval_seed_start"].default
@@ -46,7 +46,7 @@ NOISE_VIEWS = ((-30.0, 15.0), (0.0, 15.0), (30.0, 15.0))
 
 def psnr01(a: np.ndarray, b: np.ndarray) -> float:
     """PSNR (dB) of two RGB renders (..., 3, H, W) in [-1, 1] as one image: the evaluation's
-    :func:`lp3d.training.eval_metrics.psnr` (peak-to-peak 2, i.e. RGB mapped to [0, 1])."""
+    :func:`lp3d.evaluation.metrics.psnr` (peak-to-peak 2, i.e. RGB mapped to [0, 1])."""
     flat = [torch.from_numpy(np.ascontiguousarray(x, dtype=np.float64)).reshape(1, 1, 1, -1) for x in (a, b)]
     return float(psnr(*flat)[0])
 

@@ -691,7 +691,7 @@ def _step_eval(check: Check, config: str) -> list[Row]:
     start = time.perf_counter()
     check.lp3d(
         name,
-        "lp3d.training.eval",
+        "lp3d.evaluation.evaluate",
         _run_dir(config),
         *("--teacher-pkl", str(check.pkl), "--eg3d-source", str(check.eg3d_source)),
         *("--n-identities", "2", "--baseline-steps", "0", "--out", f"eval-{config}"),
@@ -716,7 +716,7 @@ def _step_export(check: Check, config: str) -> list[Row]:
     name = f"export:{config}"
     model = check.work / f"model-{config}.onnx"
     start = time.perf_counter()
-    text = check.lp3d(name, "lp3d.training.export", _run_dir(config), "-o", model.name)
+    text = check.lp3d(name, "lp3d.export.package", _run_dir(config), "-o", model.name)
     seconds = time.perf_counter() - start
     errors = re.findall(r"onnxruntime vs PyTorch max abs error (\S+)", text)
     ok = model.is_file() and bool(errors)

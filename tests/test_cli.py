@@ -171,9 +171,9 @@ def test_train_eval_export_are_the_module_commands() -> None:
     """``lp3d train|eval|export`` take ``python -m lp3d.train|eval|export``'s options (one definition)."""
     import argparse
 
+    import lp3d.evaluation.evaluate
+    import lp3d.export.package
     import lp3d.train
-    import lp3d.training.eval
-    import lp3d.training.export
     from lp3d.cli import build_parser
 
     def options(parser: argparse.ArgumentParser) -> list[tuple[object, ...]]:
@@ -181,8 +181,8 @@ def test_train_eval_export_are_the_module_commands() -> None:
 
     for name, module in (
         ("train", lp3d.train),
-        ("eval", lp3d.training.eval),
-        ("export", lp3d.training.export),
+        ("eval", lp3d.evaluation.evaluate),
+        ("export", lp3d.export.package),
     ):
         (sub,) = [a for a in build_parser(name)._actions if isinstance(a, argparse._SubParsersAction)]
         ours, theirs = sub.choices[name], module.build_parser()
@@ -212,9 +212,9 @@ def test_a_closed_stdout_is_no_error_message(tmp_path) -> None:
 def test_one_exit_code_policy_for_every_entry_point(capsys, tmp_path) -> None:
     """0 ok, 1 a runtime error (one line, no traceback), 2 a usage error: in ``lp3d`` and in the
     ``python -m lp3d.train|eval|export`` aliases alike."""
+    from lp3d.evaluation.evaluate import main as eval_main
+    from lp3d.export.package import main as export_main
     from lp3d.train import main as train_main
-    from lp3d.training.eval import main as eval_main
-    from lp3d.training.export import main as export_main
 
     missing = tmp_path / "missing.pt"
     for argv in (["export", missing, "-o", tmp_path / "y.onnx"], ["eval", missing, "--baseline-steps", "0"]):

@@ -1,11 +1,11 @@
-"""``lp3d.training.eval`` tells whether the student follows its input: own vs other-identity PSNR (identity
+"""``lp3d.evaluation`` tells whether the student follows its input: own vs other-identity PSNR (identity
 specificity), the mean-head floor and the teacher's own-head ceiling, all against the native-resolution
 (256²) procedural teacher.
 
 Two students built directly (no training) from the ``tiny`` configuration bracket the scale:
 
 * an *oracle* whose ``encode`` recognises the held-out input image (exactly: it is one of the inputs
-  the test renders itself from the 256² teacher with :func:`lp3d.training.eval.input_camera`) and returns that
+  the test renders itself from the 256² teacher with :func:`lp3d.evaluation.input_camera`) and returns that
   identity's head built at the student's 64² resolution: its own PSNR must equal the ceiling's, and its
   specificity must be clearly positive;
 * a *mean* student, ``Student.start_from_mean`` of the floor's mean triplane (the same head for every
@@ -30,10 +30,7 @@ import pytest
 import torch
 from torch import Tensor
 
-from lp3d.lift.refine import RefineSettings
-from lp3d.teachers import ProceduralTeacher
-from lp3d.train import TRAIN_CONFIGS, SceneBounds, Student, TrainConfig, build_teacher, render_teacher
-from lp3d.training.eval import (
+from lp3d.evaluation.evaluate import (
     EvalSettings,
     evaluate,
     input_camera,
@@ -42,6 +39,9 @@ from lp3d.training.eval import (
     summary_table,
     write_outputs,
 )
+from lp3d.lift.refine import RefineSettings
+from lp3d.teachers import ProceduralTeacher
+from lp3d.train import TRAIN_CONFIGS, SceneBounds, Student, TrainConfig, build_teacher, render_teacher
 
 N = 3
 #: Fewer samples per ray and views than the real evaluation: the properties tested do not depend on them.

@@ -73,14 +73,14 @@ def test_export_never_overwrites_its_input_or_another_output(
 def test_a_failed_parity_check_keeps_the_existing_model(
     checkpoint: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import lp3d.training.export
+    import lp3d.export.package
 
     out = tmp_path / "model.onnx"
     existing = [out, tmp_path / "model.json", tmp_path / "model.superres.onnx"]
     for i, p in enumerate(existing):
         p.write_bytes(b"a model the user wants to keep %d" % i)
     before = digests(*existing)
-    monkeypatch.setattr(lp3d.training.export, "check_onnx", lambda student, path: 0.5)
+    monkeypatch.setattr(lp3d.export.package, "check_onnx", lambda student, path: 0.5)
     code, err = export(capsys, checkpoint, "-o", out, "--no-superres")
     assert code == 1
     assert "max abs error 0.5 > 0.001" in err and f"{out} left as it was" in err
@@ -91,13 +91,13 @@ def test_a_failed_parity_check_keeps_the_existing_model(
 def test_a_failed_superres_parity_check_keeps_the_existing_network(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import lp3d.training.export_superres
+    import lp3d.export.superres
+    from lp3d.export.package import ParityError, package_superres
     from lp3d.nets.superres import SuperresConfig, SuperResolution
-    from lp3d.training.export import ParityError, package_superres
 
     existing = tmp_path / "m.superres.onnx"
     existing.write_bytes(b"the network that passed last time")
-    monkeypatch.setattr(lp3d.training.export_superres, "check_superres_onnx", lambda sr, path: 0.5)
+    monkeypatch.setattr(lp3d.export.superres, "check_superres_onnx", lambda sr, path: 0.5)
     torch.manual_seed(0)
     sr = SuperResolution(
         SuperresConfig(name="t", input_resolution=8, output_resolution=16, block_channels=(4,), w_dim=4)

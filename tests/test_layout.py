@@ -1,6 +1,7 @@
 """The package's layout (docs/architecture.md): subpackages import only the layers below them, no
-module imports itself back through a cycle, and the old flat module names still import, with a
-DeprecationWarning, as the same module objects."""
+module imports itself back through a cycle or imports another module's private names, and the old
+module names still import, with a DeprecationWarning, as the same module objects, until the release
+that removes them."""
 
 from __future__ import annotations
 
@@ -46,6 +47,20 @@ ALLOWED = {
         "images",
         "outputs",
     },
+    # Beside training, each its own job (issue 24): they use the trained student, never the reverse.
+    "evaluation": {"training", "render", "nets", "lift", "teachers", "atomic", "errors", "images"},
+    "superres_fit": {
+        "training",
+        "render",
+        "nets",
+        "lift",
+        "teachers",
+        "array_cache",
+        "atomic",
+        "errors",
+        "images",
+    },
+    "export": {"training", "superres_fit", "render", "nets", "lift", "atomic", "errors", "outputs"},
     "train": {"training"},
     "cli": {
         "render",
@@ -174,6 +189,53 @@ def test_old_module_names_still_import(old: str) -> None:
     assert module is importlib.import_module(new)
     assert module.__spec__.name == new  # the shared module keeps its own spec
     assert any(issubclass(w.category, DeprecationWarning) and new in str(w.message) for w in caught)
+
+
+def test_old_module_names_end_at_their_stated_release() -> None:
+    """The shims of :mod:`lp3d._moved` go away in ``REMOVED_IN``: a release that reaches it must drop
+    them (and this test's version parse keeps the stated release a real one)."""
+
+    def version(text: str) -> tuple[int, ...]:
+        return tuple(int(part) for part in text.split(".")[:2])
+
+    assert version(lp3d.__version__) < version(_moved.REMOVED_IN) or not _moved.MOVED
+
+
+def private_imports(modules: dict[str, Path]) -> list[str]:
+    """``"A imports B._name"`` for every ``from B import _name`` of another lp3d module's private name."""
+    found = []
+    for name, path in modules.items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("lp3d"):
+                for alias in node.names:
+                    private = alias.name.startswith("_") and not alias.name.startswith("__")
+                    # A package's own private submodule (lp3d._moved, lp3d.cli._startup) is its own.
+                    own = (
+                        f"{node.module}.{alias.name}" in modules
+                        and node.module == name.rpartition(".")[0]
+                        or (node.module == name and f"{name}.{alias.name}" in modules)
+                    )
+                    if private and not own:
+                        found.append(f"{name} imports {node.module}.{alias.name}")
+    return found
+
+
+#: Packages whose modules import only each other's public names (issue 24); the others (lift,
+#: teachers, nets, training) still share private helpers between their own modules.
+PUBLIC_ONLY = ("evaluation", "export", "superres_fit", "cli", "render", "photo", "share")
+
+
+def test_no_module_imports_another_modules_private_names() -> None:
+    checked = {n: p for n, p in MODULES.items() if part_of(n) in PUBLIC_ONLY}
+    assert private_imports(checked) == []
+
+
+def test_the_private_import_check_catches_one(tmp_path) -> None:
+    probe = tmp_path / "probe.py"
+    probe.write_text("from lp3d.evaluation.protocol import _secret\n")
+    assert private_imports({"lp3d.export.probe": probe}) == [
+        "lp3d.export.probe imports lp3d.evaluation.protocol._secret"
+    ]
 
 
 def test_old_module_names_still_run_with_python_m() -> None:

@@ -117,11 +117,11 @@ def micro_config() -> Any:
 def make_seeds(folder: Path) -> Seeds:
     import torch
 
+    from lp3d.export.superres import export_superres
     from lp3d.lift.model_package import save_model_package, superres_entry
     from lp3d.nets.encoder import build_encoder
     from lp3d.nets.superres import SuperresConfig, SuperResolution
     from lp3d.render.sample_scenes import coloured_sphere
-    from lp3d.training.export_superres import export_superres
 
     torch.manual_seed(0)
     cfg = micro_config()

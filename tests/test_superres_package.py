@@ -1,6 +1,6 @@
 """The super-resolution network in the model package (issue 10, item 3): ONNX export and its parity
 with torch, the sidecar's ``superres`` entry and its validation, the Python API (features in, image
-out, both backends), the CLI's super-resolved and ``--raw`` outputs, and ``lp3d.training.superres_fit`` on a
+out, both backends), the CLI's super-resolved and ``--raw`` outputs, and ``lp3d.superres_fit.fit`` on a
 tiny pair cache (resume, corrupt and stale caches, export guards).
 
 Networks are tiny and randomly initialised (weights perturbed so that every layer matters); renders
@@ -20,6 +20,12 @@ import torch
 from PIL import Image
 
 from lp3d.cli import main
+from lp3d.export.package import (
+    check_superres_onnx,
+    export_superres,
+    package_superres,
+)
+from lp3d.export.package import main as export_main
 from lp3d.lift.inference import load_superres, superresolve
 from lp3d.lift.model_package import (
     ModelPackageError,
@@ -30,13 +36,7 @@ from lp3d.lift.model_package import (
 from lp3d.nets.superres import SUPERRES_CONFIGS, FoldedSuperResolution, SuperresConfig, SuperResolution
 from lp3d.render.sample_scenes import coloured_sphere
 from lp3d.render.triplane_io import save_triplane
-from lp3d.training.export import (
-    check_superres_onnx,
-    export_superres,
-    package_superres,
-)
-from lp3d.training.export import main as export_main
-from lp3d.training.superres_fit import FitConfig, FitError, fit_superres, load_fit
+from lp3d.superres_fit.fit import FitConfig, FitError, fit_superres, load_fit
 from tiny_model import tiny_onnx_package
 
 #: The tolerance the issue sets for onnxruntime against torch.
@@ -116,10 +116,10 @@ def test_superres_onnx_matches_torch(tmp_path, config) -> None:
 
 def test_export_refuses_a_network_that_disagrees(tmp_path, monkeypatch) -> None:
     """When onnxruntime and torch disagree beyond the tolerance: ParityError, and no file left behind."""
-    import lp3d.training.export_superres
-    from lp3d.training.export import ParityError
+    import lp3d.export.superres
+    from lp3d.export.package import ParityError
 
-    monkeypatch.setattr(lp3d.training.export_superres, "check_superres_onnx", lambda sr, path: 0.5)
+    monkeypatch.setattr(lp3d.export.superres, "check_superres_onnx", lambda sr, path: 0.5)
     with pytest.raises(ParityError, match="max abs error 0.5 > 0.001"):
         package_superres(random_sr(cli_sr_config()), tmp_path / "m.onnx")
     assert not superres_path(tmp_path / "m.onnx").exists()
@@ -162,7 +162,7 @@ def test_package_entry_and_python_api(package) -> None:
 
 
 def weights_file(encoder: torch.nn.Module, path: Path, **extra: object) -> dict[str, object]:
-    """An inference-weights file (``lp3d.training.export --weights``'s layout) of the tiny encoder with the
+    """An inference-weights file (``lp3d.export.package --weights``'s layout) of the tiny encoder with the
     sphere's decoder; returns its contents."""
     tri = coloured_sphere(size=8)
     data = {
@@ -179,13 +179,13 @@ def weights_file(encoder: torch.nn.Module, path: Path, **extra: object) -> dict[
 
 
 def test_torch_backend_reads_the_network_from_weights(package, tmp_path) -> None:
-    """``lp3d.training.export --weights`` files carry the network for ``--backend torch``; same images."""
-    from lp3d.training.export_superres import _superres_weights
+    """``lp3d.export.package --weights`` files carry the network for ``--backend torch``; same images."""
+    from lp3d.export.superres import superres_weights
 
     weights = tmp_path / "tiny.pt"
     data = weights_file(package["encoder"], weights)
     assert load_superres(weights) is None
-    torch.save({**data, "superres": _superres_weights(package["sr"])}, weights)
+    torch.save({**data, "superres": superres_weights(package["sr"])}, weights)
     sr_torch, sr_onnx = load_superres(weights), load_superres(package["onnx"])
     assert sr_torch is not None and sr_onnx is not None and sr_torch.backend == "torch"
     features = np.random.default_rng(1).uniform(-1, 1, (1, 32, SR_IN, SR_IN)).astype(np.float32)

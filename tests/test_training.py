@@ -22,6 +22,8 @@ import numpy as np
 import pytest
 import torch
 
+from lp3d.evaluation.evaluate import EvalSettings, evaluate
+from lp3d.evaluation.evaluate import main as eval_main
 from lp3d.teachers import ProceduralTeacher
 from lp3d.train import (
     TRAIN_CONFIGS,
@@ -35,8 +37,6 @@ from lp3d.train import (
     student_from_checkpoint,
 )
 from lp3d.train import main as train_main
-from lp3d.training.eval import EvalSettings, evaluate
-from lp3d.training.eval import main as eval_main
 from lp3d.training.losses import build_perceptual
 
 LEARN_STEPS = 30

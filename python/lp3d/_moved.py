@@ -1,4 +1,4 @@
-"""Old module paths, kept importable for one release (0.2) with a DeprecationWarning.
+"""Old module paths, kept importable until release 0.2 (:data:`REMOVED_IN`) with a DeprecationWarning.
 
 lp3d's modules moved from one flat package into subpackages along the data flow (``docs/architecture.md``).
 ``import lp3d.camera`` (and ``python -m lp3d.eval``) still work: a finder on ``sys.meta_path`` answers
@@ -39,12 +39,29 @@ MOVED = {
     "distributed": "lp3d.training.distributed",
     "run_dir": "lp3d.training.run_dir",
     "tensorboard_log": "lp3d.training.tensorboard_log",
-    "eval": "lp3d.training.eval",
-    "export": "lp3d.training.export",
-    "superres_fit": "lp3d.training.superres_fit",
+    "eval": "lp3d.evaluation.evaluate",
     "demo": "lp3d.cli.demo",
     "view": "lp3d.cli.view",
+    # Evaluation, export and SR fitting left lp3d.training for packages of their own (issue 24).
+    "training.eval": "lp3d.evaluation.evaluate",
+    "training.eval_metrics": "lp3d.evaluation.metrics",
+    "training.eval_report": "lp3d.evaluation.report",
+    "training.eval_run": "lp3d.evaluation.identities",
+    "training.eval_setup": "lp3d.evaluation.protocol",
+    "training.export": "lp3d.export.package",
+    "training.export_onnx": "lp3d.export.onnx",
+    "training.export_superres": "lp3d.export.superres",
+    "training.export_weights": "lp3d.export.weights",
+    "training.superres_fit": "lp3d.superres_fit.fit",
+    "training.superres_fit_checkpoint": "lp3d.superres_fit.checkpoint",
+    "training.superres_fit_config": "lp3d.superres_fit.config",
+    "training.superres_fit_data": "lp3d.superres_fit.data",
+    "training.superres_fit_train": "lp3d.superres_fit.train",
 }
+
+#: The release in which the old names stop importing (a test fails once ``__version__`` reaches it
+#: while :data:`MOVED` still holds names).
+REMOVED_IN = "0.2"
 
 
 class _AliasLoader(importlib.abc.Loader):
@@ -55,7 +72,7 @@ class _AliasLoader(importlib.abc.Loader):
 
     def create_module(self, spec: importlib.machinery.ModuleSpec) -> ModuleType:
         warnings.warn(
-            f"{spec.name} has moved to {self.new}; the old name goes away in lp3d 0.2",
+            f"{spec.name} has moved to {self.new}; the old name goes away in lp3d {REMOVED_IN}",
             DeprecationWarning,
             stacklevel=2,
         )

@@ -1,7 +1,7 @@
 """Content-checked on-disk caches of named arrays: built whole or not at all, reused only when verified.
 
 The CPU recipe's teacher dataset (:mod:`lp3d.training.synthetic_data`) and the SR fit's pairs
-(:mod:`lp3d.training.superres_fit`) are both expensive to make and cheap to keep, so both are cached in a
+(:mod:`lp3d.superres_fit.fit`) are both expensive to make and cheap to keep, so both are cached in a
 folder named by a hash of their key. This module is the one mechanism they share:
 
 * :func:`build` makes a private temporary folder beside the destination, hands the caller its arrays

@@ -1,7 +1,7 @@
 """``lp3d export``: export a training checkpoint to an ONNX model package.
 
 The options are defined once, in
-:func:`lp3d.training.export.add_arguments`; that module needs torch (the ``train`` extra), so it is imported
+:func:`lp3d.export.package.add_arguments`; that module needs torch (the ``train`` extra), so it is imported
 only when this subcommand is parsed or run."""
 
 from __future__ import annotations
@@ -12,4 +12,4 @@ HELP = "export a checkpoint to an ONNX model package (needs torch)"
 #: This subcommand's options import torch: the top-level parser adds them only when it is named.
 LAZY = True
 
-add_arguments, run = module_command("lp3d.training.export")
+add_arguments, run = module_command("lp3d.export.package")

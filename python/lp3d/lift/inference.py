@@ -27,7 +27,7 @@ call::
 ``onnx``: the sidecar's ``superres`` entry (``MODEL.superres.onnx``, its SHA-256 checked on load).
 ``torch``: the checkpoint's ``superres`` (``{"config": SuperresConfig dict, "state": state dict}``,
 written by ``lp3d export --weights``) or, for a training checkpoint of the paper recipe, its
-student's trained SR. The CPU recipe trains none; ``python -m lp3d.training.superres_fit`` fits one for
+student's trained SR. The CPU recipe trains none; ``python -m lp3d.superres_fit`` fits one for
 such a model.
 
 The backends are :mod:`lp3d.lift.onnx_backend` and :mod:`lp3d.lift.torch_backend`; the types they
@@ -120,6 +120,6 @@ def superresolve(
         where = Path(model) if model is not None else DEFAULT_MODEL
         raise ModelPackageError(
             f"{where}: the model package has no super-resolution network (its sidecar has no 'superres'); "
-            "render the raw image instead, or fit one with python -m lp3d.training.superres_fit"
+            "render the raw image instead, or fit one with python -m lp3d.superres_fit"
         )
     return sr(features)

@@ -141,7 +141,7 @@ def sidecar_path(model_path: str | os.PathLike[str]) -> Path:
 
 
 def superres_path(model_path: str | os.PathLike[str]) -> Path:
-    """Where ``lp3d.training.export`` writes the super-resolution network of ``MODEL.onnx``:
+    """Where ``lp3d.export.package`` writes the super-resolution network of ``MODEL.onnx``:
     ``MODEL.superres.onnx``."""
     p = Path(model_path)
     return p.with_name(p.with_suffix("").name + ".superres.onnx")

@@ -153,7 +153,7 @@ def _torch_superres(
     ckpt: Mapping[str, Any], student: Mapping[str, Any] | None, train_cfg: Mapping[str, Any], p: Path
 ) -> tuple[Any, Any] | None:
     """``(SuperresConfig, state dict)`` of a checkpoint's trained SR, or None when it has none: the
-    ``superres`` entry of ``lp3d.training.export --weights`` files, or a paper-recipe training checkpoint's
+    ``superres`` entry of ``lp3d.export.package --weights`` files, or a paper-recipe training checkpoint's
     student SR (the CPU recipe's student carries an SR module it never trains: not used)."""
     from lp3d.nets.superres import SuperresConfig
 

@@ -65,7 +65,7 @@ def build_teacher(
 
 
 #: The arguments of :func:`build_teacher` besides the name that a run records in its checkpoints, so
-#: that ``--resume`` and ``lp3d.training.eval`` rebuild the same teacher without being told again.
+#: that ``--resume`` and ``lp3d.evaluation.evaluate`` rebuild the same teacher without being told again.
 TEACHER_ARGS = ("teacher_pkl", "eg3d_source", "conditioning")
 
 

@@ -71,7 +71,7 @@ class Trainer(TrainingSteps, HeldoutViews):
         data_cache: where the CPU recipe's synthetic dataset is cached
             (default :func:`lp3d.training.synthetic_data.default_cache_root`).
         teacher_args: how the teacher was built (:data:`TEACHER_ARGS`), recorded in the checkpoints so
-            ``--resume`` and ``lp3d.training.eval`` can rebuild it (default: the resumed checkpoint's).
+            ``--resume`` and ``lp3d.evaluation.evaluate`` can rebuild it (default: the resumed checkpoint's).
     """
 
     def __init__(

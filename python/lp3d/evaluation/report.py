@@ -1,5 +1,5 @@
 """What an evaluation writes: the comparison figure, report.json and the summary table printed by
-``lp3d eval`` (:mod:`lp3d.training.eval` makes the report).
+``lp3d eval`` (:mod:`lp3d.evaluation.evaluate` makes the report).
 """
 
 from __future__ import annotations

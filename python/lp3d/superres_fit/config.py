@@ -1,4 +1,4 @@
-"""The configuration of a super-resolution fit (:mod:`lp3d.training.superres_fit`): :class:`FitConfig`
+"""The configuration of a super-resolution fit (:mod:`lp3d.superres_fit.fit`): :class:`FitConfig`
 (every setting, saved in the fit's checkpoint), the choices of :attr:`FitConfig.train_on`, and
 :class:`FitError`.
 

@@ -14,7 +14,7 @@ beside the encoder as ``MODEL.superres.onnx`` (``features (B, 32, R, R) -> image
 R_out)``, dynamic batch), checked against PyTorch with onnxruntime the same way (the largest absolute
 difference on the image <= ``--tolerance``), and recorded in the sidecar's ``superres`` entry with its
 SHA-256. Its source: ``--superres FIT.pt`` (a network fitted by
-``python -m lp3d.training.superres_fit``), else the checkpoint's own SR when the paper recipe trained
+``python -m lp3d.superres_fit``), else the checkpoint's own SR when the paper recipe trained
 one; the CPU recipe trains none. The exported
 graph is :class:`lp3d.nets.superres.FoldedSuperResolution` (the constant-w styles folded into plain
 convolutions), compared with the unfolded network. An existing package gains an SR without
@@ -44,6 +44,28 @@ from typing import Any
 
 from lp3d.atomic import publish_all
 from lp3d.errors import UsageError, UserError, run_command
+from lp3d.export.onnx import (
+    MIN_OPSET,
+    ExportError,
+    ParityError,
+    check_onnx,
+    export_encoder,
+)
+from lp3d.export.superres import (
+    add_superres_to_weights,
+    check_superres_onnx,
+    export_superres,
+    fitted_superres,
+    package_superres,
+)
+from lp3d.export.weights import (
+    check_rounding,
+    reduce_plane_basis,
+    round_to_float16,
+    save_weights,
+    store_float16,
+    training_inputs,
+)
 from lp3d.lift.model_package import (
     ModelPackageError,
     decoder_digest,
@@ -56,28 +78,6 @@ from lp3d.lift.model_package import (
 from lp3d.nets.superres import SuperResolution
 from lp3d.outputs import check_distinct
 from lp3d.training.checkpoint import CheckpointError, load_checkpoint, student_from_checkpoint
-from lp3d.training.export_onnx import (
-    MIN_OPSET,
-    ExportError,
-    ParityError,
-    check_onnx,
-    export_encoder,
-)
-from lp3d.training.export_superres import (
-    _fitted_superres,
-    add_superres_to_weights,
-    check_superres_onnx,
-    export_superres,
-    package_superres,
-)
-from lp3d.training.export_weights import (
-    _training_inputs,
-    check_rounding,
-    reduce_plane_basis,
-    round_to_float16,
-    save_weights,
-    store_float16,
-)
 from lp3d.training.student import Student
 
 __all__ = [
@@ -102,7 +102,7 @@ def _add_superres_main(args: argparse.Namespace) -> int:
     try:
         package = load_model_package(args.package)
         digest = decoder_digest(package.decoder)
-        sr, about = _fitted_superres(args.superres, digest, args.allow_worse_superres)
+        sr, about = fitted_superres(args.superres, digest, args.allow_worse_superres)
         entry, err = package_superres(
             sr, package.model_path, about=about, opset=args.opset, tolerance=args.tolerance
         )
@@ -131,12 +131,12 @@ def _print_superres(entry: dict[str, Any], err: float, tolerance: float) -> None
         )
 
 
-#: ``--help``'s description (``lp3d export`` and ``python -m lp3d.training.export``).
+#: ``--help``'s description (``lp3d export`` and ``python -m lp3d.export``).
 DESCRIPTION = __doc__.splitlines()[0]
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The export options, shared by ``lp3d export`` and ``python -m lp3d.training.export``."""
+    """The export options, shared by ``lp3d export`` and ``python -m lp3d.export``."""
     p.add_argument(
         "checkpoint",
         nargs="?",
@@ -169,7 +169,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--superres",
         default=None,
         metavar="FIT.pt",
-        help="package this super-resolution network (a python -m lp3d.training.superres_fit checkpoint) "
+        help="package this super-resolution network (a python -m lp3d.superres_fit checkpoint) "
         "instead of the checkpoint's own",
     )
     p.add_argument(
@@ -189,7 +189,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def build_parser(prog: str = "python -m lp3d.training.export") -> argparse.ArgumentParser:
+def build_parser(prog: str = "python -m lp3d.export") -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=prog, description=DESCRIPTION)
     add_arguments(p)
     p.set_defaults(func=run_cli)
@@ -197,7 +197,7 @@ def build_parser(prog: str = "python -m lp3d.training.export") -> argparse.Argum
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m lp3d.training.export`` (an alias of ``lp3d export``); exit status 0, 1 (an error, one line,
+    """``python -m lp3d.export`` (an alias of ``lp3d export``); exit status 0, 1 (an error, one line,
     including a failed parity check) or 2 (usage), as :mod:`lp3d.errors` says."""
     return run_command(build_parser(), argv)
 
@@ -231,7 +231,7 @@ def _choose_superres(
     """The SR to package and where it came from: ``--superres FIT.pt``, else the paper recipe's own,
     else none (with a note)."""
     if args.superres is not None:
-        return _fitted_superres(
+        return fitted_superres(
             args.superres, decoder_digest(student.decoder.weights()), args.allow_worse_superres
         )
     if not args.no_superres and student.config.recipe == "paper":
@@ -242,8 +242,8 @@ def _choose_superres(
         }
     if not args.no_superres:
         notes.append(
-            "no super-resolution network: the CPU recipe trains none (fit one with python -m "
-            "lp3d.training.superres_fit, then add it with --superres FIT.pt --package MODEL.onnx)"
+            "no super-resolution network: the CPU recipe trains none (fit one with "
+            "python -m lp3d.superres_fit, then add it with --superres FIT.pt --package MODEL.onnx)"
         )
     return None, {}
 
@@ -253,7 +253,7 @@ def _shrink_student(
 ) -> None:
     """``--basis-components`` and ``--float16``, in place, each with a note of what it changed."""
     if args.basis_components is not None:
-        images = _training_inputs(student.config, ckpt["teacher"], args.data_cache)
+        images = training_inputs(student.config, ckpt["teacher"], args.data_cache)
         change = reduce_plane_basis(student, images, args.basis_components)
         notes.append(
             f"plane basis reduced to {args.basis_components} planes over {len(images)} training inputs: "

@@ -1,6 +1,6 @@
 """The encoder to ONNX: :func:`export_encoder` (a checkpoint's student or a bare encoder, dynamic batch)
 and :func:`check_onnx` (onnxruntime against PyTorch), with the errors of an export. Used by
-:mod:`lp3d.training.export`, which re-exports these names.
+:mod:`lp3d.export.package`, which re-exports these names.
 """
 
 from __future__ import annotations

@@ -1,8 +1,9 @@
 """A super-resolution fit's checkpoint (``superres-fit.pt``, format :data:`FIT_FORMAT`): a plain dict
-of tensors and JSON strings, written atomically (:func:`_checkpoint`, :func:`_save`) and read back
+of tensors and JSON strings, written atomically
+(:func:`fit_checkpoint`, :func:`save_fit_checkpoint`) and read back
 without unpickling code (:func:`load_fit`).
 
-Imports lp3d.atomic, lp3d.nets.superres and lp3d.training.superres_fit_config.
+Imports lp3d.atomic, lp3d.nets.superres and lp3d.superres_fit.config.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import torch
 
 from lp3d.atomic import atomic_path
 from lp3d.nets.superres import SuperresConfig, SuperResolution
-from lp3d.training.superres_fit_config import FitConfig, FitError
+from lp3d.superres_fit.config import FitConfig, FitError
 
 __all__ = ["CHECKPOINT_NAME", "FIT_FORMAT", "LoadedFit", "load_fit"]
 
@@ -26,7 +27,7 @@ FIT_FORMAT = "lp3d-superres-fit-v1"
 CHECKPOINT_NAME = "superres-fit.pt"
 
 
-def _checkpoint(
+def fit_checkpoint(
     sr: SuperResolution,
     opt: torch.optim.Optimizer,
     cfg: FitConfig,
@@ -48,7 +49,7 @@ def _checkpoint(
     }
 
 
-def _save(ckpt: dict[str, Any], path: Path) -> None:
+def save_fit_checkpoint(ckpt: dict[str, Any], path: Path) -> None:
     with atomic_path(path) as tmp:
         torch.save(ckpt, tmp)
 

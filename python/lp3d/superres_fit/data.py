@@ -1,9 +1,9 @@
-"""The pairs a super-resolution fit learns from (step 1 of :mod:`lp3d.training.superres_fit`), made
+"""The pairs a super-resolution fit learns from (step 1 of :mod:`lp3d.superres_fit.fit`), made
 once and cached on disk: :class:`PairKey` (everything they depend on; its hash names the folder),
 :class:`PairSet` (the arrays, loaded and verified or rendered), :func:`pair_keys` (a fit's training
 and held-out keys) and :func:`model_fingerprint`.
 
-Imports lp3d.array_cache, lp3d.training.camera_sampling and lp3d.training.superres_fit_config; the
+Imports lp3d.array_cache, lp3d.training.camera_sampling and lp3d.superres_fit.config; the
 renderer, the teachers, lp3d.lift and lp3d.training.synthetic_data inside the functions that use them.
 """
 
@@ -19,8 +19,8 @@ from typing import Any
 import numpy as np
 
 from lp3d import array_cache
+from lp3d.superres_fit.config import FitConfig
 from lp3d.training.camera_sampling import FFHQ_MULTIVIEW, FFHQ_REFERENCE, CameraDistribution, sample_cameras
-from lp3d.training.superres_fit_config import FitConfig
 
 __all__ = [
     "PAIRS_FORMAT",

@@ -4,14 +4,14 @@ The paper's recipe trains an SR with the encoder (EG3D's, paper Eq. 2); the CPU 
 (``python -m lp3d.train --config small``, the shipped model) renders its final image directly and
 trains none. This module gives such a model one, with the encoder and decoder frozen::
 
-    python -m lp3d.training.superres_fit [MODEL] --out runs/sr-small
+    python -m lp3d.superres_fit [MODEL] --out runs/sr-small
     lp3d export --superres runs/sr-small/superres-fit.pt --package MODEL.onnx [--weights MODEL.pt]
 
 ``MODEL`` is anything ``lp3d encode --model`` takes (default: the shipped model).
 
 1. **Pairs, made once.** For each of ``identities`` procedural-teacher identities (seeds from
    ``first_seed``, inside the training range but past any CPU dataset, and disjoint from
-   ``lp3d.training.eval``'s held-out seeds): the teacher renders the encoder's input from a reference camera
+   ``lp3d.evaluation``'s held-out seeds): the teacher renders the encoder's input from a reference camera
    (:data:`~lp3d.training.camera_sampling.FFHQ_REFERENCE`), the model encodes it, and for ``views`` multiview
    cameras (:data:`~lp3d.training.camera_sampling.FFHQ_MULTIVIEW`) ``lp3d_render`` draws the *student's* raw
    feature image at ``raw_resolution``, the *teacher's* image at ``output_resolution``, and the
@@ -39,12 +39,12 @@ trains none. This module gives such a model one, with the encoder and decoder fr
 
 The checkpoint (``superres-fit.pt``, ``"format": "lp3d-superres-fit-v1"``) is a plain dict of
 tensors and JSON strings (``torch.load(weights_only=True)``); :func:`load_fit` reads it and
-``lp3d.training.export --superres`` packages it as ONNX beside the encoder.
+``lp3d.export.package --superres`` packages it as ONNX beside the encoder.
 
 This module holds :func:`fit_superres` (the steps above, in order) and the command line; the parts live
-in :mod:`~lp3d.training.superres_fit_config` (:class:`FitConfig`), :mod:`~lp3d.training.superres_fit_data`
-(the cached pairs), :mod:`~lp3d.training.superres_fit_train` (training and the held-out score) and
-:mod:`~lp3d.training.superres_fit_checkpoint` (:func:`load_fit`), and are re-exported here.
+in :mod:`~lp3d.superres_fit.config` (:class:`FitConfig`), :mod:`~lp3d.superres_fit.data`
+(the cached pairs), :mod:`~lp3d.superres_fit.train` (training and the held-out score) and
+:mod:`~lp3d.superres_fit.checkpoint` (:func:`load_fit`), and are re-exported here.
 """
 
 from __future__ import annotations
@@ -63,15 +63,15 @@ import torch
 from lp3d.atomic import atomic_path
 from lp3d.errors import EXIT_ERROR, run_command
 from lp3d.nets.superres import SuperResolution
-from lp3d.training.superres_fit_checkpoint import (
+from lp3d.superres_fit.checkpoint import (
     CHECKPOINT_NAME,
     FIT_FORMAT,
-    _checkpoint,
-    _save,
+    fit_checkpoint,
     load_fit,
+    save_fit_checkpoint,
 )
-from lp3d.training.superres_fit_config import TRAIN_ON, FitConfig, FitError
-from lp3d.training.superres_fit_data import (
+from lp3d.superres_fit.config import TRAIN_ON, FitConfig, FitError
+from lp3d.superres_fit.data import (
     PairKey,
     PairSet,
     StalePairsError,
@@ -79,7 +79,7 @@ from lp3d.training.superres_fit_data import (
     model_fingerprint,
     pair_keys,
 )
-from lp3d.training.superres_fit_train import new_superres, score, train_steps
+from lp3d.superres_fit.train import new_superres, score, train_steps
 
 __all__ = [
     "FIT_FORMAT",
@@ -129,7 +129,7 @@ def fit_superres(
     pair_info = {"train": str(train.path), "heldout": str(heldout.path)}
 
     def save(step: int, report: dict[str, Any] | None) -> None:
-        _save(_checkpoint(sr, opt, cfg, step, info, pair_info, report), ckpt_path)
+        save_fit_checkpoint(fit_checkpoint(sr, opt, cfg, step, info, pair_info, report), ckpt_path)
 
     t0 = time.perf_counter()
     if start < cfg.steps:
@@ -288,7 +288,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
             p.add_argument(flag, type=type(value), default=value, help=f"(default: {value})")
 
 
-def build_parser(prog: str = "python -m lp3d.training.superres_fit") -> argparse.ArgumentParser:
+def build_parser(prog: str = "python -m lp3d.superres_fit") -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0] if __doc__ else None)
     add_arguments(p)
     p.set_defaults(func=run_cli)
@@ -296,7 +296,7 @@ def build_parser(prog: str = "python -m lp3d.training.superres_fit") -> argparse
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m lp3d.training.superres_fit``; exit status 0, 1 (an error, one line) or 2 (usage), as
+    """``python -m lp3d.superres_fit``; exit status 0, 1 (an error, one line) or 2 (usage), as
     :mod:`lp3d.errors` says."""
     return run_command(build_parser(), argv)
 

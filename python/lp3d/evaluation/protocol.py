@@ -1,6 +1,6 @@
 """What an evaluation renders and from where: :class:`EvalSettings`, the held-out identities' input
 cameras, the truth and ceiling teachers, and the student's and teachers' renders of the novel views.
-Used by :mod:`lp3d.training.eval`.
+Used by :mod:`lp3d.evaluation.evaluate`.
 """
 
 from __future__ import annotations
@@ -129,7 +129,7 @@ def reference_teachers(teacher: Teacher, cfg: TrainConfig) -> tuple[Teacher, Tea
     return teacher, None
 
 
-def _resample_planes(planes: Tensor, t: int) -> Tensor:
+def resample_planes(planes: Tensor, t: int) -> Tensor:
     """Planes (B, 3, C, H, W) at t² (bilinear, antialiased; as ``Trainer._teacher_target_planes``)."""
     if planes.shape[-1] == t and planes.shape[-2] == t:
         return planes
@@ -138,16 +138,16 @@ def _resample_planes(planes: Tensor, t: int) -> Tensor:
     return flat.reshape(b, p, c, t, t)
 
 
-def _planes(tri: Any, device: torch.device) -> Tensor:
+def planes_tensor(tri: Any, device: torch.device) -> Tensor:
     return torch.from_numpy(np.asarray(tri.planes, np.float32)).unsqueeze(0).to(device)
 
 
-def _views(settings: EvalSettings, device: torch.device) -> Tensor:
+def novel_view_cameras(settings: EvalSettings, device: torch.device) -> Tensor:
     cams = [look_at_camera(yaw_deg=y, pitch_deg=p, focal=FFHQ_FOCAL) for y, p in settings.novel_views]
     return torch.tensor(np.stack(cams), dtype=torch.float32, device=device)
 
 
-def _render_student(student: Student, planes: Tensor, cams: Tensor) -> dict[str, Tensor]:
+def render_student(student: Student, planes: Tensor, cams: Tensor) -> dict[str, Tensor]:
     """planes (1, 3, 32, T, T) seen from cams (V, 25) by ``student.render``: ``high`` (V,3,S,S) (its
     final image: super-resolved, or a direct volume render for the CPU recipe), ``raw`` (V,3,r,r),
     ``depth`` (V,r,r)."""
@@ -156,7 +156,7 @@ def _render_student(student: Student, planes: Tensor, cams: Tensor) -> dict[str,
     return {"high": out.high, "raw": out.features[:, :3], "depth": out.depth}
 
 
-def _render_truth(
+def render_truth(
     teacher: Teacher,
     planes: Tensor,
     decoder: Sequence[Tensor],
@@ -174,25 +174,25 @@ def _render_truth(
     return {"high": high, "raw": out["rgb"], "depth": out["depth"], "weights_sum": out["weights_sum"]}
 
 
-def _sync(device: torch.device) -> None:
+def sync_device(device: torch.device) -> None:
     if device.type == "cuda":
         torch.cuda.synchronize(device)
 
 
-def _timed(fn: Any, device: torch.device, repeats: int) -> tuple[Any, float]:
+def timed(fn: Any, device: torch.device, repeats: int) -> tuple[Any, float]:
     """``(result, median seconds)`` of ``fn()`` over ``repeats`` runs after one warm-up (``repeats``
     = 0: the time of that one call)."""
-    _sync(device)
+    sync_device(device)
     t0 = time.perf_counter()
     result = fn()
-    _sync(device)
+    sync_device(device)
     times = [time.perf_counter() - t0]
     if repeats > 0:
         times = []
         for _ in range(repeats):
-            _sync(device)
+            sync_device(device)
             t0 = time.perf_counter()
             result = fn()
-            _sync(device)
+            sync_device(device)
             times.append(time.perf_counter() - t0)
     return result, statistics.median(times)

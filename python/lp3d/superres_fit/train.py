@@ -1,4 +1,4 @@
-"""Training and scoring a super-resolution fit (steps 2 and 3 of :mod:`lp3d.training.superres_fit`):
+"""Training and scoring a super-resolution fit (steps 2 and 3 of :mod:`lp3d.superres_fit.fit`):
 the starting network (:func:`new_superres`), its blocks on crops (:func:`synthesize`), the batches,
 the learning-rate schedule, the training loop (:func:`train_steps`) and the held-out score
 (:func:`score`, :func:`psnr`).
@@ -23,9 +23,9 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from lp3d.nets.superres import SuperResolution
+from lp3d.superres_fit.config import FitConfig, FitError
+from lp3d.superres_fit.data import PairSet
 from lp3d.training.losses import SSIMGradientLoss, ssim
-from lp3d.training.superres_fit_config import FitConfig, FitError
-from lp3d.training.superres_fit_data import PairSet
 
 __all__ = ["new_superres", "psnr", "score", "synthesize", "train_steps"]
 

@@ -1,6 +1,6 @@
-"""One evaluation's state and the report made from it: :class:`_Run` (what each held-out identity's step
-reads and adds), the optimisation baseline (:func:`fit_triplane`) and the report (:func:`_report`).
-:mod:`lp3d.training.eval` runs the identities.
+"""One evaluation's state and the report made from it: :class:`EvalRun` (what each held-out identity's step
+reads and adds), the optimisation baseline (:func:`fit_triplane`) and the report (:func:`build_report`).
+:mod:`lp3d.evaluation.evaluate` runs the identities.
 """
 
 from __future__ import annotations
@@ -15,32 +15,32 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from lp3d.evaluation.metrics import (
+    CrossScores,
+    ViewScores,
+)
+from lp3d.evaluation.protocol import (
+    EvalSettings,
+    render_student,
+    resample_planes,
+    sync_device,
+)
 from lp3d.images import rgb_to_uint8
 from lp3d.lift.pose import find_camera
 from lp3d.lift.refine import refine_planes
 from lp3d.render.camera import camera_summary
 from lp3d.teachers import Teacher
 from lp3d.training.config import TrainConfig
-from lp3d.training.eval_metrics import (
-    _Cross,
-    _Metrics,
-)
-from lp3d.training.eval_setup import (
-    EvalSettings,
-    _render_student,
-    _resample_planes,
-    _sync,
-)
 from lp3d.training.losses import LPIPSLoss, l1
 from lp3d.training.student import Student, render_views
 
 
-def _mean_triplane(teacher: Teacher, cfg: TrainConfig, n: int, device: torch.device) -> Tensor:
+def mean_triplane(teacher: Teacher, cfg: TrainConfig, n: int, device: torch.device) -> Tensor:
     """Mean of ``n`` training identities' teacher planes at the student's resolution (1, 3, 32, T, T)."""
     lo = cfg.train_seeds[0]
     planes = np.mean([teacher.sample(lo + i).planes.astype(np.float32) for i in range(n)], axis=0)
     t = torch.from_numpy(planes).unsqueeze(0).to(device)
-    return _resample_planes(t, cfg.triplane_resolution)
+    return resample_planes(t, cfg.triplane_resolution)
 
 
 def fit_triplane(
@@ -69,7 +69,7 @@ def fit_triplane(
             ]
             pairs = [(raw, target_raw)]
         else:
-            out = _render_student(student, planes, camera)
+            out = render_student(student, planes, camera)
             pairs = [(out["raw"], target_raw), (out["high"], target_high)]
         loss = sum(l1(a, b) + (perceptual(a, b) if perceptual is not None else 0.0) for a, b in pairs)
         opt.zero_grad(set_to_none=True)
@@ -84,7 +84,7 @@ METHODS = ("student", "refined", "refined_photo", "baseline", "floor", "ceiling"
 
 
 @dataclass
-class _Run:
+class EvalRun:
     """One evaluation: what every identity's step reads (``student`` ... ``floor_nv``) and what it adds
     (the remaining fields, per method and identity)."""
 
@@ -101,7 +101,7 @@ class _Run:
     mean_planes: Tensor
     floor_nv: dict[str, Tensor]
     bar: Any = None
-    metrics: dict[str, _Metrics] = field(default_factory=lambda: {m: _Metrics() for m in METHODS})
+    metrics: dict[str, ViewScores] = field(default_factory=lambda: {m: ViewScores() for m in METHODS})
     # Per method and identity: the novel views' final and raw renders (for the cross-identity scores).
     high: dict[str, list[Tensor]] = field(default_factory=lambda: {m: [] for m in METHODS})
     raw: dict[str, list[Tensor]] = field(default_factory=lambda: {m: [] for m in METHODS})
@@ -125,12 +125,12 @@ class _Run:
         self.raw[method].append(pred_nv["raw"])
 
 
-def _to_u8(x: Tensor) -> np.ndarray:
+def to_uint8(x: Tensor) -> np.ndarray:
     return rgb_to_uint8(x.detach().cpu().numpy())
 
 
-def _fit_baseline(
-    run: _Run, cam: Tensor, truth_in: dict[str, Tensor], truth_nv: dict[str, Tensor]
+def fit_baseline(
+    run: EvalRun, cam: Tensor, truth_in: dict[str, Tensor], truth_nv: dict[str, Tensor]
 ) -> tuple[dict[str, Tensor], dict[str, Tensor]]:
     """The optimisation baseline for one identity: fitted, timed, scored; returns its renders."""
     student, settings = run.student, run.settings
@@ -147,18 +147,18 @@ def _fit_baseline(
             perceptual=run.perceptual,
             on_step=None if run.bar is None else run.bar.update,
         )
-    _sync(run.device)
+    sync_device(run.device)
     run.fit_s.append(time.perf_counter() - t0)
     with torch.no_grad():
-        base_in = _render_student(student, planes_b, cam)
-        base_nv = _render_student(student, planes_b, run.views)
+        base_in = render_student(student, planes_b, cam)
+        base_nv = render_student(student, planes_b, run.views)
     run.metrics["baseline"].add("input", base_in, truth_in, run.lpips)
     run.add("baseline", base_nv, truth_nv)
     return base_in, base_nv
 
 
-def _refine(
-    run: _Run,
+def refine_identity(
+    run: EvalRun,
     planes_s: Tensor,
     image: Tensor,
     cam: Tensor,
@@ -194,8 +194,8 @@ def _refine(
         planes_r = refined[None].to(planes_s.device)
         with torch.no_grad():  # scored at the true input camera, as every method is
             scores[method] = (
-                _render_student(student, planes_r, cam),
-                _render_student(student, planes_r, run.views),
+                render_student(student, planes_r, cam),
+                render_student(student, planes_r, run.views),
             )
         run.metrics[method].add("input", scores[method][0], truth_in, run.lpips)
         run.add(method, scores[method][1], truth_nv)
@@ -203,7 +203,7 @@ def _refine(
 
 
 def _per_identity(
-    run: _Run, cross: dict[str, _Cross], seeds: list[int], yaws: list[float]
+    run: EvalRun, cross: dict[str, CrossScores], seeds: list[int], yaws: list[float]
 ) -> list[dict[str, Any]]:
     """``report.json``'s per-identity rows."""
     per_method = {m: c.per_identity() for m, c in cross.items()}
@@ -248,12 +248,12 @@ def _per_identity(
 
 
 # Long because: one dict literal, the report's layout (module docstring), read top to bottom.
-def _report(run: _Run, seeds: list[int], yaws: list[float]) -> dict[str, Any]:
+def build_report(run: EvalRun, seeds: list[int], yaws: list[float]) -> dict[str, Any]:
     """The JSON-ready report of a finished run (its layout is in the module docstring)."""
     settings, metrics = run.settings, run.metrics
     cfg, t_res = run.student.config, run.student.config.triplane_resolution
     ceiling_teacher, device = run.ceiling_teacher, run.device
-    cross = {m: _Cross.of(run.high[m], run.raw[m], run.truths) for m in METHODS if run.high[m]}
+    cross = {m: CrossScores.of(run.high[m], run.raw[m], run.truths) for m in METHODS if run.high[m]}
     student_summary = {**metrics["student"].summary(), **cross["student"].summary()}
     report: dict[str, Any] = {
         "config": cfg.name,

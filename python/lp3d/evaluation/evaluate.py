@@ -70,43 +70,43 @@ import torch
 from torch import nn
 
 from lp3d.errors import UsageError, UserError, int_in, run_command
-from lp3d.lift.refine import MAX_STEPS as REFINE_MAX_STEPS
-from lp3d.lift.refine import RefineSettings
-from lp3d.teachers import Teacher
-from lp3d.training.checkpoint import load_checkpoint, student_from_checkpoint
-from lp3d.training.config import TrainConfig
-from lp3d.training.eval_metrics import (
+from lp3d.evaluation.identities import (
+    EvalRun,
+    build_report,
+    fit_baseline,
+    mean_triplane,
+    refine_identity,
+    to_uint8,
+)
+from lp3d.evaluation.metrics import (
     depth_errors,
     psnr,
 )
-from lp3d.training.eval_report import (
+from lp3d.evaluation.protocol import (
+    INPUT_YAW_RANGE_DEG,
+    NOVEL_VIEWS,
+    EvalSettings,
+    input_camera,
+    input_yaws,
+    novel_view_cameras,
+    planes_tensor,
+    reference_teachers,
+    render_student,
+    render_truth,
+    resample_planes,
+    timed,
+)
+from lp3d.evaluation.report import (
     comparison_figure,
     figure_labels,
     summary_table,
     write_outputs,
 )
-from lp3d.training.eval_run import (
-    _fit_baseline,
-    _mean_triplane,
-    _refine,
-    _report,
-    _Run,
-    _to_u8,
-)
-from lp3d.training.eval_setup import (
-    INPUT_YAW_RANGE_DEG,
-    NOVEL_VIEWS,
-    EvalSettings,
-    _planes,
-    _render_student,
-    _render_truth,
-    _resample_planes,
-    _timed,
-    _views,
-    input_camera,
-    input_yaws,
-    reference_teachers,
-)
+from lp3d.lift.refine import MAX_STEPS as REFINE_MAX_STEPS
+from lp3d.lift.refine import RefineSettings
+from lp3d.teachers import Teacher
+from lp3d.training.checkpoint import load_checkpoint, student_from_checkpoint
+from lp3d.training.config import TrainConfig
 from lp3d.training.losses import LPIPSLoss, LPIPSWeightsNotFound, build_perceptual
 from lp3d.training.student import Student
 from lp3d.training.teacher_factory import TEACHERS, build_teacher, resolve_teacher_args
@@ -181,14 +181,14 @@ def _evaluate(
     cfg = student.config
     truth_teacher, ceiling_teacher = reference_teachers(teacher, cfg)
     run_dec = [torch.as_tensor(a, device=device) for a in teacher.decoder()]
-    views = _views(settings, device)
+    views = novel_view_cameras(settings, device)
     n = settings.n_identities
     seeds = [cfg.eval_seed_start + i for i in range(n)]
     yaws = [float(y) for y in input_yaws(n, settings.input_yaw_range_deg)]
     # The floor: the mean head, one render for every identity (and the baseline's start).
-    mean_planes = _mean_triplane(teacher, cfg, settings.baseline_mean_of, device)
-    floor_nv = _render_truth(teacher, mean_planes, run_dec, views, cfg, student.scene)
-    run = _Run(
+    mean_planes = mean_triplane(teacher, cfg, settings.baseline_mean_of, device)
+    floor_nv = render_truth(teacher, mean_planes, run_dec, views, cfg, student.scene)
+    run = EvalRun(
         student=student,
         settings=settings,
         lpips=lpips,
@@ -217,7 +217,7 @@ def _evaluate(
         _evaluate_identity(run, teacher, seed, yaws[k], show=k < settings.figure_identities)
     if run.bar is not None:
         run.bar.close()
-    return _report(run, seeds, yaws), run.rows
+    return build_report(run, seeds, yaws), run.rows
 
 
 def _refine_steps(refine: RefineSettings) -> int:
@@ -226,29 +226,29 @@ def _refine_steps(refine: RefineSettings) -> int:
     return 0 if refine.steps == 0 else refine.steps + refine.total_steps()
 
 
-def _evaluate_identity(run: _Run, teacher: Teacher, seed: int, yaw: float, *, show: bool) -> None:
+def _evaluate_identity(run: EvalRun, teacher: Teacher, seed: int, yaw: float, *, show: bool) -> None:
     """One held-out identity: its truth renders, the student's, the floor's, the ceiling's and (when
     run) the baseline's; ``show`` adds its rows to the comparison figure."""
     student, settings, device, views = run.student, run.settings, run.device, run.views
     cfg, scene = student.config, student.scene
     if run.bar is not None:
         run.bar.set_postfix_str(f"identity seed {seed}")
-    planes_t = _planes(run.truth_teacher.sample(seed), device)
+    planes_t = planes_tensor(run.truth_teacher.sample(seed), device)
     run.truth_resolution = int(planes_t.shape[-1])
     label, pitch = input_camera(cfg, seed, yaw)
     run.pitches.append(pitch)
     cam = torch.from_numpy(label).float().unsqueeze(0).to(device)
-    truth_in = _render_truth(run.truth_teacher, planes_t, run.truth_dec, cam, cfg, scene)
-    truth_nv = _render_truth(run.truth_teacher, planes_t, run.truth_dec, views, cfg, scene)
+    truth_in = render_truth(run.truth_teacher, planes_t, run.truth_dec, cam, cfg, scene)
+    truth_nv = render_truth(run.truth_teacher, planes_t, run.truth_dec, views, cfg, scene)
     run.truths.append(truth_nv)
     image = truth_in["high"]
 
     with torch.no_grad():
-        planes_s, t_enc = _timed(lambda image=image: student.encode(image), device, settings.timing_repeats)
-        pred_in, t_ren = _timed(
-            lambda p=planes_s, c=cam: _render_student(student, p, c), device, settings.timing_repeats
+        planes_s, t_enc = timed(lambda image=image: student.encode(image), device, settings.timing_repeats)
+        pred_in, t_ren = timed(
+            lambda p=planes_s, c=cam: render_student(student, p, c), device, settings.timing_repeats
         )
-        pred_nv = _render_student(student, planes_s, views)
+        pred_nv = render_student(student, planes_s, views)
     run.encode_s.append(t_enc)
     run.render_s.append(t_ren)
     run.metrics["student"].add("input", pred_in, truth_in, run.lpips)
@@ -257,29 +257,29 @@ def _evaluate_identity(run: _Run, teacher: Teacher, seed: int, yaw: float, *, sh
 
     # The ceiling: the teacher's own head at the student's plane resolution.
     if run.ceiling_teacher is not None:
-        planes_c = _planes(run.ceiling_teacher.sample(seed), device)
+        planes_c = planes_tensor(run.ceiling_teacher.sample(seed), device)
     else:
-        planes_c = _resample_planes(planes_t, cfg.triplane_resolution)
-    ceil_nv = _render_truth(teacher, planes_c, run.run_dec, views, cfg, scene)
+        planes_c = resample_planes(planes_t, cfg.triplane_resolution)
+    ceil_nv = render_truth(teacher, planes_c, run.run_dec, views, cfg, scene)
     run.add("ceiling", ceil_nv, truth_nv)
 
     figure = []
     if show:
         figure = [
-            [_to_u8(image[0])] + [_to_u8(v) for v in truth_nv["high"]],
-            [_to_u8(pred_in["high"][0])] + [_to_u8(v) for v in pred_nv["high"]],
+            [to_uint8(image[0])] + [to_uint8(v) for v in truth_nv["high"]],
+            [to_uint8(pred_in["high"][0])] + [to_uint8(v) for v in pred_nv["high"]],
         ]
     if settings.refine.steps > 0:
-        ref_in, ref_nv = _refine(run, planes_s, image, cam, truth_in, truth_nv)
+        ref_in, ref_nv = refine_identity(run, planes_s, image, cam, truth_in, truth_nv)
         if show:
-            figure.append([_to_u8(ref_in["high"][0])] + [_to_u8(v) for v in ref_nv["high"]])
+            figure.append([to_uint8(ref_in["high"][0])] + [to_uint8(v) for v in ref_nv["high"]])
     if settings.baseline_steps > 0:
-        base_in, base_nv = _fit_baseline(run, cam, truth_in, truth_nv)
+        base_in, base_nv = fit_baseline(run, cam, truth_in, truth_nv)
         if show:
-            figure.append([_to_u8(base_in["high"][0])] + [_to_u8(v) for v in base_nv["high"]])
+            figure.append([to_uint8(base_in["high"][0])] + [to_uint8(v) for v in base_nv["high"]])
     if show:
         blank = np.full_like(figure[0][0], 24)
-        figure.append([blank] + [_to_u8(v) for v in ceil_nv["high"]])
+        figure.append([blank] + [to_uint8(v) for v in ceil_nv["high"]])
         run.rows.append(figure)
     if run.bar is not None:
         run.bar.update(1)
@@ -365,7 +365,7 @@ DESCRIPTION = CLI_DESCRIPTION
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The evaluation options, shared by ``lp3d eval`` and ``python -m lp3d.training.eval``."""
+    """The evaluation options, shared by ``lp3d eval`` and ``python -m lp3d.eval``."""
     p.add_argument("checkpoint", help="training checkpoint (.pt) or run directory (its latest checkpoint)")
     default = EvalSettings()
     p.add_argument(
@@ -416,7 +416,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
-def build_parser(prog: str = "python -m lp3d.training.eval") -> argparse.ArgumentParser:
+def build_parser(prog: str = "python -m lp3d.eval") -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=prog, description=CLI_DESCRIPTION)
     add_arguments(p)
     p.set_defaults(func=run_cli)
@@ -424,7 +424,7 @@ def build_parser(prog: str = "python -m lp3d.training.eval") -> argparse.Argumen
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m lp3d.training.eval`` (an alias of ``lp3d eval``); exit status 0, 1 (an error, one
+    """``python -m lp3d.eval`` (an alias of ``lp3d eval``); exit status 0, 1 (an error, one
     line) or 2 (usage), as :mod:`lp3d.errors` says."""
     return run_command(build_parser(), argv)
 

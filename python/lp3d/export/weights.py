@@ -1,6 +1,6 @@
 """The weights an export ships: :func:`save_weights` (the torch weights file beside the ONNX model),
 float16 rounding and storage (:func:`round_to_float16`, :func:`store_float16`, :func:`check_rounding`) and
-the plane basis cut to fewer components (:func:`reduce_plane_basis`). Used by :mod:`lp3d.training.export`.
+the plane basis cut to fewer components (:func:`reduce_plane_basis`). Used by :mod:`lp3d.export.package`.
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ import torch
 from torch import Tensor, nn
 
 from lp3d.atomic import atomic_path
+from lp3d.export.superres import superres_weights
 from lp3d.nets.superres import SuperResolution
-from lp3d.training.export_superres import _superres_weights
 from lp3d.training.student import Student
 
 
@@ -50,7 +50,7 @@ def save_weights(
         "bounds": {"box_warp": scene.box_warp, "ray_start": scene.ray_start, "ray_end": scene.ray_end},
     }
     if superres is not None:
-        data["superres"] = _superres_weights(superres)
+        data["superres"] = superres_weights(superres)
     with atomic_path(path) as tmp:
         torch.save(data, tmp)
     return path
@@ -162,7 +162,7 @@ def check_rounding(reference: Student, rounded: Student, *, batch: int = 2, seed
     return float((reference.eval().encode(image) - rounded.eval().encode(image)).abs().max())
 
 
-def _training_inputs(cfg: Any, teacher_name: str, data_cache: str | None, n: int = 256) -> Tensor:
+def training_inputs(cfg: Any, teacher_name: str, data_cache: str | None, n: int = 256) -> Tensor:
     """The first ``n`` encoder inputs of the run's cached synthetic dataset (CPU recipe)."""
     from lp3d.training.synthetic_data import SyntheticDataset, default_cache_root
     from lp3d.training.teacher_factory import build_teacher, dataset_key

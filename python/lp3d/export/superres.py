@@ -1,6 +1,6 @@
 """A super-resolution network in a model package: exported to ONNX (:func:`export_superres`), checked
 (:func:`check_superres_onnx`), recorded in the sidecar (:func:`package_superres`) and in the weights file
-(:func:`add_superres_to_weights`). Used by :mod:`lp3d.training.export`.
+(:func:`add_superres_to_weights`). Used by :mod:`lp3d.export.package`.
 """
 
 from __future__ import annotations
@@ -14,6 +14,12 @@ import torch
 from torch import Tensor, nn
 
 from lp3d.atomic import atomic_path, create_temp, discard, publish
+from lp3d.export.onnx import (
+    MIN_OPSET,
+    ExportError,
+    ParityError,
+    export_batched,
+)
 from lp3d.lift.model_package import (
     ModelPackageError,
     decoder_digest,
@@ -21,12 +27,6 @@ from lp3d.lift.model_package import (
     superres_path,
 )
 from lp3d.nets.superres import FoldedSuperResolution, SuperResolution
-from lp3d.training.export_onnx import (
-    MIN_OPSET,
-    ExportError,
-    ParityError,
-    export_batched,
-)
 
 
 class _FeaturesToImage(nn.Module):
@@ -105,7 +105,7 @@ def package_superres(
     return entry, err
 
 
-def _superres_weights(sr: SuperResolution) -> dict[str, Any]:
+def superres_weights(sr: SuperResolution) -> dict[str, Any]:
     """The ``superres`` entry of an inference-weights file (float32: the network is small)."""
     return {
         "config": sr.config.to_dict(),
@@ -133,18 +133,18 @@ def add_superres_to_weights(path: str | os.PathLike[str], sr: SuperResolution, d
         raise ExportError(
             f"--weights {path}: its decoder is not the one the super-resolution network was fit for"
         )
-    data["superres"] = _superres_weights(sr)
+    data["superres"] = superres_weights(sr)
     with atomic_path(path) as tmp:
         torch.save(data, tmp)
     return path
 
 
-def _fitted_superres(
+def fitted_superres(
     path: str, decoder_sha256: str, allow_worse: bool
 ) -> tuple[SuperResolution, dict[str, Any]]:
-    """The SR of a finished ``lp3d.training.superres_fit`` checkpoint, checked against the model's decoder and
+    """The SR of a finished ``lp3d.superres_fit.fit`` checkpoint, checked against the model's decoder and
     its own held-out score; ``(network, about)``."""
-    from lp3d.training.superres_fit import FitError, load_fit
+    from lp3d.superres_fit.fit import FitError, load_fit
 
     try:
         fit = load_fit(path)
@@ -153,7 +153,7 @@ def _fitted_superres(
     if not fit.finished:
         raise ExportError(
             f"--superres {fit.path}: the fit stopped at step {fit.step} of {fit.config.steps}; run the same "
-            "python -m lp3d.training.superres_fit command again to finish it"
+            "python -m lp3d.superres_fit command again to finish it"
         )
     if fit.model.get("decoder_sha256") != decoder_sha256:
         raise ExportError(
@@ -169,7 +169,7 @@ def _fitted_superres(
             "to export it anyway)"
         )
     about = {
-        "source": "python -m lp3d.training.superres_fit",
+        "source": "python -m lp3d.superres_fit",
         "fit_checkpoint": str(fit.path),
         "fit_config": fit.config.to_dict(),
         "heldout": {k: v for k, v in report.items() if k != "per_pair"},

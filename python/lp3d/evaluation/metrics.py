@@ -1,6 +1,6 @@
-"""The evaluation's measures: PSNR, depth errors and SSIM per view (:class:`_Metrics`), and the
-cross-identity scores (:class:`_Cross`: each identity's renders against its own teacher's and against the
-other identities', whose difference is the identity specificity). Used by :mod:`lp3d.training.eval`.
+"""The evaluation's measures: PSNR, depth errors and SSIM per view (:class:`ViewScores`), and the
+cross-identity scores (:class:`CrossScores`: each identity's renders against its own teacher's and against the
+other identities', whose difference is the identity specificity). Used by :mod:`lp3d.evaluation.evaluate`.
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ def _mean(values: Sequence[float | None]) -> float | None:
     return float(np.mean(vals)) if vals else None
 
 
-class _Metrics:
+class ViewScores:
     """Accumulates per-view metrics of one method."""
 
     def __init__(self) -> None:
@@ -75,7 +75,7 @@ class _Metrics:
 
 
 @dataclass
-class _Cross:
+class CrossScores:
     """Novel-view scores of one method's renders of identity i (rows) against the truth of identity j
     (columns), each the mean over the views: PSNR (high and raw) and SSIM, (n, n) arrays."""
 
@@ -84,7 +84,9 @@ class _Cross:
     ssim: np.ndarray
 
     @classmethod
-    def of(cls, high: Sequence[Tensor], raw: Sequence[Tensor], truth: Sequence[dict[str, Tensor]]) -> _Cross:
+    def of(
+        cls, high: Sequence[Tensor], raw: Sequence[Tensor], truth: Sequence[dict[str, Tensor]]
+    ) -> CrossScores:
         """``high``/``raw``: one method's renders per identity, or one render for all (the floor)."""
         n = len(truth)
         rows = len(high)
