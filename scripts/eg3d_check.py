@@ -691,7 +691,7 @@ def _step_eval(check: Check, config: str) -> list[Row]:
     start = time.perf_counter()
     check.lp3d(
         name,
-        "lp3d.evaluation.evaluate",
+        "lp3d.eval",
         _run_dir(config),
         *("--teacher-pkl", str(check.pkl), "--eg3d-source", str(check.eg3d_source)),
         *("--n-identities", "2", "--baseline-steps", "0", "--out", f"eval-{config}"),

@@ -168,10 +168,12 @@ def test_help_for_every_command(capsys) -> None:
 
 
 def test_train_eval_export_are_the_module_commands() -> None:
-    """``lp3d train|eval|export`` take ``python -m lp3d.train|eval|export``'s options (one definition)."""
+    """``lp3d train|eval|export|superres-fit`` take ``python -m lp3d.train|eval|export|superres_fit``'s
+    options (one definition)."""
     import argparse
 
-    import lp3d.evaluation.evaluate
+    import lp3d.cli.eval
+    import lp3d.cli.superres_fit
     import lp3d.export.package
     import lp3d.train
     from lp3d.cli import build_parser
@@ -181,13 +183,33 @@ def test_train_eval_export_are_the_module_commands() -> None:
 
     for name, module in (
         ("train", lp3d.train),
-        ("eval", lp3d.evaluation.evaluate),
+        ("eval", lp3d.cli.eval),
         ("export", lp3d.export.package),
+        ("superres-fit", lp3d.cli.superres_fit),
     ):
         (sub,) = [a for a in build_parser(name)._actions if isinstance(a, argparse._SubParsersAction)]
         ours, theirs = sub.choices[name], module.build_parser()
         assert len(options(theirs)) > 3 and options(ours) == options(theirs), name
         assert ours.description == theirs.description and ours.prog == f"lp3d {name}"
+
+
+@pytest.mark.parametrize(
+    "module, prog",
+    [
+        ("lp3d.eval", "python -m lp3d.eval"),
+        ("lp3d.export", "python -m lp3d.export"),
+        ("lp3d.superres_fit", "python -m lp3d.superres_fit"),
+    ],
+)
+def test_the_library_commands_run_with_python_m(module: str, prog: str) -> None:
+    """The entry points README names for the torch commands (each a package's ``__main__`` or an alias)."""
+    import subprocess
+    import sys
+
+    done = subprocess.run(
+        [sys.executable, "-m", module, "--help"], capture_output=True, text=True, timeout=180
+    )
+    assert done.returncode == 0 and done.stdout.startswith(f"usage: {prog}"), done.stderr
 
 
 def test_a_closed_stdout_is_no_error_message(tmp_path) -> None:
@@ -212,7 +234,7 @@ def test_a_closed_stdout_is_no_error_message(tmp_path) -> None:
 def test_one_exit_code_policy_for_every_entry_point(capsys, tmp_path) -> None:
     """0 ok, 1 a runtime error (one line, no traceback), 2 a usage error: in ``lp3d`` and in the
     ``python -m lp3d.train|eval|export`` aliases alike."""
-    from lp3d.evaluation.evaluate import main as eval_main
+    from lp3d.cli.eval import main as eval_main
     from lp3d.export.package import main as export_main
     from lp3d.train import main as train_main
 
@@ -267,7 +289,8 @@ def test_python_m_lp3d_cli_and_the_import_graph(tmp_path) -> None:
     root = Path(lp3d.__file__).parent
     offenders = []
     for path in root.rglob("*.py"):
-        if root / "cli" in path.parents:
+        # A package's __main__.py (python -m lp3d.superres_fit) is an entry point: it runs the command line.
+        if root / "cli" in path.parents or path.name == "__main__.py":
             continue
         for node in ast.walk(ast.parse(path.read_text())):
             names = (

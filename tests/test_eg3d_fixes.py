@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 import torch
 
-from lp3d.evaluation.evaluate import main as eval_main
+from lp3d.cli.eval import main as eval_main
 from lp3d.render.camera import FFHQ_FOCAL, look_at_camera
 from lp3d.teachers import ProceduralTeacher
 from lp3d.teachers.eg3d import CONDITIONING_CAMERAS, default_conditioning_pose

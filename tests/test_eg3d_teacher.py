@@ -350,7 +350,7 @@ def test_missing_pickle_says_what_to_pass(tmp_path: Path) -> None:
             EG3DTeacher.from_pickle(path, eg3d_source=fake_eg3d_source(tmp_path / f"src{path is None}"))
         msg = str(e.value)
         assert EG3D_HINT in msg
-        # The flags the hint names are the ones lp3d.train and lp3d.evaluation.evaluate really have.
+        # The flags the hint names are the ones lp3d.train and lp3d.eval really have.
         assert "--teacher-pkl" in msg and "--eg3d-source" in msg and "ffhqrebalanced512-128.pkl" in msg
         assert "--eg3d-pkl" not in msg
         if path is not None:
@@ -435,11 +435,11 @@ def test_an_eg3d_run_resumes_and_evaluates_without_being_told_the_teacher_again(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """The run records the pickle and source paths (absolute) in its checkpoints; ``--resume`` and
-    ``lp3d.evaluation.evaluate`` rebuild the teacher from them, from another working directory too."""
+    ``lp3d.evaluation`` rebuild the teacher from them, from another working directory too."""
     import json
 
-    from lp3d.evaluation.evaluate import EvalSettings
-    from lp3d.evaluation.evaluate import run as eval_run
+    from lp3d.evaluation import EvalSettings
+    from lp3d.evaluation import evaluate_checkpoint as eval_run
     from lp3d.train import load_checkpoint
     from lp3d.train import main as train_main
 

@@ -30,7 +30,7 @@ import pytest
 import torch
 from torch import Tensor
 
-from lp3d.evaluation.evaluate import (
+from lp3d.evaluation import (
     EvalSettings,
     evaluate,
     input_camera,

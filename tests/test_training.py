@@ -22,8 +22,8 @@ import numpy as np
 import pytest
 import torch
 
-from lp3d.evaluation.evaluate import EvalSettings, evaluate
-from lp3d.evaluation.evaluate import main as eval_main
+from lp3d.cli.eval import main as eval_main
+from lp3d.evaluation import EvalSettings, evaluate
 from lp3d.teachers import ProceduralTeacher
 from lp3d.train import (
     TRAIN_CONFIGS,

@@ -39,7 +39,7 @@ MOVED = {
     "distributed": "lp3d.training.distributed",
     "run_dir": "lp3d.training.run_dir",
     "tensorboard_log": "lp3d.training.tensorboard_log",
-    "eval": "lp3d.evaluation.evaluate",
+    "eval": "lp3d.cli.eval",
     "demo": "lp3d.cli.demo",
     "view": "lp3d.cli.view",
     # Evaluation, export and SR fitting left lp3d.training for packages of their own (issue 24).

@@ -119,7 +119,7 @@ __all__ = [
 #: ``run(args) -> int``, and ``DESCRIPTION`` unless its ``add_arguments`` sets it; ``LAZY`` ones import
 #: torch, so their options are added only when the command line names them.
 COMMANDS: dict[str, ModuleType] = {
-    name: importlib.import_module(f"lp3d.cli.{name}")
+    name: importlib.import_module(f"lp3d.cli.{name.replace('-', '_')}")
     for name in (
         "encode",
         "render",
@@ -133,6 +133,7 @@ COMMANDS: dict[str, ModuleType] = {
         "train",
         "eval",
         "export",
+        "superres-fit",
     )
 }
 
@@ -143,7 +144,7 @@ def _add_command(p: argparse.ArgumentParser, module: ModuleType) -> None:
 
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
-    """The ``lp3d`` parser. A lazy subcommand (train, eval, export) gets its options only when
+    """The ``lp3d`` parser. A lazy subcommand (train, eval, export, superres-fit) gets its options only when
     ``command`` names it, so that ``lp3d encode`` never imports torch."""
     from lp3d import __version__ as version
 

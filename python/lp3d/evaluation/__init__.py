@@ -7,7 +7,8 @@ from where: :class:`EvalSettings`, the held-out input cameras, the truth and cei
 :mod:`~lp3d.evaluation.metrics` (PSNR, SSIM, depth errors, the cross-identity scores),
 :mod:`~lp3d.evaluation.identities` (one identity's renders, refinements and baseline, and the
 report made from them), :mod:`~lp3d.evaluation.report` (report.json, the figure, the table) and
-:mod:`~lp3d.evaluation.evaluate` (:func:`evaluate` and the command line).
+:mod:`~lp3d.evaluation.evaluate` (:func:`evaluate`, :func:`evaluate_checkpoint`). The command line is
+:mod:`lp3d.cli.eval`.
 
 May import :mod:`lp3d.training` (the student, its checkpoints and the teachers' renders) and the
 layers below it; needs torch (the ``train`` extra).
@@ -18,13 +19,13 @@ from lp3d.evaluation.evaluate import (
     NOVEL_VIEWS,
     EvalSettings,
     evaluate,
+    evaluate_checkpoint,
     input_camera,
     input_yaws,
     reference_teachers,
     summary_table,
     write_outputs,
 )
-from lp3d.evaluation.evaluate import run as evaluate_checkpoint
 
 __all__ = [
     "INPUT_YAW_RANGE_DEG",

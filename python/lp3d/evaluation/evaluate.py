@@ -59,7 +59,6 @@ baseline (when run) and ceiling (novel views only).
 
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 from pathlib import Path
@@ -69,7 +68,6 @@ import numpy as np
 import torch
 from torch import nn
 
-from lp3d.errors import UsageError, UserError, int_in, run_command
 from lp3d.evaluation.identities import (
     EvalRun,
     build_report,
@@ -102,14 +100,13 @@ from lp3d.evaluation.report import (
     summary_table,
     write_outputs,
 )
-from lp3d.lift.refine import MAX_STEPS as REFINE_MAX_STEPS
 from lp3d.lift.refine import RefineSettings
 from lp3d.teachers import Teacher
 from lp3d.training.checkpoint import load_checkpoint, student_from_checkpoint
 from lp3d.training.config import TrainConfig
 from lp3d.training.losses import LPIPSLoss, LPIPSWeightsNotFound, build_perceptual
 from lp3d.training.student import Student
-from lp3d.training.teacher_factory import TEACHERS, build_teacher, resolve_teacher_args
+from lp3d.training.teacher_factory import build_teacher, resolve_teacher_args
 
 __all__ = [
     "INPUT_YAW_RANGE_DEG",
@@ -118,10 +115,10 @@ __all__ = [
     "comparison_figure",
     "depth_errors",
     "evaluate",
+    "evaluate_checkpoint",
     "figure_labels",
     "input_camera",
     "input_yaws",
-    "main",
     "psnr",
     "reference_teachers",
     "summary_table",
@@ -290,7 +287,7 @@ def _evaluate_identity(run: EvalRun, teacher: Teacher, seed: int, yaw: float, *,
 # --------------------------------------------------------------------------------------------------
 
 
-def run(
+def evaluate_checkpoint(
     checkpoint: str | os.PathLike[str],
     *,
     out: str | os.PathLike[str] | None = None,
@@ -348,132 +345,3 @@ def run(
     )
     report_path, png = write_outputs(report, rows, out_dir)
     return report_path, png, report
-
-
-#: ``--help``'s description: the docstring's first paragraph and what a run writes (the protocol is in
-#: the module docstring).
-CLI_DESCRIPTION = (
-    "Evaluate a trained encoder on held-out teacher identities: does it follow its input, and how does "
-    "it compare with the mean head, the teacher itself and a per-identity optimisation baseline? "
-    "Writes report.json and comparison.png into --out (default <run>/eval-step-NNNNNN) and prints a "
-    "short table. Every metric is against the teacher at its native plane resolution, on identities "
-    "outside the training range."
-)
-
-#: The name every command module uses (``lp3d.cli.common.module_command``).
-DESCRIPTION = CLI_DESCRIPTION
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The evaluation options, shared by ``lp3d eval`` and ``python -m lp3d.eval``."""
-    p.add_argument("checkpoint", help="training checkpoint (.pt) or run directory (its latest checkpoint)")
-    default = EvalSettings()
-    p.add_argument(
-        "--n-identities",
-        type=int,
-        default=default.n_identities,
-        help=f"held-out identities (default {default.n_identities})",
-    )
-    p.add_argument("--out", default=None, help="output directory (default <run>/eval-step-NNNNNN)")
-    p.add_argument(
-        "--baseline-steps",
-        type=int,
-        default=default.baseline_steps,
-        help="optimisation steps of the baseline (0: skip)",
-    )
-    p.add_argument(
-        "--refine",
-        type=int_in(0, REFINE_MAX_STEPS),
-        default=0,
-        metavar="N",
-        help="also score lp3d encode --refine N (N steps of fitting the student's planes to the input "
-        "view; default 0: skip)",
-    )
-    p.add_argument(
-        "--lpips-weights", default=None, help="torchvision AlexNet/VGG16 state dict for the LPIPS metric"
-    )
-    p.add_argument(
-        "--lpips-net", choices=("alex", "vgg"), default="alex", help="LPIPS backbone (default alex)"
-    )
-    p.add_argument(
-        "--teacher-pkl",
-        default=None,
-        help="EG3D generator pickle (EG3D-teacher checkpoints; default: the one the run recorded)",
-    )
-    p.add_argument(
-        "--eg3d-source",
-        default=None,
-        help="NVlabs/eg3d's eg3d/ folder, to unpickle the generator (default: the one the run recorded)",
-    )
-    p.add_argument(
-        "--teacher",
-        choices=TEACHERS,
-        default=None,
-        help="the run's teacher (default: the one it recorded; runs made before procedural teacher v2 "
-        "recorded 'procedural' for procedural-v1)",
-    )
-    p.add_argument("--device", default="cpu", help="cpu or cuda")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
-
-
-def build_parser(prog: str = "python -m lp3d.eval") -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=prog, description=CLI_DESCRIPTION)
-    add_arguments(p)
-    p.set_defaults(func=run_cli)
-    return p
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``python -m lp3d.eval`` (an alias of ``lp3d eval``); exit status 0, 1 (an error, one
-    line) or 2 (usage), as :mod:`lp3d.errors` says."""
-    return run_command(build_parser(), argv)
-
-
-def run_cli(args: argparse.Namespace) -> int:
-    """Evaluate with parsed :func:`add_arguments` options; returns the exit status. (:func:`run` is the
-    Python API.)"""
-    if args.n_identities < 1:
-        raise UsageError("--n-identities must be >= 1")
-    if args.baseline_steps < 0:
-        raise UsageError("--baseline-steps must be >= 0")
-    settings = EvalSettings(
-        n_identities=args.n_identities,
-        baseline_steps=args.baseline_steps,
-        refine=RefineSettings(steps=args.refine),
-        progress=not args.no_progress,
-    )
-    try:
-        report_path, png, report = run(
-            args.checkpoint,
-            out=args.out,
-            settings=settings,
-            lpips_weights=args.lpips_weights,
-            lpips_net=args.lpips_net,
-            teacher_pkl=args.teacher_pkl,
-            eg3d_source=args.eg3d_source,
-            device=args.device,
-            teacher_name=args.teacher,
-        )
-    except (
-        RuntimeError
-    ) as e:  # a device or model failure; ValueError and OSError reach run_command as they are
-        raise UserError(str(e)) from None
-    print(summary_table(report))
-    s = report["student"]
-    print(f"student  : encode {s['encode_ms']:.1f} ms, render {s['render_ms']:.1f} ms per view")
-    if "refined" in report:
-        r, p = report["refined"], report["refined_photo"]
-        print(f"refined  : fit {r['refine_s']:.1f} s ({r['settings']['steps']} steps)")
-        print(
-            f"refined_photo: camera found and fitted in {p['refine_s']:.1f} s; camera error yaw "
-            f"{p['camera_yaw_error_deg']:.1f}°, pitch {p['camera_pitch_error_deg']:.1f}°"
-        )
-    if "baseline" in report:
-        b = report["baseline"]
-        print(f"baseline : fit {b['fit_s']:.1f} s ({b['steps']} steps)")
-    print(f"wrote {report_path} and {png}")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,4 +1,4 @@
-"""``python -m lp3d.export``: the command line of :mod:`lp3d.export`."""
+"""``python -m lp3d.export``: the same command as ``lp3d export``."""
 
 import sys
 

@@ -1,7 +1,7 @@
-"""``python -m lp3d.superres_fit``: the command line of :mod:`lp3d.superres_fit`."""
+"""``python -m lp3d.superres_fit``: the same command as ``lp3d superres-fit``."""
 
 import sys
 
-from lp3d.superres_fit.fit import main
+from lp3d.cli.superres_fit import main
 
 sys.exit(main())

@@ -4,7 +4,7 @@ The paper's recipe trains an SR with the encoder (EG3D's, paper Eq. 2); the CPU 
 (``python -m lp3d.train --config small``, the shipped model) renders its final image directly and
 trains none. This module gives such a model one, with the encoder and decoder frozen::
 
-    python -m lp3d.superres_fit [MODEL] --out runs/sr-small
+    lp3d superres-fit [MODEL] --out runs/sr-small       # or python -m lp3d.superres_fit
     lp3d export --superres runs/sr-small/superres-fit.pt --package MODEL.onnx [--weights MODEL.pt]
 
 ``MODEL`` is anything ``lp3d encode --model`` takes (default: the shipped model).
@@ -49,19 +49,17 @@ in :mod:`~lp3d.superres_fit.config` (:class:`FitConfig`), :mod:`~lp3d.superres_f
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import sys
 import time
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import torch
 
 from lp3d.atomic import atomic_path
-from lp3d.errors import EXIT_ERROR, run_command
 from lp3d.nets.superres import SuperResolution
 from lp3d.superres_fit.checkpoint import (
     CHECKPOINT_NAME,
@@ -70,7 +68,7 @@ from lp3d.superres_fit.checkpoint import (
     load_fit,
     save_fit_checkpoint,
 )
-from lp3d.superres_fit.config import TRAIN_ON, FitConfig, FitError
+from lp3d.superres_fit.config import FitConfig, FitError
 from lp3d.superres_fit.data import (
     PairKey,
     PairSet,
@@ -92,7 +90,6 @@ __all__ = [
     "default_pair_cache",
     "fit_superres",
     "load_fit",
-    "main",
     "model_fingerprint",
 ]
 
@@ -254,69 +251,3 @@ def _print_report(report: dict[str, Any], cfg: FitConfig, ckpt_path: Path) -> No
             file=sys.stderr,
         )
     print(f"wrote {ckpt_path}; package it with: lp3d export --superres {ckpt_path} --package MODEL.onnx")
-
-
-# --------------------------------------------------------------------------------------------------
-# Command line
-# --------------------------------------------------------------------------------------------------
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The fitting options: one flag per :class:`FitConfig` field, plus the inputs and outputs."""
-    defaults = FitConfig()
-    p.add_argument(
-        "model",
-        nargs="?",
-        default=None,
-        help="MODEL.onnx (with its MODEL.json), CHECKPOINT.pt or a run folder (default: the shipped model)",
-    )
-    p.add_argument("--out", required=True, type=Path, help="folder for the checkpoint, log.csv, report.json")
-    p.add_argument("--backend", choices=("onnx", "torch"), default=None, help="as for lp3d encode")
-    p.add_argument(
-        "--cache", type=Path, default=None, help=f"pair cache folder (default: {default_pair_cache()})"
-    )
-    p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
-    for f in fields(FitConfig):
-        value = getattr(defaults, f.name)
-        flag = "--" + f.name.replace("_", "-")
-        if isinstance(value, tuple):
-            p.add_argument(flag, type=int, nargs="+", default=list(value), help=f"(default: {value})")
-        elif f.name == "train_on":
-            p.add_argument(flag, choices=TRAIN_ON, default=value, help=f"(default: {value})")
-        else:
-            p.add_argument(flag, type=type(value), default=value, help=f"(default: {value})")
-
-
-def build_parser(prog: str = "python -m lp3d.superres_fit") -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0] if __doc__ else None)
-    add_arguments(p)
-    p.set_defaults(func=run_cli)
-    return p
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``python -m lp3d.superres_fit``; exit status 0, 1 (an error, one line) or 2 (usage), as
-    :mod:`lp3d.errors` says."""
-    return run_command(build_parser(), argv)
-
-
-def run_cli(args: argparse.Namespace) -> int:
-    """Fit with parsed :func:`add_arguments` options; returns the exit status."""
-    if args.threads:
-        torch.set_num_threads(args.threads)
-    from lp3d.lift.model_package import ModelPackageError
-
-    try:
-        cfg = FitConfig.from_dict({f.name: getattr(args, f.name) for f in fields(FitConfig)})
-        fit_superres(
-            args.model, args.out, cfg, backend=args.backend, cache=args.cache, progress=not args.quiet
-        )
-    except (FitError, StalePairsError, ModelPackageError, ValueError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return EXIT_ERROR
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
