@@ -41,7 +41,7 @@ from lp3d.evaluation.protocol import (
     render_truth,
 )
 from lp3d.lift.inference import load_encoder
-from lp3d.train import TRAIN_CONFIGS, SceneBounds, build_teacher
+from lp3d.training import TRAIN_CONFIGS, SceneBounds, build_teacher
 
 METHODS = ("ceiling", "basis oracle", "ceiling + noise", "student", "mean head")
 MODEL = Path(__file__).resolve().parents[1] / "python" / "lp3d" / "lift" / "models" / "small.pt"

@@ -3,11 +3,11 @@
     PYTHONPATH=python nice -n 10 python3 bench/train_profile.py [--repeats 3] [--threads 2] [--tiny]
         [--configs small-paper small] [--step-repeats 1] [--out FILE]
 
-For each configuration of :data:`lp3d.train.TRAIN_CONFIGS` asked for (default ``small-paper`` and
-``small``; ``--tiny`` adds ``tiny-paper`` and ``tiny``) it builds a :class:`lp3d.train.Trainer` on
+For each configuration of :data:`lp3d.training.TRAIN_CONFIGS` asked for (default ``small-paper`` and
+``small``; ``--tiny`` adds ``tiny-paper`` and ``tiny``) it builds a :class:`lp3d.training.Trainer` on
 the procedural teacher (CPU, a throw-away run directory and, for the CPU recipe, a throw-away
 dataset cache of ``batch_size`` identities) and times each component of one step with the tensors
-the trainer itself uses, replaying :meth:`~lp3d.train.Trainer.train_step` piece by piece:
+the trainer itself uses, replaying :meth:`~lp3d.training.Trainer.train_step` piece by piece:
 
 * **paper recipe** (``small-paper``, ``tiny-paper``), in stage 1 (a step without the reference
   views, as 9 of 10 stage-1 steps are) and in stage 2 (a step past ``dense_reference_from``, where
@@ -29,7 +29,7 @@ the trainer itself uses, replaying :meth:`~lp3d.train.Trainer.train_step` piece 
 Backward passes are timed apart from forward passes by cutting the graph at each component's
 output (a detached leaf that requires grad) and feeding the gradient back by hand, which does the
 same arithmetic as the trainer's single ``backward()``. The sum of the components is compared with
-a measured full :meth:`~lp3d.train.Trainer.train_step` at the same step (which also samples its own
+a measured full :meth:`~lp3d.training.Trainer.train_step` at the same step (which also samples its own
 batch). Every number is the median of ``--repeats`` passes after a warm-up pass on one identity;
 the full step is the median of ``--step-repeats`` calls (default 1: a ``small-paper`` step takes
 tens of seconds on two shared cores).
@@ -64,7 +64,7 @@ from torch import Tensor
 from lp3d.atomic import atomic_path
 from lp3d.render.torch_twin import rays_from_cameras, render_rays
 from lp3d.render.triplane import mirror_planes
-from lp3d.train import TRAIN_CONFIGS, Batch, TrainConfig, Trainer, build_teacher, render_teacher, render_views
+from lp3d.training import TRAIN_CONFIGS, Batch, TrainConfig, Trainer, build_teacher, render_teacher, render_views
 from lp3d.training.camera_sampling import sample_cameras
 from lp3d.training.losses import ViewRenders, build_perceptual, l1, normalised_triplane_loss
 

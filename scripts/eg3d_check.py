@@ -667,7 +667,7 @@ def _step_train(check: Check, config: str) -> list[Row]:
         *("--device", check.device, "--no-progress"),
     )
     seconds = time.perf_counter() - start
-    from lp3d.train import load_checkpoint
+    from lp3d.training import load_checkpoint
 
     ckpt = load_checkpoint(check.work / _run_dir(config))
     teacher = json.loads(ckpt.get("teacher_args") or "{}")
@@ -716,7 +716,7 @@ def _step_export(check: Check, config: str) -> list[Row]:
     name = f"export:{config}"
     model = check.work / f"model-{config}.onnx"
     start = time.perf_counter()
-    text = check.lp3d(name, "lp3d.export.package", _run_dir(config), "-o", model.name)
+    text = check.lp3d(name, "lp3d.export", _run_dir(config), "-o", model.name)
     seconds = time.perf_counter() - start
     errors = re.findall(r"onnxruntime vs PyTorch max abs error (\S+)", text)
     ok = model.is_file() and bool(errors)

@@ -22,7 +22,7 @@ import os
 import sys
 from pathlib import Path
 
-from lp3d.train import TRAIN_CONFIGS, TrainConfig
+from lp3d.training import TRAIN_CONFIGS, TrainConfig
 from lp3d.train import main as train_main
 
 CONFIGS: dict[str, TrainConfig] = {

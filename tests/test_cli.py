@@ -173,8 +173,8 @@ def test_train_eval_export_are_the_module_commands() -> None:
     import argparse
 
     import lp3d.cli.eval
+    import lp3d.cli.export
     import lp3d.cli.superres_fit
-    import lp3d.export.package
     import lp3d.train
     from lp3d.cli import build_parser
 
@@ -184,7 +184,7 @@ def test_train_eval_export_are_the_module_commands() -> None:
     for name, module in (
         ("train", lp3d.train),
         ("eval", lp3d.cli.eval),
-        ("export", lp3d.export.package),
+        ("export", lp3d.cli.export),
         ("superres-fit", lp3d.cli.superres_fit),
     ):
         (sub,) = [a for a in build_parser(name)._actions if isinstance(a, argparse._SubParsersAction)]
@@ -235,7 +235,7 @@ def test_one_exit_code_policy_for_every_entry_point(capsys, tmp_path) -> None:
     """0 ok, 1 a runtime error (one line, no traceback), 2 a usage error: in ``lp3d`` and in the
     ``python -m lp3d.train|eval|export`` aliases alike."""
     from lp3d.cli.eval import main as eval_main
-    from lp3d.export.package import main as export_main
+    from lp3d.cli.export import main as export_main
     from lp3d.train import main as train_main
 
     missing = tmp_path / "missing.pt"

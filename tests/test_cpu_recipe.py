@@ -17,7 +17,7 @@ import torch
 from lp3d.render.camera import look_at_camera
 from lp3d.render.triplane import mirror_planes
 from lp3d.teachers import ProceduralTeacher
-from lp3d.train import TRAIN_CONFIGS, SceneBounds, TrainConfig, Trainer, render_views
+from lp3d.training import TRAIN_CONFIGS, SceneBounds, TrainConfig, Trainer, render_views
 from lp3d.train import main as train_main
 from lp3d.training.losses import normalised_triplane_loss
 from lp3d.training.synthetic_data import DatasetKey, StaleDatasetError, SyntheticDataset, teacher_fingerprint
@@ -236,7 +236,7 @@ def test_a_short_cpu_run_learns_to_follow_its_input(learned):
 # ---------------------------------------------------------------------------------------- basis
 def test_principal_planes_span_a_low_rank_family_and_start_the_basis_at_zero():
     from lp3d.nets.encoder import CONFIGS, build_encoder
-    from lp3d.train import principal_planes
+    from lp3d.training import principal_planes
 
     gen = torch.Generator().manual_seed(0)
     mean, u, v = (torch.randn(3, 4, 8, 8, generator=gen) for _ in range(3))
@@ -272,7 +272,7 @@ def test_principal_planes_span_a_low_rank_family_and_start_the_basis_at_zero():
 def test_total_steps_keeps_the_regression_share_of_the_schedule():
     """``--total-steps`` stretches the CPU recipe's regression phase with the schedule: ``small``
     regresses for all of it, so a longer run must not switch the ray loss on partway."""
-    from lp3d.train import _scaled_schedule
+    from lp3d.training.config import _scaled_schedule
 
     small = TRAIN_CONFIGS["small"]
     assert small.regression_steps == small.total_steps

@@ -25,7 +25,7 @@ from lp3d.cli.eval import main as eval_main
 from lp3d.render.camera import FFHQ_FOCAL, look_at_camera
 from lp3d.teachers import ProceduralTeacher
 from lp3d.teachers.eg3d import CONDITIONING_CAMERAS, default_conditioning_pose
-from lp3d.train import TRAIN_CONFIGS, Trainer
+from lp3d.training import TRAIN_CONFIGS, Trainer
 from lp3d.training.synthetic_data import DatasetKey, SyntheticDataset, resize_planes, teacher_fingerprint
 
 

@@ -440,7 +440,7 @@ def test_an_eg3d_run_resumes_and_evaluates_without_being_told_the_teacher_again(
 
     from lp3d.evaluation import EvalSettings
     from lp3d.evaluation import evaluate_checkpoint as eval_run
-    from lp3d.train import load_checkpoint
+    from lp3d.training import load_checkpoint
     from lp3d.train import main as train_main
 
     pkl = dump(tmp_path / "standin.pkl", {"G": None, "D": None, "G_ema": StandInGenerator(seed=3)})

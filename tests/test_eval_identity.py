@@ -41,7 +41,7 @@ from lp3d.evaluation import (
 )
 from lp3d.lift.refine import RefineSettings
 from lp3d.teachers import ProceduralTeacher
-from lp3d.train import TRAIN_CONFIGS, SceneBounds, Student, TrainConfig, build_teacher, render_teacher
+from lp3d.training import TRAIN_CONFIGS, SceneBounds, Student, TrainConfig, build_teacher, render_teacher
 
 N = 3
 #: Fewer samples per ray and views than the real evaluation: the properties tested do not depend on them.

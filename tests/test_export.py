@@ -9,6 +9,7 @@ import onnx
 import pytest
 import torch
 
+from lp3d.cli.export import main as export_main
 from lp3d.export.package import (
     MIN_OPSET,
     check_onnx,
@@ -17,10 +18,9 @@ from lp3d.export.package import (
     round_to_float16,
     store_float16,
 )
-from lp3d.export.package import main as export_main
 from lp3d.lift.inference import load_encoder
 from lp3d.lift.model_package import load_model_package
-from lp3d.train import TRAIN_CONFIGS, Trainer, build_teacher, load_checkpoint, student_from_checkpoint
+from lp3d.training import TRAIN_CONFIGS, Trainer, build_teacher, load_checkpoint, student_from_checkpoint
 from lp3d.training.losses import build_perceptual
 
 

@@ -22,7 +22,7 @@ from lp3d.cli import main
 @pytest.fixture(scope="module")
 def checkpoint(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """An untrained tiny-configuration checkpoint (export needs no training) in a run folder."""
-    from lp3d.train import TRAIN_CONFIGS, Trainer, build_teacher
+    from lp3d.training import TRAIN_CONFIGS, Trainer, build_teacher
     from lp3d.training.losses import build_perceptual
 
     cfg = TRAIN_CONFIGS["tiny-paper"]

@@ -20,12 +20,12 @@ import torch
 from PIL import Image
 
 from lp3d.cli import main
+from lp3d.cli.export import main as export_main
 from lp3d.export.package import (
     check_superres_onnx,
     export_superres,
     package_superres,
 )
-from lp3d.export.package import main as export_main
 from lp3d.lift.inference import load_superres, superresolve
 from lp3d.lift.model_package import (
     ModelPackageError,
@@ -162,7 +162,7 @@ def test_package_entry_and_python_api(package) -> None:
 
 
 def weights_file(encoder: torch.nn.Module, path: Path, **extra: object) -> dict[str, object]:
-    """An inference-weights file (``lp3d.export.package --weights``'s layout) of the tiny encoder with the
+    """An inference-weights file (``lp3d export --weights``'s layout) of the tiny encoder with the
     sphere's decoder; returns its contents."""
     tri = coloured_sphere(size=8)
     data = {
@@ -179,7 +179,7 @@ def weights_file(encoder: torch.nn.Module, path: Path, **extra: object) -> dict[
 
 
 def test_torch_backend_reads_the_network_from_weights(package, tmp_path) -> None:
-    """``lp3d.export.package --weights`` files carry the network for ``--backend torch``; same images."""
+    """``lp3d export --weights`` files carry the network for ``--backend torch``; same images."""
     from lp3d.export.superres import superres_weights
 
     weights = tmp_path / "tiny.pt"
@@ -589,7 +589,7 @@ def test_export_guards_on_fits(package, tmp_path, capsys) -> None:
 def test_export_of_a_paper_recipe_checkpoint_carries_its_network(tmp_path, capsys) -> None:
     """The paper recipe trains an SR with the encoder: ``lp3d export`` packages it (ONNX, sidecar
     entry, ``--weights``), and the checkpoint, the ONNX package and the weights file give the same images."""
-    from lp3d.train import TRAIN_CONFIGS, Trainer, build_teacher
+    from lp3d.training import TRAIN_CONFIGS, Trainer, build_teacher
     from lp3d.training.losses import build_perceptual
 
     cfg = TRAIN_CONFIGS["tiny-paper"]

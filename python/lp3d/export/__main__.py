@@ -1,7 +1,7 @@
-"""``python -m lp3d.export``: the same command as ``lp3d export``."""
+"""``python -m lp3d.export``: the same command as ``lp3d export`` (:mod:`lp3d.cli.export`)."""
 
 import sys
 
-from lp3d.export.package import main
+from lp3d.cli.export import main
 
 sys.exit(main())

@@ -307,7 +307,7 @@ class FoldedSuperResolution(nn.Module):
     """The inference form of a :class:`SuperResolution`: with its constant w, every style and
     demodulation factor is a constant, so each modulated convolution is a plain convolution with the
     weight ``w · style[in] · demod[out]`` folded in once. Same outputs (to float rounding), no
-    data-dependent shapes, and only standard ops: this is what ``lp3d.export.package`` writes to ONNX.
+    data-dependent shapes, and only standard ops: this is what ``lp3d export`` writes to ONNX.
 
     ``forward(features (B, C, R, R)) -> image (B, 3, R_out, R_out)`` with ``R = input_resolution``
     exactly (no resize), ``noise_mode="none"``.

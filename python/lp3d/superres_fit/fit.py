@@ -39,7 +39,7 @@ trains none. This module gives such a model one, with the encoder and decoder fr
 
 The checkpoint (``superres-fit.pt``, ``"format": "lp3d-superres-fit-v1"``) is a plain dict of
 tensors and JSON strings (``torch.load(weights_only=True)``); :func:`load_fit` reads it and
-``lp3d.export.package --superres`` packages it as ONNX beside the encoder.
+``lp3d export --superres`` packages it as ONNX beside the encoder.
 
 This module holds :func:`fit_superres` (the steps above, in order) and the command line; the parts live
 in :mod:`~lp3d.superres_fit.config` (:class:`FitConfig`), :mod:`~lp3d.superres_fit.data`

@@ -2,7 +2,7 @@
 
 Synthesising a batch (teacher triplanes, then volume renders of them) costs more than the student's
 whole step on a CPU (``bench/train_profile.py``), and it does not depend on the student. So the CPU
-recipe (:data:`lp3d.train.TRAIN_CONFIGS` ``small``/``tiny``) synthesises ``n_identities`` identities
+recipe (:data:`lp3d.training.TRAIN_CONFIGS` ``small``/``tiny``) synthesises ``n_identities`` identities
 once and reuses them across steps, runs and resumes. Per identity ``i`` (teacher seed
 ``first_seed + i``):
 
