@@ -462,10 +462,11 @@ def test_mesh_ply_and_obj(capsys, sphere, tmp_path) -> None:
     n_vert = int(header.split("element vertex ")[1].split()[0])
     n_face = int(header.split("element face ")[1].split()[0])
     rows = body.splitlines()
-    assert len(rows) == n_vert + n_face and len(rows[0].split()) == 9 and rows[-1].startswith("3 ")
-    # Binary body: 27 bytes per vertex (9 fields) and 13 per face.
+    # x y z nx ny nz red green blue alpha (trimesh writes an alpha of 255).
+    assert len(rows) == n_vert + n_face and len(rows[0].split()) == 10 and rows[-1].startswith("3 ")
+    # Binary body: 28 bytes per vertex (6 floats, 4 uchars) and 13 per face.
     bheader, _, bbody = binary.partition(b"end_header\n")
-    assert len(bbody) == 27 * n_vert + 13 * n_face
+    assert len(bbody) == 28 * n_vert + 13 * n_face
     obj = (tmp_path / "m.obj").read_text().splitlines()
     v = [ln.split() for ln in obj if ln.startswith("v ")]
     f = [ln for ln in obj if ln.startswith("f ")]

@@ -1,4 +1,4 @@
-"""Triplane to mesh: a density grid, marching cubes, vertex colours, and PLY / OBJ / GLB writers.
+"""Triplane to mesh: a density grid, marching cubes, vertex colours, and PLY / OBJ / GLB files (trimesh).
 
 The grid samples the decoder's raw density ``sigma_raw`` (EG3D's ``out[0]``, before the marcher's
 softplus) at ``grid``³ points spanning the triplane box ``[-box_warp/2, box_warp/2]³``, with the
@@ -10,21 +10,25 @@ broadcast-added, so only the decoder runs per grid point (float32, in slabs). Th
 of empty voxels closes it at the box faces. Vertex colours are the decoder's RGB features
 (sigmoid outputs 1..3, in [0, 1]) at the vertices.
 
-World axes are kept (y up, the face looks toward +z), which is glTF's convention too.
+World axes are kept (y up, the face looks toward +z), which is glTF's convention too. trimesh writes the
+files (layouts in the writers' docstrings) to the path given; ``lp3d mesh`` gives a temporary file from
+:mod:`lp3d.atomic` and publishes it once written.
 """
 
 from __future__ import annotations
 
-import json
 import os
-import struct
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from lp3d.render.reference import decode, grid_sample_bilinear, sample_triplane
 from lp3d.render.triplane import PLANE_AXES, TriplaneData
+
+if TYPE_CHECKING:
+    import trimesh
 
 __all__ = [
     "EG3D_MESH_THRESHOLD",
@@ -141,55 +145,45 @@ def _colors_uint8(colors: np.ndarray) -> np.ndarray:
     return np.round(np.clip(colors, 0.0, 1.0) * 255.0).astype(np.uint8)
 
 
-def write_ply(path: str | os.PathLike[str], mesh: Mesh, *, binary: bool = True) -> None:
-    """PLY with float x y z, nx ny nz, uchar red green blue per vertex and uchar-counted int faces."""
-    v, f = mesh.vertices, mesh.faces
-    header = (
-        "ply\n"
-        f"format {'binary_little_endian' if binary else 'ascii'} 1.0\n"
-        "comment written by lp3d mesh\n"
-        f"element vertex {len(v)}\n"
-        "property float x\nproperty float y\nproperty float z\n"
-        "property float nx\nproperty float ny\nproperty float nz\n"
-        "property uchar red\nproperty uchar green\nproperty uchar blue\n"
-        f"element face {len(f)}\n"
-        "property list uchar int vertex_indices\n"
-        "end_header\n"
+def _trimesh(mesh: Mesh, *, colors: bool = True, **extra: object) -> trimesh.Trimesh:
+    """``mesh`` as a :class:`trimesh.Trimesh` kept exactly as given: no vertex merging or reordering
+    (``process=False``), our normals (not recomputed) and, with ``colors``, 8-bit vertex colours."""
+    import trimesh
+
+    return trimesh.Trimesh(
+        vertices=mesh.vertices,
+        faces=mesh.faces,
+        vertex_normals=mesh.normals,
+        vertex_colors=_colors_uint8(mesh.colors) if colors else None,
+        process=False,
+        validate=False,
+        **extra,
     )
-    rgb = _colors_uint8(mesh.colors)
+
+
+def _write(path: str | os.PathLike[str], data: bytes | str) -> None:
+    # ``path`` is the caller's temporary file (lp3d.atomic), published by the caller.
     with open(path, "wb") as out:
-        out.write(header.encode("ascii"))
-        if binary:
-            vdt = np.dtype([("p", "<f4", 3), ("n", "<f4", 3), ("c", "u1", 3)])
-            va = np.empty(len(v), vdt)
-            va["p"], va["n"], va["c"] = v, mesh.normals, rgb
-            out.write(va.tobytes())
-            fdt = np.dtype([("k", "u1"), ("i", "<i4", 3)])
-            fa = np.empty(len(f), fdt)
-            fa["k"], fa["i"] = 3, f.astype(np.int32)
-            out.write(fa.tobytes())
-        else:
-            lines = [
-                f"{p[0]:.6g} {p[1]:.6g} {p[2]:.6g} {n[0]:.5g} {n[1]:.5g} {n[2]:.5g} {c[0]} {c[1]} {c[2]}\n"
-                for p, n, c in zip(v.tolist(), mesh.normals.tolist(), rgb.tolist(), strict=True)
-            ]
-            lines += [f"3 {a} {b} {c}\n" for a, b, c in f.tolist()]
-            out.write("".join(lines).encode("ascii"))
+        out.write(data.encode("ascii") if isinstance(data, str) else data)
+
+
+def write_ply(path: str | os.PathLike[str], mesh: Mesh, *, binary: bool = True) -> None:
+    """PLY (trimesh): float x y z, nx ny nz, uchar red green blue alpha (255) per vertex and
+    uchar-counted int faces; binary little-endian or ASCII."""
+    encoding = "binary" if binary else "ascii"
+    data = _trimesh(mesh).export(
+        file_type="ply", encoding=encoding, vertex_normal=True, include_attributes=False
+    )
+    _write(path, data)
 
 
 def write_obj(path: str | os.PathLike[str], mesh: Mesh) -> None:
-    """Wavefront OBJ: ``v x y z r g b`` (colours in [0, 1] as extra columns, read by MeshLab/Blender),
-    ``vn`` normals and 1-based ``f a//a b//b c//c`` faces."""
-    v, n, c = mesh.vertices.tolist(), mesh.normals.tolist(), np.clip(mesh.colors, 0, 1).tolist()
-    parts = ["# written by lp3d mesh\n"]
-    parts += [
-        f"v {p[0]:.6g} {p[1]:.6g} {p[2]:.6g} {q[0]:.4f} {q[1]:.4f} {q[2]:.4f}\n"
-        for p, q in zip(v, c, strict=True)
-    ]
-    parts += [f"vn {p[0]:.5g} {p[1]:.5g} {p[2]:.5g}\n" for p in n]
-    parts += [f"f {a}//{a} {b}//{b} {d}//{d}\n" for a, b, d in (mesh.faces.astype(np.int64) + 1).tolist()]
-    with open(path, "w", encoding="ascii") as out:
-        out.write("".join(parts))
+    """Wavefront OBJ (trimesh): ``v x y z r g b`` (8-bit colours as fractions in [0, 1], read by
+    MeshLab/Blender), ``vn`` normals and 1-based ``f a//a b//b c//c`` faces; no material file."""
+    text = _trimesh(mesh).export(
+        file_type="obj", include_normals=True, include_color=True, include_texture=False
+    )
+    _write(path, text)
 
 
 def _srgb_to_linear(c: np.ndarray) -> np.ndarray:
@@ -197,74 +191,25 @@ def _srgb_to_linear(c: np.ndarray) -> np.ndarray:
     return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
 
 
-#: glTF constants.
-_FLOAT, _UINT32 = 5126, 5125
-_ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
-_GLB_MAGIC, _CHUNK_JSON, _CHUNK_BIN = 0x46546C67, 0x4E4F534A, 0x004E4942
+def _color_0(tree: dict) -> None:
+    """trimesh writes custom vertex attributes with a leading underscore; glTF's own is ``COLOR_0``."""
+    for gltf_mesh in tree["meshes"]:
+        for prim in gltf_mesh["primitives"]:
+            attrs = prim["attributes"]
+            key = next((k for k in ("_COLOR_0", "COLOR_0") if k in attrs), None)
+            if key is None:
+                raise RuntimeError(f"trimesh wrote no COLOR_0 attribute (got {sorted(attrs)})")
+            attrs["COLOR_0"] = attrs.pop(key)
 
 
 def write_glb(path: str | os.PathLike[str], mesh: Mesh) -> None:
-    """A minimal glTF 2.0 binary: one mesh, one triangle primitive with POSITION, NORMAL, COLOR_0
-    (float VEC3, linear: glTF vertex colours are linear, so the decoder's sRGB colours are converted)
-    and uint32 indices, in one buffer."""
-    blobs = [
-        np.ascontiguousarray(mesh.vertices, "<f4"),
-        np.ascontiguousarray(mesh.normals, "<f4"),
-        np.ascontiguousarray(_srgb_to_linear(mesh.colors), "<f4"),
-        np.ascontiguousarray(mesh.faces, "<u4"),
-    ]
-    views, offset = [], 0
-    for i, blob in enumerate(blobs):
-        views.append(
-            {
-                "buffer": 0,
-                "byteOffset": offset,
-                "byteLength": blob.nbytes,
-                "target": _ELEMENT_ARRAY_BUFFER if i == 3 else _ARRAY_BUFFER,
-            }
-        )
-        offset += blob.nbytes  # every blob is a multiple of 4 bytes: offsets stay aligned
-    n = len(mesh.vertices)
-    accessors = [
-        {
-            "bufferView": 0,
-            "componentType": _FLOAT,
-            "count": n,
-            "type": "VEC3",
-            "min": mesh.vertices.min(axis=0).astype(float).tolist(),
-            "max": mesh.vertices.max(axis=0).astype(float).tolist(),
-        },
-        {"bufferView": 1, "componentType": _FLOAT, "count": n, "type": "VEC3"},
-        {"bufferView": 2, "componentType": _FLOAT, "count": n, "type": "VEC3"},
-        {"bufferView": 3, "componentType": _UINT32, "count": int(mesh.faces.size), "type": "SCALAR"},
-    ]
-    doc = {
-        "asset": {"version": "2.0", "generator": "lp3d mesh"},
-        "scene": 0,
-        "scenes": [{"nodes": [0]}],
-        "nodes": [{"mesh": 0, "name": "lp3d"}],
-        "meshes": [
-            {
-                "primitives": [
-                    {"attributes": {"POSITION": 0, "NORMAL": 1, "COLOR_0": 2}, "indices": 3, "mode": 4}
-                ]
-            }
-        ],
-        "buffers": [{"byteLength": offset}],
-        "bufferViews": views,
-        "accessors": accessors,
-    }
-    js = json.dumps(doc, separators=(",", ":")).encode("utf-8")
-    js += b" " * (-len(js) % 4)  # chunks are 4-byte aligned; JSON pads with spaces
-    binary = b"".join(b.tobytes() for b in blobs)
-    binary += b"\0" * (-len(binary) % 4)
-    total = 12 + 8 + len(js) + 8 + len(binary)
-    with open(path, "wb") as out:
-        out.write(struct.pack("<III", _GLB_MAGIC, 2, total))
-        out.write(struct.pack("<II", len(js), _CHUNK_JSON))
-        out.write(js)
-        out.write(struct.pack("<II", len(binary), _CHUNK_BIN))
-        out.write(binary)
+    """glTF 2.0 binary (trimesh): one mesh, one triangle primitive with POSITION, NORMAL, COLOR_0 and
+    uint32 indices. COLOR_0 is float VEC3 and linear (glTF vertex colours are linear, so the decoder's
+    sRGB colours are converted). Float rather than trimesh's 8-bit colours: 8-bit linear keeps 183 of
+    the 256 sRGB levels, shows the darkest 7 as black and others up to 6 levels off. trimesh writes it
+    as a custom attribute and :func:`_color_0` names it ``COLOR_0``."""
+    tm = _trimesh(mesh, colors=False, vertex_attributes={"COLOR_0": _srgb_to_linear(mesh.colors)})
+    _write(path, tm.export(file_type="glb", include_normals=True, tree_postprocessor=_color_0))
 
 
 #: Writers by suffix.
