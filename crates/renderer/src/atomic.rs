@@ -1,7 +1,9 @@
 //! Atomic file writes: a finished file appears whole under its name, or not at all.
 //!
 //! Each write gets a temporary file of its own beside the destination (same folder, so the rename
-//! is atomic): `.{name}.tmp-{pid}-{n}` with `n` from a process-wide counter, created exclusively
+//! is atomic): `.{name}.tmp-{pid}-{n}` with `n` from a process-wide counter and `name` cut to its
+//! first 64 bytes (so any legal destination name, up to 255 bytes, has a legal temporary name, as
+//! in lp3d's Python writer `lp3d/atomic.py`), created exclusively
 //! (`create_new`, retried on a clash with a stale file), so threads and processes saving one path
 //! at once never share a temporary file. It is created with mode 0666 less the umask, like any
 //! new file (the permissions lp3d's Python writers give too), synced, then renamed; on every
@@ -18,9 +20,17 @@ use crate::error::{Error, Result};
 static SEQUENCE: AtomicU64 = AtomicU64::new(0);
 /// Names tried before giving up (a clash means a stale temporary file, or a reused pid).
 const ATTEMPTS: u32 = 100;
+/// Bytes of the destination's name kept in a temporary name (NAME_MAX is 255).
+const NAME_BYTES: usize = 64;
+
+/// The longest start of `name` of at most `limit` bytes that ends on a whole character.
+fn name_prefix(name: &str, limit: usize) -> &str {
+    let end = name.char_indices().map(|(i, c)| i + c.len_utf8()).take_while(|&end| end <= limit).last();
+    &name[..end.unwrap_or(0)]
+}
 
 fn io_error(path: &Path, e: io::Error) -> Error {
-    Error::Io { path: path.into(), message: e.to_string() }
+    Error::io(path, e)
 }
 
 /// A complete, synced temporary file waiting to be renamed onto its destination. Dropped without
@@ -60,11 +70,14 @@ fn create_temp(path: &Path) -> Result<(File, PathBuf)> {
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
         _ => PathBuf::from("."),
     };
-    let name =
-        path.file_name().ok_or_else(|| Error::Io { path: path.into(), message: "not a file path".into() })?;
+    let name = path
+        .file_name()
+        .ok_or_else(|| Error::io_kind(path, io::ErrorKind::InvalidInput, "not a file path"))?;
+    let name = name.to_string_lossy();
+    let name = name_prefix(&name, NAME_BYTES);
     for _ in 0..ATTEMPTS {
         let n = SEQUENCE.fetch_add(1, Ordering::Relaxed);
-        let tmp = dir.join(format!(".{}.tmp-{}-{n}", name.to_string_lossy(), std::process::id()));
+        let tmp = dir.join(format!(".{name}.tmp-{}-{n}", std::process::id()));
         // `create_new` is O_CREAT | O_EXCL: never opens (and truncates) another writer's file.
         match OpenOptions::new().write(true).create_new(true).open(&tmp) {
             Ok(file) => return Ok((file, tmp)),
@@ -72,10 +85,11 @@ fn create_temp(path: &Path) -> Result<(File, PathBuf)> {
             Err(e) => return Err(io_error(path, e)),
         }
     }
-    Err(Error::Io {
-        path: path.into(),
-        message: format!("no free temporary name beside it after {ATTEMPTS} tries"),
-    })
+    Err(Error::io_kind(
+        path,
+        io::ErrorKind::AlreadyExists,
+        format!("no free temporary name beside it after {ATTEMPTS} tries"),
+    ))
 }
 
 /// Runs `write` on a new temporary sibling of `path` and syncs it, ready for [`Staged::publish`].
@@ -177,6 +191,22 @@ mod tests {
         let second = stage(&folder, |f| f.write_all(b"b")).unwrap();
         assert!(publish_all(vec![first, second]).is_err());
         assert_eq!(entries(&dir), ["sub", "t.bin"]);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_destination_name_of_any_legal_length_can_be_written() {
+        let dir = temp_dir("long");
+        // 255 bytes, the file-system limit: "é" is 2 bytes, so the cut must fall between characters.
+        let name = format!("{}{}.npz", "é".repeat(100), "a".repeat(51));
+        assert_eq!(name.len(), 255);
+        let path = dir.join(&name);
+        write_atomically(&path, |f| f.write_all(b"long")).unwrap();
+        assert_eq!(std::fs::read(&path).unwrap(), b"long");
+        assert_eq!(entries(&dir), [name]);
+        assert_eq!(name_prefix("aé", 2), "a");
+        assert_eq!(name_prefix("aé", 3), "aé");
+        assert_eq!(name_prefix("é", 1), "");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

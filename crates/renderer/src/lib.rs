@@ -14,7 +14,6 @@ pub mod gpu_types;
 pub mod kernel;
 pub mod npz;
 pub mod occupancy;
-pub mod occupancy_grid;
 pub mod renderer;
 pub mod settings;
 pub mod shaders;

@@ -4,13 +4,14 @@
 //! `lp3d.render.triplane_io`.
 
 mod file;
+pub mod occupancy;
 
 pub use file::{OPTIONAL_KEYS, REQUIRED_KEYS};
 
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::npz;
-pub use crate::occupancy_grid::Occupancy;
+pub use occupancy::Occupancy;
 
 /// Which world axes each plane samples as (u, v): (x,y), (x,z), (z,x).
 ///
@@ -31,7 +32,7 @@ pub const FORMAT_VERSION: i64 = 1;
 /// Largest accepted plane side (H and W).
 pub const MAX_PLANE_SIZE: usize = 2048;
 /// Largest accepted occupancy grid side G.
-pub const MAX_OCCUPANCY_RESOLUTION: usize = crate::occupancy_grid::MAX_RESOLUTION;
+pub const MAX_OCCUPANCY_RESOLUTION: usize = occupancy::MAX_RESOLUTION;
 /// Longest accepted `source` text, in characters.
 pub const MAX_SOURCE_CHARS: usize = 4096;
 /// Largest accepted triplane file (2048 x 2048 float32 planes and a 512^3 grid are just over 2 GiB).

@@ -194,29 +194,42 @@ fn one_spec_with_the_python_reader() {
 #[cfg(unix)]
 #[test]
 fn non_regular_files_are_refused_at_once() {
+    use std::io::ErrorKind::{InvalidInput, IsADirectory};
     // Issue 11 item 3: a FIFO hung the reader; a directory was "Invalid argument (os error 22)".
     let dir = std::env::temp_dir().join(format!("lp3d-triplane-files-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let fifo = dir.join("pipe.npz");
     let _ = std::fs::remove_file(&fifo);
-    let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
-    // SAFETY: a valid NUL-terminated path.
-    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
-    for (path, words) in [
-        (fifo.as_path(), "FIFO"),
-        (dir.as_path(), "is a directory"),
-        (Path::new("/dev/zero"), "character device"),
-        (Path::new("/dev/urandom"), "character device"),
+    // The mkfifo(1) program rather than libc::mkfifo: the workspace forbids unsafe code.
+    let made = std::process::Command::new("mkfifo").args(["-m", "600"]).arg(&fifo).status().unwrap();
+    assert!(made.success(), "mkfifo {}: {made}", fifo.display());
+    for (path, words, expected) in [
+        (fifo.as_path(), "FIFO", InvalidInput),
+        (dir.as_path(), "is a directory", IsADirectory),
+        (Path::new("/dev/zero"), "character device", InvalidInput),
+        (Path::new("/dev/urandom"), "character device", InvalidInput),
     ] {
         match Triplane::load(path) {
-            Err(e @ Error::Io { .. }) => {
+            Err(e @ Error::Io { kind, .. }) => {
                 let text = e.to_string();
                 assert!(text.contains(words) && text.contains(path.to_str().unwrap()), "{text}");
+                assert_eq!(kind, expected, "{text}");
             }
             other => panic!("{}: expected an I/O error, got {other:?}", path.display()),
         }
     }
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_missing_file_is_an_io_error_with_its_kind_and_source() {
+    use std::error::Error as _;
+    let path = std::env::temp_dir().join(format!("lp3d-no-such-file-{}.npz", std::process::id()));
+    let e = Triplane::load(&path).unwrap_err();
+    assert!(matches!(e, Error::Io { kind: std::io::ErrorKind::NotFound, .. }), "{e:?}");
+    assert!(e.to_string().starts_with(&format!("{}: ", path.display())), "{e}");
+    let source = e.source().and_then(|s| s.downcast_ref::<std::io::Error>()).expect("the io::Error");
+    assert_eq!(source.kind(), std::io::ErrorKind::NotFound);
 }
 
 fn xorshift(state: &mut u64) -> u64 {

@@ -114,7 +114,6 @@ pub const OPTIONAL_KEYS: [&str; 4] = ["camera", "occupancy", "occupancy_checksum
 /// Opened non-blocking: a FIFO would otherwise wait for a writer forever (and a blocked open
 /// ignores Ctrl-C); for a regular file the flag changes nothing.
 fn open_regular_file(path: &Path) -> Result<(File, u64)> {
-    let io = |message: String| Error::Io { path: path.into(), message };
     let mut options = std::fs::OpenOptions::new();
     options.read(true);
     #[cfg(unix)]
@@ -122,10 +121,13 @@ fn open_regular_file(path: &Path) -> Result<(File, u64)> {
         use std::os::unix::fs::OpenOptionsExt;
         options.custom_flags(libc::O_NONBLOCK | libc::O_NOCTTY);
     }
-    let file = options.open(path).map_err(|e| io(e.to_string()))?;
-    let meta = file.metadata().map_err(|e| io(e.to_string()))?;
+    let file = options.open(path).map_err(|e| Error::io(path, e))?;
+    let meta = file.metadata().map_err(|e| Error::io(path, e))?;
     if !meta.is_file() {
-        return Err(io(format!("{}, not a regular file (a triplane .npz)", file_kind(&meta.file_type()))));
+        let kind =
+            if meta.is_dir() { std::io::ErrorKind::IsADirectory } else { std::io::ErrorKind::InvalidInput };
+        let message = format!("{}, not a regular file (a triplane .npz)", file_kind(&meta.file_type()));
+        return Err(Error::io_kind(path, kind, message));
     }
     Ok((file, meta.len()))
 }

@@ -1,5 +1,5 @@
 //! The occupancy grid as data: cells, bounds, their checks and the bits the kernel reads. A
-//! triplane holds one; baking it from a triplane is `occupancy.rs` (`docs/occupancy.md`).
+//! triplane holds one; baking it from a triplane is `crate::occupancy` (`docs/occupancy.md`).
 
 use crate::error::{Error, Result};
 
