@@ -25,11 +25,11 @@ use crate::triplane::{PlaneDtype, SceneInfo, Triplane, N_CHANNELS};
 use background::spawn_fast_kernel_compile;
 use layouts::Layouts;
 
-// The old paths (`lp3d_renderer::renderer::KernelChoice`, `::check_decoder_range`) keep working.
+// Old paths for users until lp3d 0.2 (the repo's own code uses `crate::kernel`, `crate::settings`
+// and the crate root): `lp3d_renderer::renderer::{KernelChoice, Kernel, check_decoder_range, Display}`.
 pub use crate::kernel::{Kernel, KernelChoice};
-pub use upload::check_decoder_range;
-// `Display` lives with the other settings; `lp3d_renderer::renderer::Display` still resolves.
 pub use crate::settings::Display;
+pub use upload::check_decoder_range;
 
 const WORKGROUP: u32 = 64;
 /// Texel format of `render_to_texture` targets (an sRGB-unaware 8-bit RGBA storage texture).

@@ -3,7 +3,7 @@
 //! switches to the fast one after its background compile changes no bit either.
 
 use lp3d_renderer::camera::{FFHQ_FOCAL, FFHQ_RADIUS};
-use lp3d_renderer::renderer::{Kernel, KernelChoice};
+use lp3d_renderer::kernel::{Kernel, KernelChoice};
 use lp3d_renderer::{
     Camera, Decoder, GpuContext, GpuTriplane, Outputs, PlaneDtype, RenderSettings, Renderer, SceneBounds,
     Triplane,
