@@ -64,7 +64,15 @@ from torch import Tensor
 from lp3d.atomic import atomic_path
 from lp3d.render.torch_twin import rays_from_cameras, render_rays
 from lp3d.render.triplane import mirror_planes
-from lp3d.training import TRAIN_CONFIGS, Batch, TrainConfig, Trainer, build_teacher, render_teacher, render_views
+from lp3d.training import (
+    TRAIN_CONFIGS,
+    Batch,
+    TrainConfig,
+    Trainer,
+    build_teacher,
+    render_teacher,
+    render_views,
+)
 from lp3d.training.camera_sampling import sample_cameras
 from lp3d.training.losses import ViewRenders, build_perceptual, l1, normalised_triplane_loss
 
@@ -129,13 +137,13 @@ def _backward(outputs: list[Tensor], leaves: list[Tensor]) -> None:
 
 def _optimiser_step(tr: Trainer) -> None:
     """The tail of :meth:`Trainer.train_step`: unscale, clip, Adam, scheduler (no AMP on a CPU)."""
-    cfg = tr.config
+    cfg, opt = tr.config, tr.optimisation
     if cfg.grad_clip > 0:
-        tr.scaler.unscale_(tr.opt_g)
+        opt.scaler.unscale_(opt.opt_g)
         torch.nn.utils.clip_grad_norm_(tr.student.parameters(), cfg.grad_clip)
-    tr.scaler.step(tr.opt_g)
-    tr.scaler.update()
-    tr.sched_g.step()
+    opt.scaler.step(opt.opt_g)
+    opt.scaler.update()
+    opt.sched_g.step()
 
 
 # --------------------------------------------------------------------------------------------------
@@ -148,7 +156,7 @@ def paper_pass(tr: Trainer, step: int, b: int) -> Times:
     cfg = tr.config
     t: Times = {}
     tr.step = step
-    tr._set_trainable(step)
+    tr.steps.set_trainable(step)
     tr.student.train()
     tr.discriminator.requires_grad_(False)
     weights = cfg.weights(step)
@@ -161,7 +169,7 @@ def paper_pass(tr: Trainer, step: int, b: int) -> Times:
         seeds = [int(s) for s in rng.integers(cfg.train_seeds[0], cfg.train_seeds[1], size=b)]
         ref_cams = torch.from_numpy(sample_cameras(cfg.reference_cameras, b, rng).labels).float()
         mv_cams = torch.from_numpy(sample_cameras(cfg.multiview_cameras, b, rng).labels).float()
-        teacher_planes = tr._teacher_planes(tr.teacher.sample_batch(seeds))
+        teacher_planes = tr.run_teacher.planes(tr.teacher.sample_batch(seeds))
     label = "teacher renders (ref image, mv raw + high" + (", ref raw)" if is_ref else ")")
     with clock(t, label):
         dec = tr.teacher_decoder
@@ -176,7 +184,7 @@ def paper_pass(tr: Trainer, step: int, b: int) -> Times:
         assert f_ref is not None and d_ref is not None
         ref_t = ViewRenders(features=f_ref, high=ref_image, depth=d_ref)
 
-    tr.opt_g.zero_grad(set_to_none=True)
+    tr.optimisation.opt_g.zero_grad(set_to_none=True)
     with clock(t, "encoder forward"):
         planes = tr.student.encode(ref_image, amp=tr.amp)
     p = _leaf(planes)
@@ -203,7 +211,7 @@ def paper_pass(tr: Trainer, step: int, b: int) -> Times:
         total = planes.new_zeros(())
         if weights.triplane > 0:
             total = total + weights.triplane * tr.losses.triplane(
-                p, tr._teacher_target_planes(teacher_planes)
+                p, tr.run_teacher.target_planes(teacher_planes)
             )
         plain = dataclasses.replace(weights, adversarial_reference=0.0, adversarial_multiview=0.0)
         total = total + tr.losses.views(mv_s, mv_t, plain, kind="multiview")[0]
@@ -250,7 +258,7 @@ def paper_pass(tr: Trainer, step: int, b: int) -> Times:
         with clock(t, "discriminator step"):
             batch = Batch(seeds, teacher_planes, ref_cams, mv_cams, ref_image, mv_t, ref_t)
             fake = ViewRenders(f_leaf.detach(), h_leaf.detach(), d_leaf.detach())
-            tr._discriminator_step(step, batch, fake, is_ref)
+            tr.steps.discriminator_step(step, batch, fake, is_ref)
     return t
 
 
@@ -265,7 +273,7 @@ def cpu_pass(tr: Trainer, step: int, b: int) -> Times:
     assert ds is not None
     t: Times = {}
     tr.step = step
-    tr._set_trainable(step)
+    tr.steps.set_trainable(step)
     tr.student.train()
     rng = tr.data_rng
     with clock(t, "data (index cached arrays + mirror)"):
@@ -276,7 +284,7 @@ def cpu_pass(tr: Trainer, step: int, b: int) -> Times:
             flip = torch.from_numpy(rng.random(len(idx)) < 0.5)
             image = torch.where(flip[:, None, None, None], image.flip(-1), image)
             target = torch.where(flip[:, None, None, None, None], mirror_planes(target), target)
-    tr.opt_g.zero_grad(set_to_none=True)
+    tr.optimisation.opt_g.zero_grad(set_to_none=True)
     with clock(t, "encoder forward"):
         planes = tr.student.encode(image, amp=tr.amp)
     p = _leaf(planes)
@@ -319,14 +327,14 @@ def dataset_synthesis(tr: Trainer, repeats: int) -> Synthesis:
     """Per-identity cost of building the cached dataset: teacher planes and the input render."""
     cfg = tr.config
     b = cfg.batch_size
-    render = tr._input_renderer()
+    render = tr.run_teacher.input_renderer()
     runs: list[Times] = []
     for i in range(repeats + 1):  # the first is the warm-up
         seeds = [cfg.train_seeds[0] + i * b + k for k in range(b)]
         cams = torch.from_numpy(sample_cameras(cfg.reference_cameras, b, tr.data_rng).labels).float()
         t: Times = {}
         with clock(t, "teacher.sample_batch"):
-            planes = tr._teacher_planes(tr.teacher.sample_batch(seeds))
+            planes = tr.run_teacher.planes(tr.teacher.sample_batch(seeds))
         with clock(t, f"input render at {cfg.image_size}² (render_teacher)"):
             render(planes, cams)
         runs.append({k: v / b for k, v in t.items()})

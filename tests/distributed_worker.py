@@ -22,8 +22,8 @@ import os
 import sys
 from pathlib import Path
 
-from lp3d.training import TRAIN_CONFIGS, TrainConfig
 from lp3d.train import main as train_main
+from lp3d.training import TRAIN_CONFIGS, TrainConfig
 
 CONFIGS: dict[str, TrainConfig] = {
     "dist-paper": dataclasses.replace(

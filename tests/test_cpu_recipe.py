@@ -17,8 +17,8 @@ import torch
 from lp3d.render.camera import look_at_camera
 from lp3d.render.triplane import mirror_planes
 from lp3d.teachers import ProceduralTeacher
-from lp3d.training import TRAIN_CONFIGS, SceneBounds, TrainConfig, Trainer, render_views
 from lp3d.train import main as train_main
+from lp3d.training import TRAIN_CONFIGS, SceneBounds, TrainConfig, Trainer, render_views
 from lp3d.training.losses import normalised_triplane_loss
 from lp3d.training.synthetic_data import DatasetKey, StaleDatasetError, SyntheticDataset, teacher_fingerprint
 
@@ -272,14 +272,14 @@ def test_principal_planes_span_a_low_rank_family_and_start_the_basis_at_zero():
 def test_total_steps_keeps_the_regression_share_of_the_schedule():
     """``--total-steps`` stretches the CPU recipe's regression phase with the schedule: ``small``
     regresses for all of it, so a longer run must not switch the ray loss on partway."""
-    from lp3d.training.config import _scaled_schedule
+    from lp3d.training.config import scaled_schedule
 
     small = TRAIN_CONFIGS["small"]
     assert small.regression_steps == small.total_steps
-    assert _scaled_schedule(2400, small)["regression_steps"] == 2400
+    assert scaled_schedule(2400, small)["regression_steps"] == 2400
     partial = dataclasses.replace(small, regression_steps=small.total_steps // 4)
-    assert _scaled_schedule(2400, partial)["regression_steps"] == 600
-    assert "regression_steps" not in _scaled_schedule(2400)  # the paper's configs have no such phase
+    assert scaled_schedule(2400, partial)["regression_steps"] == 600
+    assert "regression_steps" not in scaled_schedule(2400)  # the paper's configs have no such phase
 
 
 def test_a_resumed_run_may_lengthen_its_schedule_only():

@@ -43,8 +43,7 @@ import torch
 
 from distributed_worker import CONFIGS
 from lp3d.teachers import ProceduralTeacher
-from lp3d.training import TrainConfig, Trainer, load_checkpoint
-from lp3d.training import distributed
+from lp3d.training import TrainConfig, Trainer, distributed, load_checkpoint
 from lp3d.training.losses import build_perceptual
 
 WORKER = str(Path(__file__).with_name("distributed_worker.py"))

@@ -26,6 +26,7 @@ from lp3d.render.camera import FFHQ_FOCAL, look_at_camera
 from lp3d.teachers import ProceduralTeacher
 from lp3d.teachers.eg3d import CONDITIONING_CAMERAS, default_conditioning_pose
 from lp3d.training import TRAIN_CONFIGS, Trainer
+from lp3d.training.run_teacher import RunTeacher
 from lp3d.training.synthetic_data import DatasetKey, SyntheticDataset, resize_planes, teacher_fingerprint
 
 
@@ -83,7 +84,7 @@ def test_both_recipes_regress_onto_the_same_resized_teacher_planes() -> None:
     """The CPU recipe's stored target is the paper recipe's L_tri target for the same planes."""
     cfg = TRAIN_CONFIGS["tiny"]
     planes = torch.randn(2, 3, 32, 2 * cfg.triplane_resolution, 2 * cfg.triplane_resolution)
-    paper = Trainer._teacher_target_planes(SimpleNamespace(config=cfg), planes)  # type: ignore[arg-type]
+    paper = RunTeacher.target_planes(SimpleNamespace(config=cfg), planes)  # type: ignore[arg-type]
     assert torch.equal(paper, resize_planes(planes, cfg.triplane_resolution))
 
 

@@ -440,8 +440,8 @@ def test_an_eg3d_run_resumes_and_evaluates_without_being_told_the_teacher_again(
 
     from lp3d.evaluation import EvalSettings
     from lp3d.evaluation import evaluate_checkpoint as eval_run
-    from lp3d.training import load_checkpoint
     from lp3d.train import main as train_main
+    from lp3d.training import load_checkpoint
 
     pkl = dump(tmp_path / "standin.pkl", {"G": None, "D": None, "G_ema": StandInGenerator(seed=3)})
     src = fake_eg3d_source(tmp_path / "src")

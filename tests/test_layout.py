@@ -198,14 +198,43 @@ def test_old_module_names_still_import(old: str) -> None:
     assert any(issubclass(w.category, DeprecationWarning) and new in str(w.message) for w in caught)
 
 
+#: Old names kept for users beside the moved modules, each gone in ``_moved.REMOVED_IN`` too:
+#: (module, name). The repo's own code does not use them (checked below).
+OLD_NAMES = [
+    ("lp3d.cli", "render_triplane"),
+    ("lp3d.cli", "render_views"),
+    ("lp3d.training.config", "_scaled_schedule"),
+]
+
+
 def test_old_module_names_end_at_their_stated_release() -> None:
-    """The shims of :mod:`lp3d._moved` go away in ``REMOVED_IN``: a release that reaches it must drop
-    them (and this test's version parse keeps the stated release a real one)."""
+    """The shims of :mod:`lp3d._moved` and :data:`OLD_NAMES` go away in ``REMOVED_IN``: a release
+    that reaches it must drop them."""
 
     def version(text: str) -> tuple[int, ...]:
         return tuple(int(part) for part in text.split(".")[:2])
 
-    assert version(lp3d.__version__) < version(_moved.REMOVED_IN) or not _moved.MOVED
+    if version(lp3d.__version__) >= version(_moved.REMOVED_IN):
+        assert not _moved.MOVED
+        for module, name in OLD_NAMES:
+            assert not hasattr(importlib.import_module(module), name), f"{module}.{name}"
+
+
+def test_the_repo_uses_no_old_name() -> None:
+    """lp3d's own modules, tests, benches and scripts import the moved modules and renamed names by
+    their new paths only."""
+    old_modules = {f"lp3d.{old}" for old in _moved.MOVED}
+    found = []
+    files = dict(MODULES)
+    for folder in ("tests", "bench", "scripts"):
+        files |= {str(p.relative_to(REPO)): p for p in (REPO / folder).rglob("*.py")}
+    for name, path in files.items():
+        if name in ("lp3d._moved", "lp3d.train"):
+            continue  # the shims themselves
+        for target in lp3d_imports(path):
+            if target in old_modules or any(target == f"{m}.{n}" for m, n in OLD_NAMES):
+                found.append(f"{name} imports {target}")
+    assert found == []
 
 
 def private_imports(modules: dict[str, Path]) -> list[str]:
@@ -228,8 +257,8 @@ def private_imports(modules: dict[str, Path]) -> list[str]:
 
 
 #: Packages whose modules import only each other's public names (issue 24); the others (lift,
-#: teachers, nets, training) still share private helpers between their own modules.
-PUBLIC_ONLY = ("evaluation", "export", "superres_fit", "cli", "render", "photo", "share")
+#: teachers, nets) still share private helpers between their own modules.
+PUBLIC_ONLY = ("evaluation", "export", "superres_fit", "cli", "render", "photo", "share", "training")
 
 
 def test_no_module_imports_another_modules_private_names() -> None:
@@ -243,6 +272,118 @@ def test_the_private_import_check_catches_one(tmp_path) -> None:
     assert private_imports({"lp3d.export.probe": probe}) == [
         "lp3d.export.probe imports lp3d.evaluation.protocol._secret"
     ]
+
+
+#: One concept, one definition (issue 24): the module each lives in. Elsewhere a module imports it;
+#: :func:`definitions` says what would be a second one.
+ONE_HOME = {
+    "PSNR": "lp3d.render.psnr",
+    "cosine schedule": "lp3d.nets.lr_schedule",
+    "latest checkpoint": "lp3d.lift.run_checkpoints",
+    "atomic write": "lp3d.atomic",
+}
+
+#: Second definitions left for a change of their own, each with the reason (the test fails once one
+#: is gone, so that the entry goes too).
+LEFT_ELSEWHERE = {
+    ("cosine schedule", "lp3d.lift.pose"): "fit_pose's camera-step decay to 0 (issue 21) computes "
+    "cos(pi * i / n), not cos(pi * (i / n)): moving it to cosine_decay changes refine's learning "
+    "rates in the last bit, so it is left to a change of lp3d.lift.pose that says so",
+}
+
+
+def _dotted(node: ast.AST) -> str:
+    """``torch.log10`` for the callee ``torch.log10``; ``""`` for one that is not a plain name."""
+    if isinstance(node, ast.Name):
+        return node.id
+    if isinstance(node, ast.Attribute):
+        inner = _dotted(node.value)
+        return f"{inner}.{node.attr}" if inner else node.attr
+    return ""
+
+
+def _times_pi(node: ast.AST) -> bool:
+    """Whether ``node`` holds a product with ``pi`` (``math.pi * t``, ``np.pi * i / n``)."""
+    return any(
+        isinstance(n, ast.BinOp)
+        and isinstance(n.op, ast.Mult)
+        and any(_dotted(side).rsplit(".", 1)[-1] == "pi" for side in (n.left, n.right))
+        for n in ast.walk(node)
+    )
+
+
+def definitions(path: Path) -> set[str]:
+    """The :data:`ONE_HOME` concepts that ``path`` defines: a function named like one (``psnr``,
+    ``*cosine*``, ``latest_*checkpoint*``/``newest_readable``, ``*atomic*``) or the computation itself
+    (a ``log10``: a PSNR; ``cos(pi * t)``: a cosine schedule; a ``glob``/``re.compile`` of
+    ``step-*`` names: the checkpoint rule; ``fsync``/``mkstemp``/``NamedTemporaryFile``: an atomic
+    writer)."""
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            name = node.name.lower()
+            if name.strip("_") in ("psnr", "psnr_db"):
+                found.add("PSNR")
+            if "cosine" in name:
+                found.add("cosine schedule")
+            if ("latest" in name or "newest" in name) and ("checkpoint" in name or "readable" in name):
+                found.add("latest checkpoint")
+            if "atomic" in name:
+                found.add("atomic write")
+        elif isinstance(node, ast.Call):
+            callee = _dotted(node.func)
+            last = callee.rsplit(".", 1)[-1]
+            args = [*node.args, *(k.value for k in node.keywords)]
+            if last == "log10":
+                found.add("PSNR")
+            if last == "cos" and any(_times_pi(a) for a in args):
+                found.add("cosine schedule")
+            steps = any(
+                isinstance(c, ast.Constant) and isinstance(c.value, str) and "step-" in c.value
+                for a in args
+                for c in ast.walk(a)
+            )
+            if steps and (last in ("glob", "rglob", "iglob") or callee == "re.compile"):
+                found.add("latest checkpoint")
+            if last in ("fsync", "mkstemp", "NamedTemporaryFile"):
+                found.add("atomic write")
+    return found
+
+
+def test_each_concept_has_one_definition() -> None:
+    """PSNR, the cosine schedule, the latest readable checkpoint and the atomic writer are each
+    defined in their :data:`ONE_HOME` module only (issue 24: heldout.csv and report.json, ``lp3d
+    encode --model RUN`` and ``lp3d eval RUN`` could disagree while there were several)."""
+    homes = {home: concept for concept, home in ONE_HOME.items()}
+    for concept, home in ONE_HOME.items():
+        assert concept in definitions(MODULES[home]), f"{home} no longer defines the {concept}"
+    found = {
+        (concept, name)
+        for name, path in MODULES.items()
+        for concept in definitions(path)
+        if homes.get(name) != concept
+    }
+    unexplained = sorted(found - LEFT_ELSEWHERE.keys())
+    assert not unexplained, (
+        "a second definition (use the one in its home, "
+        + ", ".join(f"{c}: {h}" for c, h in ONE_HOME.items())
+        + f"): {unexplained}"
+    )
+    assert not LEFT_ELSEWHERE.keys() - found, "a second definition left elsewhere is gone: drop its entry"
+
+
+def test_the_one_definition_check_catches_a_second(tmp_path) -> None:
+    probe = tmp_path / "probe.py"
+    probe.write_text(
+        "import math, torch\n"
+        "def score(a, b):\n    return 10 * torch.log10(4 / (a - b).square().mean())\n"
+        "def lr(step, total):\n    return 0.5 * (1 + math.cos(math.pi * step / total))\n"
+        "def last(run):\n    return sorted(run.glob('checkpoints/step-*.pt'))[-1]\n"
+        "def _atomic_save(obj, path):\n    pass\n"
+    )
+    assert definitions(probe) == set(ONE_HOME)
+    probe.write_text("from lp3d.render.psnr import psnr\ndef score(a, b):\n    return psnr(a, b).mean()\n")
+    assert definitions(probe) == set()
 
 
 def test_old_module_names_still_run_with_python_m() -> None:

@@ -92,6 +92,26 @@ def test_an_unreadable_latest_checkpoint_falls_back_to_the_newest_good_one(tmp_p
         load_checkpoint(run)
 
 
+def test_encode_eval_and_resume_take_the_same_checkpoint_of_a_run(tmp_path, cache, capsys):
+    """``lp3d encode --model RUN`` (the torch backend), ``lp3d eval RUN`` and ``--resume RUN`` follow one
+    rule (issue 24, ``lp3d.lift.run_checkpoints``): the step is parsed from the name, so step 1,000,000
+    is newer than step 999,999 (a sort by name says otherwise), and a damaged newest file is skipped."""
+    from lp3d.lift.inference import load_encoder
+
+    run = tmp_path / "run"
+    _trainer(_cfg(), run, cache).train(2)
+    folder = run / "checkpoints"
+    os.replace(folder / "step-000001.pt", folder / "step-999999.pt")
+    os.replace(folder / "step-000002.pt", folder / "step-1000000.pt")
+    (folder / "step-1000001.pt").write_bytes(b"half a checkpoint")
+    assert sorted(p.name for p in folder.glob("step-*.pt"))[-1] == "step-999999.pt"
+    assert Path(load_checkpoint(run)["path"]).name == "step-1000000.pt"
+    assert load_encoder(run).description.startswith("step-1000000.pt ")
+    err = capsys.readouterr().err
+    assert err.count("skipped unreadable newer checkpoint(s), continuing from step-1000000.pt") == 2
+    assert "step-1000001.pt" in err
+
+
 def test_resuming_from_an_older_checkpoint_continues_that_branch_only(tmp_path, cache, capsys):
     run = tmp_path / "run"
     _trainer(_cfg(checkpoint_every=2), run, cache).train(6)

@@ -1,8 +1,9 @@
 """Atomic file writes: a finished file appears whole under its name, or not at all.
 
 Every writer in lp3d goes through here, one file with :func:`atomic_path` (``save_triplane``, the
-model package, checkpoints, figures) or a set with :class:`StagedFiles` (the CLI's outputs), so they
-share three promises:
+model package, checkpoints, figures; :func:`atomic_write_text` for a text file: ``config.json``,
+``report.json``) or a set with :class:`StagedFiles` (the CLI's outputs), so they share three promises.
+No other module defines an atomic writer of its own (``tests/test_layout.py`` checks):
 
 * **Unique temporary names.** Each write gets its own new file beside the destination (same folder,
   so the rename is atomic), created with ``O_EXCL``: threads and processes writing the same path at
@@ -24,7 +25,15 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import TypeVar
 
-__all__ = ["StagedFiles", "atomic_path", "create_temp", "discard", "publish", "publish_all"]
+__all__ = [
+    "StagedFiles",
+    "atomic_path",
+    "atomic_write_text",
+    "create_temp",
+    "discard",
+    "publish",
+    "publish_all",
+]
 
 #: Process-wide sequence number for temporary names (``next`` on a count is atomic).
 _sequence = itertools.count()
@@ -134,6 +143,14 @@ def atomic_path(path: str | os.PathLike[str], *, parents: bool = True) -> Iterat
             e.filename = str(path)
         raise
     publish(tmp, path)
+
+
+def atomic_write_text(path: str | os.PathLike[str], text: str, *, parents: bool = True) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` through :func:`atomic_path`; returns ``path``."""
+    path = Path(path)
+    with atomic_path(path, parents=parents) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    return path
 
 
 _Staged = TypeVar("_Staged", bound="StagedFiles")

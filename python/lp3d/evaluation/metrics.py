@@ -1,6 +1,8 @@
 """The evaluation's measures: PSNR, depth errors and SSIM per view (:class:`ViewScores`), and the
 cross-identity scores (:class:`CrossScores`: each identity's renders against its own teacher's and against the
 other identities', whose difference is the identity specificity). Used by :mod:`lp3d.evaluation.evaluate`.
+The PSNR is lp3d's one (:func:`lp3d.render.psnr.psnr`, re-exported here), the training's learning curve's
+too.
 """
 
 from __future__ import annotations
@@ -13,13 +15,10 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from lp3d.render.psnr import psnr
 from lp3d.training.losses import LPIPSLoss, ssim
 
-
-def psnr(a: Tensor, b: Tensor) -> Tensor:
-    """Per-image PSNR (dB) of images (B, C, H, W) in [-1, 1] (peak-to-peak 2) -> (B,)."""
-    mse = (a.clamp(-1, 1) - b.clamp(-1, 1)).square().flatten(1).mean(dim=1)
-    return 10.0 * torch.log10(4.0 / mse.clamp_min(1e-12))
+__all__ = ["CrossScores", "ViewScores", "depth_errors", "psnr"]
 
 
 def depth_errors(pred: Tensor, target: Tensor, mask: Tensor) -> tuple[float, float]:

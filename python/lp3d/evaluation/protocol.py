@@ -130,7 +130,7 @@ def reference_teachers(teacher: Teacher, cfg: TrainConfig) -> tuple[Teacher, Tea
 
 
 def resample_planes(planes: Tensor, t: int) -> Tensor:
-    """Planes (B, 3, C, H, W) at t² (bilinear, antialiased; as ``Trainer._teacher_target_planes``)."""
+    """Planes (B, 3, C, H, W) at t² (bilinear, antialiased; as ``RunTeacher.target_planes``)."""
     if planes.shape[-1] == t and planes.shape[-2] == t:
         return planes
     b, p, c, h, w = planes.shape

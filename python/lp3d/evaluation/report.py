@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from lp3d.atomic import atomic_path
+from lp3d.atomic import atomic_write_text
 from lp3d.images import save_png, tile
 
 
@@ -62,18 +62,13 @@ def figure_labels(report: dict[str, Any]) -> list[str]:
     return ["teacher", "student", *optional, "ceiling"]
 
 
-def _atomic_json(path: Path, data: dict[str, Any]) -> None:
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(data, indent=2) + "\n")
-
-
 def write_outputs(
     report: dict[str, Any], rows: list[list[list[np.ndarray]]], out_dir: str | os.PathLike[str]
 ) -> tuple[Path, Path]:
     """Write ``report.json`` and ``comparison.png`` into ``out_dir``; returns their paths."""
     out_dir = Path(out_dir)
     report_path = out_dir / "report.json"
-    _atomic_json(report_path, report)
+    atomic_write_text(report_path, json.dumps(report, indent=2) + "\n")
     shown = len(rows)
     total = len(report["identity_seeds"])
     notes = [f"yaw {r['input_yaw_deg']:+.0f}" for r in report["per_identity"][:shown]]

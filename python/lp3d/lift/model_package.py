@@ -233,7 +233,7 @@ def save_model_package(
         decoder: effective decoder weights ``(w0 (64, 32), b0 (64,), w1 (33, 64), b1 (33,))`` (numpy or
             torch), a mapping with those keys, or an object with those attributes (e.g. a TriplaneData).
         config: the encoder's :class:`~lp3d.nets.encoder.EncoderConfig` (or its dict, or a config name).
-        bounds: ``box_warp``, ``ray_start``, ``ray_end`` (e.g. ``lp3d.training.SceneBounds``, a dict, a tuple).
+        bounds: ``box_warp``, ``ray_start``, ``ray_end`` (``lp3d.training.SceneBounds``, a dict, a tuple).
         input_name / output_name: the ONNX graph's tensor names (informational; None to omit).
         superres: the ``superres`` entry (:func:`superres_entry`), or None for a package without one.
 

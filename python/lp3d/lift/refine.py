@@ -26,7 +26,6 @@ May import :mod:`lp3d.render`; torch is needed (``pip install torch``), onnxrunt
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -39,6 +38,7 @@ from torch import Tensor
 from lp3d.lift.pose import camera_at, estimate_pose, find_camera, fit_pose, photo_target, render_rgb
 from lp3d.lift.refine_settings import MAX_STEPS, RefineSettings
 from lp3d.render.camera import camera_summary, validate_camera
+from lp3d.render.psnr import psnr_db
 from lp3d.render.settings import SceneBounds
 from lp3d.render.torch_stages import rays_from_cameras
 from lp3d.render.triplane import TriplaneData
@@ -69,14 +69,6 @@ class RefineResult:
     psnr_before: float
     psnr_after: float
     seconds: float
-
-
-def psnr_db(a: np.ndarray | Tensor, b: np.ndarray | Tensor) -> float:
-    """PSNR (dB) of two images in [-1, 1] (peak-to-peak 2), clipped to that range first."""
-    x = torch.as_tensor(a, dtype=torch.float64).clamp(-1, 1)
-    y = torch.as_tensor(b, dtype=torch.float64).clamp(-1, 1)
-    mse = float((x - y).square().mean())
-    return 10.0 * math.log10(4.0 / max(mse, 1e-12))
 
 
 def refine_planes(

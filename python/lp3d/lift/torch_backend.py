@@ -16,6 +16,7 @@ import numpy as np
 
 from lp3d.lift.loaded import LoadedEncoder, LoadedSuperres, _reshape_planes
 from lp3d.lift.model_package import ModelPackage, ModelPackageError, load_model_package, sidecar_path
+from lp3d.lift.run_checkpoints import newest_readable
 from lp3d.lift.sidecar import (
     _DECODER_SHAPES,
     _as_float32,
@@ -137,23 +138,22 @@ def _load_weights(
     return module.eval()
 
 
-def _checkpoint_file(p: Path) -> Path:
-    """A checkpoint file; a training run folder means its latest ``checkpoints/step-*.pt``."""
-    if p.is_dir():
-        found = sorted((p / "checkpoints").glob("step-*.pt")) or sorted(p.glob("*.pt"))
-        if not found:
-            raise ModelPackageError(f"{p}: folder holds no checkpoints (expected checkpoints/step-*.pt)")
-        return found[-1]
-    if not p.is_file():
-        raise ModelPackageError(f"{p}: no such checkpoint file")
-    return p
+def _checkpoint_of(path: Path) -> tuple[Path, Mapping[str, Any]]:
+    """``(file, checkpoint)``: the checkpoint file at ``path``, or for a training run folder its newest
+    readable ``checkpoints/step-*.pt`` (:func:`lp3d.lift.run_checkpoints.newest_readable`, the rule
+    ``lp3d eval`` and ``--resume`` follow: steps parsed from the names, damaged files skipped)."""
+    if path.is_dir():
+        return newest_readable(path, lambda f: (f, _read_checkpoint(f)), ModelPackageError)
+    if not path.is_file():
+        raise ModelPackageError(f"{path}: no such checkpoint file")
+    return path, _read_checkpoint(path)
 
 
 def _torch_superres(
     ckpt: Mapping[str, Any], student: Mapping[str, Any] | None, train_cfg: Mapping[str, Any], p: Path
 ) -> tuple[Any, Any] | None:
     """``(SuperresConfig, state dict)`` of a checkpoint's trained SR, or None when it has none: the
-    ``superres`` entry of ``lp3d.export.package --weights`` files, or a paper-recipe training checkpoint's
+    ``superres`` entry of ``lp3d export --weights`` files, or a paper-recipe training checkpoint's
     student SR (the CPU recipe's student carries an SR module it never trains: not used)."""
     from lp3d.nets.superres import SuperresConfig
 
@@ -355,8 +355,7 @@ def _load_torch(path: Path, *, superres: bool = False) -> LoadedEncoder:
     except ImportError as e:
         raise ModelPackageError(f"the torch backend needs PyTorch: {e}") from None
 
-    p = _checkpoint_file(path)
-    ckpt = _read_checkpoint(p)
+    p, ckpt = _checkpoint_of(path)
     keys = sorted(_shown(k, 40) for k in ckpt)[:12]  # any key: str() fails on a 5,000-digit int
     layout_hint = (
         f"{p}: checkpoint layout not understood (keys {', '.join(keys)}); expected "

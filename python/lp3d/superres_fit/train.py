@@ -1,16 +1,16 @@
 """Training and scoring a super-resolution fit (steps 2 and 3 of :mod:`lp3d.superres_fit.fit`):
 the starting network (:func:`new_superres`), its blocks on crops (:func:`synthesize`), the batches,
-the learning-rate schedule, the training loop (:func:`train_steps`) and the held-out score
-(:func:`score`, :func:`psnr`).
+the learning-rate schedule (lp3d's cosine, :func:`lp3d.nets.lr_schedule.cosine_decay`), the training
+loop (:func:`train_steps`) and the held-out score (:func:`score`, in lp3d's one PSNR,
+:func:`lp3d.render.psnr.psnr`, re-exported here).
 
-Imports lp3d.nets.superres, lp3d.training.losses and the other lp3d.training.superres_fit_* modules;
+Imports lp3d.nets, lp3d.render.psnr, lp3d.training.losses and the other lp3d.superres_fit modules;
 lp3d.images inside :func:`score`.
 """
 
 from __future__ import annotations
 
 import csv
-import math
 import sys
 import time
 from collections.abc import Callable
@@ -22,7 +22,9 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from lp3d.nets.lr_schedule import cosine_decay
 from lp3d.nets.superres import SuperResolution
+from lp3d.render.psnr import psnr
 from lp3d.superres_fit.config import FitConfig, FitError
 from lp3d.superres_fit.data import PairSet
 from lp3d.training.losses import SSIMGradientLoss, ssim
@@ -80,14 +82,8 @@ def _batch(pairs: PairSet, cfg: FitConfig, step: int) -> tuple[Tensor, Tensor]:
 
 
 def _lr(cfg: FitConfig, step: int) -> float:
-    t = min(step / max(cfg.steps, 1), 1.0)
-    return cfg.lr * (cfg.lr_final_factor + (1 - cfg.lr_final_factor) * 0.5 * (1 + math.cos(math.pi * t)))
-
-
-def psnr(a: Tensor, b: Tensor) -> Tensor:
-    """Per-image PSNR (dB) of images (B, 3, H, W) in [-1, 1] (clipped), on the [0, 1] scale."""
-    mse = ((a.clamp(-1, 1) - b.clamp(-1, 1)) / 2).square().flatten(1).mean(1)
-    return -10 * torch.log10(mse.clamp_min(1e-12))
+    """Step ``step``'s learning rate: ``cfg.lr`` decayed by lp3d's cosine to ``cfg.lr_final_factor``."""
+    return cfg.lr * cosine_decay(step, max(cfg.steps, 1), cfg.lr_final_factor)
 
 
 @torch.no_grad()

@@ -104,10 +104,15 @@ The training loop, in import order (each module imports only those before it):
 :mod:`~lp3d.training.config` (:class:`TrainConfig`, :data:`TRAIN_CONFIGS`),
 :mod:`~lp3d.training.teacher_factory` (:func:`build_teacher`), :mod:`~lp3d.training.student`
 (:class:`Student`, :class:`SceneBounds`), :mod:`~lp3d.training.checkpoint` (:func:`load_checkpoint`,
-RNG states), :mod:`~lp3d.training.steps` (the per-step data and losses), :mod:`~lp3d.training.optim`
-(the optimisers), :mod:`~lp3d.training.run_log` (``log.csv``), :mod:`~lp3d.training.resume` (what a
-resumed run must share with its checkpoint), :mod:`~lp3d.training.heldout` (the held-out curve and
-samples), :mod:`~lp3d.training.trainer` (:class:`Trainer`) and :mod:`~lp3d.training.cli` (``main``).
+:func:`~lp3d.training.checkpoint.write_checkpoint`, RNG states), :mod:`~lp3d.training.optim` (the
+optimisers, :class:`~lp3d.training.optim.Optimisation`), :mod:`~lp3d.training.run_teacher` (the
+teacher as a run uses it), :mod:`~lp3d.training.steps` (the per-step data and losses,
+:class:`~lp3d.training.steps.TrainingSteps`), :mod:`~lp3d.training.run_log` (``log.csv``),
+:mod:`~lp3d.training.resume` (what a resumed run must share with its checkpoint),
+:mod:`~lp3d.training.heldout` (the held-out curve and samples,
+:class:`~lp3d.training.heldout.HeldoutViews`), :mod:`~lp3d.training.trainer` (:class:`Trainer`, which
+builds those parts and owns them) and :mod:`~lp3d.training.cli` (``main``). No module imports another
+one's private names.
 Beside it: ``eval*`` (``lp3d eval``), ``export*`` (``lp3d export``), ``superres_fit*`` (a
 super-resolution network for a recipe without one), ``camera_sampling``, ``synthetic_data``,
 ``run_dir``, ``distributed`` and ``tensorboard_log``. ``lp3d.train`` re-exports the public names

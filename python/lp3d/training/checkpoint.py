@@ -1,8 +1,10 @@
-"""Training checkpoints: their format (:data:`CHECKPOINT_FORMAT`), reading them
-(:func:`load_checkpoint`, :func:`student_from_checkpoint`), atomic writes, and the RNG states they
-carry so that a resume is exact.
+"""Training checkpoints: their format (:data:`CHECKPOINT_FORMAT`), writing them
+(:func:`write_checkpoint`, atomic, keeping the last few), reading them (:func:`load_checkpoint`, on
+every rank :func:`load_shared_checkpoint`, :func:`student_from_checkpoint`), and the RNG states they
+carry so that a resume is exact (:func:`rng_states`, :func:`restore_rng_states`, :func:`rank_seed`).
 
-Imports :mod:`lp3d.training.config` and :mod:`lp3d.training.student`."""
+Imports :mod:`lp3d.training.config`, :mod:`lp3d.training.student`, :mod:`lp3d.training.run_dir`
+and :mod:`lp3d.training.distributed`."""
 
 from __future__ import annotations
 
@@ -18,7 +20,7 @@ import torch
 from lp3d.atomic import atomic_path
 from lp3d.training import distributed
 from lp3d.training.config import TrainConfig
-from lp3d.training.run_dir import newest_readable
+from lp3d.training.run_dir import checkpoint_path, checkpoints, newest_readable
 from lp3d.training.student import SceneBounds, Student
 
 #: Identifies lp3d training checkpoints; bumped when the layout changes.
@@ -29,15 +31,15 @@ class CheckpointError(ValueError):
     """A checkpoint that cannot be used here (another configuration, another format, a bad file)."""
 
 
-def _atomic_torch_save(obj: dict[str, Any], path: Path) -> None:
-    """torch.save that never leaves a half-written checkpoint."""
+def write_checkpoint(state: dict[str, Any], run_dir: Path, keep: int) -> Path:
+    """Write ``state`` (its ``step``) as ``run_dir/checkpoints/step-NNNNNN.pt`` atomically (never
+    half-written) and delete all but the last ``keep`` checkpoints; returns its path."""
+    path = checkpoint_path(run_dir, int(state["step"]))
     with atomic_path(path) as tmp:
-        torch.save(obj, tmp)
-
-
-def _atomic_write_text(path: Path, text: str) -> None:
-    with atomic_path(path) as tmp:
-        tmp.write_text(text)
+        torch.save(state, tmp)
+    for _, p in checkpoints(run_dir)[:-keep]:
+        p.unlink(missing_ok=True)
+    return path
 
 
 def load_checkpoint(
@@ -74,7 +76,7 @@ def load_checkpoint(
     return ckpt
 
 
-def _load_shared_checkpoint(
+def load_shared_checkpoint(
     path: str | os.PathLike[str], device: str | torch.device = "cpu"
 ) -> dict[str, Any]:
     """:func:`load_checkpoint` on every rank of the same file: under torchrun rank 0 picks it (a run
@@ -86,7 +88,7 @@ def _load_shared_checkpoint(
     return load_checkpoint(distributed.broadcast_object(""), map_location=device)
 
 
-def _rank_seed(seed: int, rank: int, step: int) -> int:
+def rank_seed(seed: int, rank: int, step: int) -> int:
     """The torch seed of a rank other than 0 (its own dropout masks), from the run's seed, the rank and
     the step it starts its streams at; rank 0 keeps the single-process streams."""
     return int(np.random.SeedSequence([seed, rank, step]).generate_state(1)[0])
@@ -106,7 +108,8 @@ def student_from_checkpoint(ckpt: dict[str, Any], device: torch.device | str = "
     return student.to(device).eval()
 
 
-def _rng_states() -> dict[str, Any]:
+def rng_states() -> dict[str, Any]:
+    """This process's Python, NumPy (global), torch and CUDA RNG states, as a checkpoint stores them."""
     py = random.getstate()
     np_state = np.random.get_state()  # noqa: NPY002  (the global state other code may use)
     out: dict[str, Any] = {
@@ -127,7 +130,8 @@ def _rng_states() -> dict[str, Any]:
     return out
 
 
-def _set_rng_states(states: dict[str, Any]) -> None:
+def restore_rng_states(states: dict[str, Any]) -> None:
+    """Set this process's RNG states to ``states`` (from :func:`rng_states`)."""
     v, s, g = json.loads(states["python"])
     random.setstate((v, tuple(s), g))
     n = json.loads(states["numpy"])

@@ -14,13 +14,18 @@ from typing import Any
 
 from lp3d.errors import EXIT_ERROR, EXIT_INTERRUPTED, int_in, renderer_setup_error, run_command
 from lp3d.training import distributed
-from lp3d.training.checkpoint import CheckpointError, _load_shared_checkpoint
-from lp3d.training.config import TRAIN_CONFIGS, TrainConfig, _scaled_schedule
+from lp3d.training.checkpoint import CheckpointError, load_shared_checkpoint
+from lp3d.training.config import TRAIN_CONFIGS, TrainConfig, scaled_schedule
 from lp3d.training.losses import PERCEPTUAL_KINDS, build_perceptual
 from lp3d.training.resume import extended_schedule
 from lp3d.training.run_dir import latest_checkpoint
 from lp3d.training.steps import NonFiniteError
-from lp3d.training.teacher_factory import TEACHERS, _recordable, build_teacher, resolve_teacher_args
+from lp3d.training.teacher_factory import (
+    TEACHERS,
+    build_teacher,
+    recordable_teacher_args,
+    resolve_teacher_args,
+)
 from lp3d.training.trainer import Trainer
 
 #: Caps of the numeric flags, checked at parse time (before any set-up or allocation): a batch beyond
@@ -146,7 +151,7 @@ def _main(args: argparse.Namespace) -> int:
         if not (math.isfinite(args.dist_timeout) and args.dist_timeout > 0):
             raise ValueError(f"--dist-timeout must be a positive number of minutes, got {args.dist_timeout}")
         device = distributed.setup(args.device, timeout_minutes=args.dist_timeout).device
-        ckpt = _load_shared_checkpoint(args.resume) if args.resume else None
+        ckpt = load_shared_checkpoint(args.resume) if args.resume else None
         cfg, teacher_name, out = _run_of(args, ckpt)
         cfg = _with_overrides(args, cfg, ckpt)
         perceptual = build_perceptual(
@@ -214,7 +219,7 @@ def _with_overrides(args: argparse.Namespace, cfg: TrainConfig, ckpt: dict[str, 
         cfg = extended_schedule(cfg, args.total_steps)
         distributed.note(f"note: schedule extended to {args.total_steps} steps")
     elif args.total_steps is not None:
-        cfg = dataclasses.replace(cfg, **_scaled_schedule(args.total_steps, cfg))
+        cfg = dataclasses.replace(cfg, **scaled_schedule(args.total_steps, cfg))
     if args.perceptual is not None:
         cfg = dataclasses.replace(cfg, perceptual=args.perceptual)
     if args.checkpoint_every is not None:
@@ -243,7 +248,7 @@ def _teacher_args(
         conditioning=args.eg3d_conditioning,
     )
     recorded = resolve_teacher_args(ckpt) if ckpt is not None else None
-    if recorded is not None and _recordable(targs) != recorded:  # recorded paths are absolute
+    if recorded is not None and recordable_teacher_args(targs) != recorded:  # recorded paths are absolute
         if targs["conditioning"] != recorded["conditioning"]:
             raise CheckpointError(
                 f"--eg3d-conditioning {targs['conditioning']}: the run was trained with "

@@ -276,7 +276,7 @@ class TrainConfig:
         return cls.from_dict(json.loads(text))
 
 
-def _scaled_schedule(total: int, base: TrainConfig | None = None) -> dict[str, int]:
+def scaled_schedule(total: int, base: TrainConfig | None = None) -> dict[str, int]:
     """The paper's stage boundaries (30k and 37.5k of 220k) scaled to ``total`` steps; with ``base``,
     the CPU recipe's regression phase keeps its share of ``base``'s schedule too (a config that
     regresses for its whole schedule still does)."""
@@ -288,6 +288,10 @@ def _scaled_schedule(total: int, base: TrainConfig | None = None) -> dict[str, i
     if base is not None:
         out["regression_steps"] = round(total * base.regression_steps / base.total_steps)
     return out
+
+
+#: The old private name, kept for ``lp3d.train``'s re-export until ``lp3d._moved.REMOVED_IN``.
+_scaled_schedule = scaled_schedule
 
 
 def _cpu_config(
@@ -305,7 +309,7 @@ def _cpu_config(
         depth_resolution=samples,
         depth_resolution_importance=samples,
         batch_size=batch_size,
-        **_scaled_schedule(total_steps),
+        **scaled_schedule(total_steps),
         lr_decoder=1e-6,
         lr_superres=1e-3,
         lr_rampup_steps=lr_rampup_steps,

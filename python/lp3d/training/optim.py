@@ -1,17 +1,22 @@
 """The optimisers of a training run: the student's Adam with one parameter group per part (encoder,
 basis, transformer, decoder, super-resolution), the discriminator's Adam with EG3D's lazy-R1
-adjustment, and the student's learning-rate schedule (:func:`student_lr_factor`).
+adjustment, the student's learning-rate schedule (:func:`student_lr_factor`), and
+:class:`Optimisation`, the part of a :class:`~lp3d.training.trainer.Trainer` that holds them with
+their schedulers and the AMP gradient scaler.
 
 May import the modules of :mod:`lp3d.training` before it (``config`` to ``student``) and
 :mod:`lp3d.nets`; not ``trainer`` or ``cli``."""
 
 from __future__ import annotations
 
-import math
+import functools
+from dataclasses import dataclass
+from typing import Any
 
 import torch
 
 from lp3d.nets.discriminator import DualDiscriminator
+from lp3d.nets.lr_schedule import cosine_decay
 from lp3d.training.config import TrainConfig
 from lp3d.training.student import Student
 
@@ -64,9 +69,60 @@ def build_optimisers(
 
 def student_lr_factor(cfg: TrainConfig, step: int) -> float:
     """The student's learning-rate multiplier: a linear ramp over ``lr_rampup_steps``, then 1 (the
-    paper), or with ``lr_cosine_decay`` a cosine to ``lr_final_factor`` at ``total_steps``."""
+    paper), or with ``lr_cosine_decay`` a cosine to ``lr_final_factor`` at ``total_steps``
+    (:func:`lp3d.nets.lr_schedule.cosine_decay`)."""
     ramp = min(1.0, (step + 1) / cfg.lr_rampup_steps) if cfg.lr_rampup_steps > 0 else 1.0
     if not cfg.lr_cosine_decay:
         return ramp
-    t = min(1.0, step / cfg.total_steps)
-    return ramp * (cfg.lr_final_factor + (1 - cfg.lr_final_factor) * 0.5 * (1 + math.cos(math.pi * t)))
+    return ramp * cosine_decay(step, cfg.total_steps, cfg.lr_final_factor)
+
+
+@dataclass(eq=False)
+class Optimisation:
+    """The optimisers of a run (:func:`build_optimisers`), their learning-rate schedulers (the
+    student's :func:`student_lr_factor`, the discriminator's constant) and the AMP gradient scaler
+    (enabled only with ``amp``), at step 0."""
+
+    opt_g: torch.optim.Adam
+    opt_d: torch.optim.Adam
+    sched_g: torch.optim.lr_scheduler.LambdaLR
+    sched_d: torch.optim.lr_scheduler.LambdaLR
+    scaler: torch.amp.GradScaler
+
+    @classmethod
+    def build(
+        cls, cfg: TrainConfig, student: Student, discriminator: DualDiscriminator, *, amp: bool
+    ) -> Optimisation:
+        opt_g, opt_d = build_optimisers(cfg, student, discriminator)
+        return cls(
+            opt_g,
+            opt_d,
+            torch.optim.lr_scheduler.LambdaLR(opt_g, functools.partial(student_lr_factor, cfg)),
+            torch.optim.lr_scheduler.LambdaLR(opt_d, lambda s: 1.0),
+            torch.amp.GradScaler("cuda", enabled=amp),
+        )
+
+    def state_dict(self) -> dict[str, Any]:
+        """The checkpoint entries ``optimizer_g``, ``optimizer_d``, ``scheduler_g``, ``scheduler_d``
+        and ``scaler``."""
+        return {
+            "optimizer_g": self.opt_g.state_dict(),
+            "optimizer_d": self.opt_d.state_dict(),
+            "scheduler_g": self.sched_g.state_dict(),
+            "scheduler_d": self.sched_d.state_dict(),
+            "scaler": self.scaler.state_dict(),
+        }
+
+    def load_optimisers(self, ckpt: dict[str, Any]) -> None:
+        """The optimisers' states of a checkpoint (raises what ``load_state_dict`` raises when they do
+        not fit)."""
+        self.opt_g.load_state_dict(ckpt["optimizer_g"])
+        self.opt_d.load_state_dict(ckpt["optimizer_d"])
+
+    def load_schedules(self, ckpt: dict[str, Any]) -> None:
+        """The schedulers' and the scaler's states of a checkpoint (a checkpoint without a scaler
+        state keeps the fresh one)."""
+        self.sched_g.load_state_dict(ckpt["scheduler_g"])
+        self.sched_d.load_state_dict(ckpt["scheduler_d"])
+        if ckpt.get("scaler"):
+            self.scaler.load_state_dict(ckpt["scaler"])

@@ -15,17 +15,20 @@ Promises (``docs/reliability.md``): one trainer per run directory at a time; a `
 moment leaves the newest complete checkpoint loadable and its temporary file is removed by the next
 trainer; an unreadable newest checkpoint falls back, with a warning, to the newest readable one; a
 run continued from an older checkpoint never mixes its steps with the newer ones.
+
+Which checkpoint a reader takes (the step parsed from the name; the newest readable one) is
+:mod:`lp3d.lift.run_checkpoints`, shared with ``lp3d encode --model RUN`` and re-exported here.
 """
 
 from __future__ import annotations
 
 import errno
 import os
-import re
 import sys
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
+
+from lp3d.lift.run_checkpoints import checkpoint_path, checkpoints, latest_checkpoint, newest_readable
 
 __all__ = [
     "RunBusyError",
@@ -38,56 +41,9 @@ __all__ = [
     "set_aside_checkpoints_after",
 ]
 
-_STEP_NAME = re.compile(r"step-(\d{6,})\.pt")
-T = TypeVar("T")
-
 
 class RunBusyError(RuntimeError):
     """Another trainer holds the run directory's lock."""
-
-
-def checkpoint_path(run_dir: Path, step: int) -> Path:
-    return Path(run_dir) / "checkpoints" / f"step-{step:06d}.pt"
-
-
-def checkpoints(run_dir: Path) -> list[tuple[int, Path]]:
-    """``(step, path)`` of the run's checkpoints, oldest first (only ``step-NNNNNN.pt`` files)."""
-    found = []
-    for p in (Path(run_dir) / "checkpoints").glob("step-*.pt"):
-        m = _STEP_NAME.fullmatch(p.name)
-        if m and p.is_file():
-            found.append((int(m.group(1)), p))
-    return sorted(found)
-
-
-def latest_checkpoint(run_dir: Path) -> Path | None:
-    """The checkpoint with the highest step in ``run_dir/checkpoints``, or None."""
-    found = checkpoints(run_dir)
-    return found[-1][1] if found else None
-
-
-def newest_readable(run_dir: Path, load: Callable[[Path], T], error: type[Exception]) -> T:
-    """``load`` of the newest checkpoint that ``load`` accepts. A newer one that raises ``error``
-    (truncated by a full disk, damaged by a copy) is skipped with a warning naming it and why;
-    when none is readable, ``error`` lists them all."""
-    found = checkpoints(run_dir)
-    if not found:
-        raise error(f"{str(run_dir)!r} holds no checkpoints (expected {run_dir}/checkpoints/step-*.pt)")
-    problems = []
-    for _, path in reversed(found):
-        try:
-            out = load(path)
-        except error as e:
-            problems.append(f"{path.name}: {e}")
-            continue
-        if problems:
-            print(
-                f"warning: skipped unreadable newer checkpoint(s), continuing from {path.name}:\n  "
-                + "\n  ".join(problems),
-                file=sys.stderr,
-            )
-        return out
-    raise error(f"no checkpoint in {str(run_dir)!r} is readable:\n  " + "\n  ".join(problems))
 
 
 def set_aside_checkpoints_after(run_dir: Path, step: int) -> list[Path]:

@@ -1,16 +1,16 @@
-"""The per-step work of :class:`lp3d.training.trainer.Trainer`: the data (the paper recipe's
-synthesised :class:`Batch`, the CPU recipe's cached dataset), one training step of either recipe with
-its loss, gradient average and optimiser step, and the discriminator step. :class:`TrainingSteps` is
-a base class of ``Trainer``, whose ``__init__`` sets up the state these methods use.
+"""The per-step work of a training run (:class:`TrainingSteps`, a part of
+:class:`lp3d.training.trainer.Trainer` built with exactly what a step uses): the data (the paper
+recipe's synthesised :class:`Batch`, the CPU recipe's cached dataset), one training step of either
+recipe with its loss, gradient average and optimiser step, and the discriminator step.
 
-May import the modules of :mod:`lp3d.training` before it (``config`` to ``checkpoint``), not
-``trainer`` or ``cli``."""
+May import the modules of :mod:`lp3d.training` before it (``config`` to ``optim``, ``run_teacher``),
+not ``heldout``, ``trainer`` or ``cli``."""
 
 from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -18,15 +18,17 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from lp3d.nets.discriminator import d_loss, r1_penalty
+from lp3d.nets.discriminator import DualDiscriminator, d_loss, r1_penalty
 from lp3d.render.torch_twin import rays_from_cameras, render_rays
-from lp3d.render.triplane import TriplaneData, mirror_planes
+from lp3d.render.triplane import mirror_planes
 from lp3d.training import distributed
 from lp3d.training.camera_sampling import sample_cameras
-from lp3d.training.losses import ViewRenders, l1, normalised_triplane_loss
-from lp3d.training.student import render_teacher
-from lp3d.training.synthetic_data import DatasetKey, SyntheticDataset, resize_planes
-from lp3d.training.teacher_factory import dataset_key
+from lp3d.training.config import TrainConfig
+from lp3d.training.losses import DistillationLoss, ViewRenders, l1, normalised_triplane_loss
+from lp3d.training.optim import Optimisation
+from lp3d.training.run_teacher import RunTeacher
+from lp3d.training.student import Student
+from lp3d.training.synthetic_data import SyntheticDataset
 
 
 class NonFiniteError(ValueError):
@@ -47,63 +49,75 @@ class Batch:
     extras: dict[str, Any] = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class Ranks:
+    """This process's place under torchrun: ``rank`` of ``size`` processes (0 of 1 without it)."""
+
+    rank: int = 0
+    size: int = 1
+
+    def shard(self, x: Any) -> Any:
+        """This rank's rows of a global batch (everything in one process)."""
+        return distributed.shard(x, rank_=self.rank, size=self.size)
+
+
+@dataclass(eq=False)
 class TrainingSteps:
-    """Data, steps and the discriminator step of :class:`~lp3d.training.trainer.Trainer` (its base)."""
+    """One training step of either recipe (:meth:`run`) and the paper recipe's batches
+    (:meth:`synthesize`), built with what they use: the run's ``config``, its ``teacher``, the
+    ``student`` and ``discriminator`` they train with ``optimisation`` and ``losses``, the seeded
+    ``data_rng`` every batch is drawn from, this process's ``ranks``, whether the encoder runs under
+    ``amp``, whether the student's SR came ``pretrained_sr`` from the teacher, and for the CPU
+    recipe its ``dataset`` and the channel scales ``plane_scale`` of its triplanes. The objects are
+    the trainer's (a checkpoint restores them in place); the step index is passed in."""
 
-    # -- data --------------------------------------------------------------------------------------
-    def dataset_key(self) -> DatasetKey:
-        """The cache key of this run's synthetic dataset (CPU recipe)."""
-        return dataset_key(self.config, self.teacher, self.teacher_name)
+    config: TrainConfig
+    teacher: RunTeacher
+    student: Student
+    discriminator: DualDiscriminator
+    optimisation: Optimisation
+    losses: DistillationLoss
+    data_rng: np.random.Generator
+    ranks: Ranks = field(default_factory=Ranks)
+    amp: bool = False
+    pretrained_sr: bool = False
+    dataset: SyntheticDataset | None = None
+    plane_scale: Tensor | None = None
 
-    def _input_renderer(self) -> Callable[[Tensor, Tensor], Tensor]:
-        """The teacher's render of the encoder's input, exactly as the evaluation makes it."""
-        cfg = self.config
+    @property
+    def local_batch(self) -> int:
+        """This rank's share of the global batch."""
+        return self.config.batch_size // self.ranks.size
 
-        def render(planes: Tensor, cameras: Tensor) -> Tensor:
-            planes, cameras = planes.to(self.device), cameras.to(self.device, torch.float32)
-            dec = self.teacher_decoder
-            _, _, image = render_teacher(self.teacher, planes, dec, cameras, cfg, self.scene, raw=False)
-            assert image is not None
-            return image.float().cpu()
-
-        return render
-
-    def open_dataset(self) -> SyntheticDataset:
-        """Load this run's cached dataset, synthesising it first when absent or invalid."""
-        return SyntheticDataset.open(
-            self.dataset_key(),
-            self.teacher,
-            self._input_renderer(),
-            root=self.data_cache,
-            progress=self.progress,
-        )
-
-    def _teacher_planes(self, tris: list[TriplaneData]) -> Tensor:
-        planes = torch.from_numpy(np.stack([t.planes.astype(np.float32) for t in tris])).to(self.device)
-        return planes
+    def set_trainable(self, step: int) -> None:
+        """Stage 1 freezes the decoder, and the SR when it came pretrained (supplement, "Training")."""
+        if self.config.recipe == "cpu":  # the teacher's decoder is kept; there is no SR to train
+            self.student.decoder.requires_grad_(False)
+            self.student.superres.requires_grad_(False)
+            return
+        stage2 = self.config.stage(step) == 2
+        self.student.decoder.requires_grad_(stage2)
+        self.student.superres.requires_grad_(stage2 or not self.pretrained_sr)
 
     def synthesize(self, step: int) -> Batch:
         """Identities, cameras and teacher renders of ``step`` (all randomness from ``data_rng``).
 
         Under torchrun the whole global batch is drawn and this rank keeps its rows (``shard``), so the
         stream does not depend on the number of processes; only this rank's rows are rendered."""
-        cfg = self.config
+        cfg, teacher, device = self.config, self.teacher, self.teacher.device
         b = cfg.batch_size
         seeds = [int(s) for s in self.data_rng.integers(cfg.train_seeds[0], cfg.train_seeds[1], size=b)]
         ref_labels = sample_cameras(cfg.reference_cameras, b, self.data_rng).labels
         mv_labels = sample_cameras(cfg.multiview_cameras, b, self.data_rng).labels
-        seeds, ref_labels, mv_labels = (self._shard(x) for x in (seeds, ref_labels, mv_labels))
+        seeds, ref_labels, mv_labels = (self.ranks.shard(x) for x in (seeds, ref_labels, mv_labels))
         ref_cams = torch.from_numpy(np.ascontiguousarray(ref_labels))
         mv_cams = torch.from_numpy(np.ascontiguousarray(mv_labels))
-        ref_cams = ref_cams.to(self.device, torch.float32)
-        mv_cams = mv_cams.to(self.device, torch.float32)
-        planes = self._teacher_planes(self.teacher.sample_batch(seeds))
+        ref_cams = ref_cams.to(device, torch.float32)
+        mv_cams = mv_cams.to(device, torch.float32)
+        planes = teacher.planes(teacher.teacher.sample_batch(seeds))
         is_ref = cfg.reference_step(step)
-        dec = self.teacher_decoder
-        f_ref, d_ref, ref_image = render_teacher(
-            self.teacher, planes, dec, ref_cams, cfg, self.scene, raw=is_ref, high=True
-        )
-        f_mv, d_mv, h_mv = render_teacher(self.teacher, planes, dec, mv_cams, cfg, self.scene)
+        f_ref, d_ref, ref_image = teacher.render(planes, ref_cams, raw=is_ref, high=True)
+        f_mv, d_mv, h_mv = teacher.render(planes, mv_cams)
         assert ref_image is not None and f_mv is not None and d_mv is not None and h_mv is not None
         ref = None
         if is_ref:
@@ -120,10 +134,6 @@ class TrainingSteps:
         )
         self.check_batch(batch, step)
         return batch
-
-    def _shard(self, x: Any) -> Any:
-        """This rank's rows of a global batch (everything in one process)."""
-        return distributed.shard(x, rank_=self.rank, size=self.world_size)
 
     def check_batch(self, batch: Batch, step: int) -> None:
         """Raise :class:`NonFiniteError` / ValueError naming the first bad tensor of a batch (this
@@ -159,34 +169,25 @@ class TrainingSteps:
                     "the teacher produced invalid data (nothing was trained on this batch)"
                 )
 
-    def mean_teacher_planes(self, n: int) -> Tensor:
-        """Mean (3, 32, T, T) of the teacher triplanes of the first ``n`` training seeds."""
-        lo = self.config.train_seeds[0]
-        total = None
-        for seed in range(lo, lo + n):
-            p = self._teacher_planes([self.teacher.sample(seed)])
-            total = p if total is None else total + p
-        assert total is not None
-        return self._teacher_target_planes(total / n)[0]
-
-    def _teacher_target_planes(self, planes: Tensor) -> Tensor:
-        """Teacher planes at the student's triplane resolution (for L_tri)."""
-        return resize_planes(planes, self.config.triplane_resolution)
-
     # -- one step ----------------------------------------------------------------------------------
-    def train_step(self, batch: Batch | None = None) -> dict[str, Any]:
-        """Run step ``self.step`` (synthesising its batch unless given) and advance; returns the log row."""
-        cfg = self.config
-        step = self.step
+    def run(self, step: int, batch: Batch | None = None) -> dict[str, Any]:
+        """Run step ``step`` (synthesising its batch unless given); returns its log row, whose losses
+        under torchrun are their means over the ranks."""
         t0 = time.perf_counter()
-        if cfg.recipe == "cpu":
-            row = self._cpu_step(step)
-            self.step += 1
-            self._mean_over_ranks(row)
-            row["seconds"] = time.perf_counter() - t0
-            return row
+        if self.config.recipe == "cpu":
+            row = self.cpu_step(step)
+        else:
+            row = self.paper_step(step, batch)
+        self._mean_over_ranks(row)
+        row["seconds"] = time.perf_counter() - t0
+        return row
+
+    def paper_step(self, step: int, batch: Batch | None = None) -> dict[str, Any]:
+        """One step of the paper's recipe on ``batch`` (synthesised for ``step`` unless given):
+        Eq. 5, the student's optimiser step and, in stage 2, the discriminator's."""
+        cfg = self.config
         stage = cfg.stage(step)
-        self._set_trainable(step)
+        self.set_trainable(step)
         batch = batch if batch is not None else self.synthesize(step)
         weights = cfg.weights(step)
         is_ref = batch.ref is not None
@@ -199,7 +200,7 @@ class TrainingSteps:
         row: dict[str, Any] = {"step": step, "stage": stage, "reference": int(is_ref)}
         total = planes.new_zeros(())
         if weights.triplane > 0:
-            tri = self.losses.triplane(planes, self._teacher_target_planes(batch.planes))
+            tri = self.losses.triplane(planes, self.teacher.target_planes(batch.planes))
             total = total + weights.triplane * tri
             row["tri"] = float(tri.detach())
         # One render call for both view sets (one triplane per camera).
@@ -212,7 +213,6 @@ class TrainingSteps:
         mv_loss, mv_terms = self.losses.views(mv_s, batch.mv, weights, kind="multiview", discriminator=disc)
         total = total + mv_loss
         row.update({f"mv_{k}": float(v) for k, v in mv_terms.items()})
-        ref_s = None
         if is_ref:
             assert batch.ref is not None
             ref_s = ViewRenders(rendered.features[b:], rendered.high[b:], rendered.depth[b:])
@@ -239,55 +239,53 @@ class TrainingSteps:
                 f"step {step}: the training loss is {float(total)} (terms {terms}, identity seeds "
                 f"{batch.seeds}); resume from the last checkpoint with a lower learning rate"
             )
-        self._student_step(total, row)
+        self.student_step(total, row)
 
         if use_d:
-            row.update(self._discriminator_step(step, batch, rendered, is_ref))
-        self.step += 1
-        self._mean_over_ranks(row)
-        row["seconds"] = time.perf_counter() - t0
+            row.update(self.discriminator_step(step, batch, rendered, is_ref))
         return row
 
     def _mean_over_ranks(self, row: dict[str, Any]) -> None:
         """Under torchrun: the logged losses become their means over the ranks (each is a mean over
         an equal share of the batch, so this is the global batch's mean)."""
-        if self.world_size > 1:
+        if self.ranks.size > 1:
             row.update(
                 distributed.mean_over_ranks(
-                    {k: v for k, v in row.items() if isinstance(v, float)}, self.device
+                    {k: v for k, v in row.items() if isinstance(v, float)}, self.teacher.device
                 )
             )
 
-    def _student_step(self, total: Tensor, row: dict[str, Any]) -> None:
+    def student_step(self, total: Tensor, row: dict[str, Any]) -> None:
         """Backward ``total``, average the gradients over the ranks (torchrun), clip, one optimiser and
         scheduler step; logs the loss and rate in ``row``."""
-        self.opt_g.zero_grad(set_to_none=True)
-        self.scaler.scale(total).backward()
+        opt = self.optimisation
+        opt.opt_g.zero_grad(set_to_none=True)
+        opt.scaler.scale(total).backward()
         distributed.average_gradients(self.student.parameters())
         if self.config.grad_clip > 0:
-            self.scaler.unscale_(self.opt_g)
+            opt.scaler.unscale_(opt.opt_g)
             torch.nn.utils.clip_grad_norm_(self.student.parameters(), self.config.grad_clip)
-        self.scaler.step(self.opt_g)
-        self.scaler.update()
-        self.sched_g.step()
+        opt.scaler.step(opt.opt_g)
+        opt.scaler.update()
+        opt.sched_g.step()
         row["loss"] = float(total.detach())
-        row["lr"] = float(self.opt_g.param_groups[0]["lr"])
+        row["lr"] = float(opt.opt_g.param_groups[0]["lr"])
 
-    def _cpu_step(self, step: int) -> dict[str, Any]:
+    def cpu_step(self, step: int) -> dict[str, Any]:
         """One step of the CPU recipe: a batch of cached identities, normalised L_tri, and after
         ``regression_steps`` the RGB L1 of random rays of their cached teacher views."""
-        cfg, ds = self.config, self.dataset
-        assert ds is not None
-        self._set_trainable(step)
+        cfg, ds, device = self.config, self.dataset, self.teacher.device
+        assert ds is not None and self.plane_scale is not None
+        self.set_trainable(step)
         self.student.train()
         # The global batch's rows and flips, of which this rank keeps its share (torchrun).
         idx = np.sort(self.data_rng.integers(0, len(ds), size=cfg.batch_size))
         flips = self.data_rng.random(len(idx)) < 0.5 if cfg.mirror_augment else None
-        idx = self._shard(idx)
-        image = torch.from_numpy(ds.ref_image[idx].astype(np.float32)).to(self.device)
-        target = torch.from_numpy(ds.planes[idx].astype(np.float32)).to(self.device)
+        idx = self.ranks.shard(idx)
+        image = torch.from_numpy(ds.ref_image[idx].astype(np.float32)).to(device)
+        target = torch.from_numpy(ds.planes[idx].astype(np.float32)).to(device)
         if flips is not None:  # a flipped input is the mirrored head: twice the identities for free
-            flip = torch.from_numpy(np.ascontiguousarray(self._shard(flips))).to(self.device)
+            flip = torch.from_numpy(np.ascontiguousarray(self.ranks.shard(flips))).to(device)
             image = torch.where(flip[:, None, None, None], image.flip(-1), image)
             target = torch.where(flip[:, None, None, None, None], mirror_planes(target), target)
         planes = self.student.encode(image, amp=self.amp)
@@ -299,7 +297,7 @@ class TrainingSteps:
             "tri": float(tri.detach()),
         }
         if step >= cfg.regression_steps and cfg.rays_per_identity > 0 and cfg.ray_weight > 0:
-            pred, want = self._random_ray_rgb(planes, target)
+            pred, want = self.random_ray_rgb(planes, target)
             ray = l1(pred, want, name="ray rgb")
             total = total + cfg.ray_weight * ray
             row["ray"] = float(ray.detach())
@@ -308,21 +306,23 @@ class TrainingSteps:
                 f"step {step}: the training loss is {float(total)} (terms {row}, dataset rows "
                 f"{idx.tolist()}); resume from the last checkpoint with a lower learning rate"
             )
-        self._student_step(total, row)
+        self.student_step(total, row)
         return row
 
-    def _random_ray_rgb(self, planes: Tensor, target: Tensor) -> tuple[Tensor, Tensor]:
+    def random_ray_rgb(self, planes: Tensor, target: Tensor) -> tuple[Tensor, Tensor]:
         """RGB (B, M, 3) of the student's planes and of the teacher's ``target`` planes on M random
         pixel rays of one random multiview camera per identity (drawn from ``data_rng`` for the global
         batch, of which this rank keeps its rows)."""
-        cfg = self.config
+        cfg, device = self.config, self.teacher.device
         b, m, r = cfg.batch_size, cfg.rays_per_identity, cfg.raw_resolution
         cams = torch.from_numpy(
-            np.ascontiguousarray(self._shard(sample_cameras(cfg.multiview_cameras, b, self.data_rng).labels))
+            np.ascontiguousarray(
+                self.ranks.shard(sample_cameras(cfg.multiview_cameras, b, self.data_rng).labels)
+            )
         )
         pixels = self.data_rng.integers(0, r * r, size=(b, m))
-        pixels = torch.from_numpy(np.ascontiguousarray(self._shard(pixels))).to(self.device)
-        origins, directions = rays_from_cameras(cams.to(self.device, torch.float32), r)
+        pixels = torch.from_numpy(np.ascontiguousarray(self.ranks.shard(pixels))).to(device)
+        origins, directions = rays_from_cameras(cams.to(device, torch.float32), r)
         gather = pixels.unsqueeze(-1).expand(-1, -1, 3)
         origins, directions = origins.gather(1, gather), directions.gather(1, gather)
 
@@ -332,20 +332,20 @@ class TrainingSteps:
                 *decoder,
                 origins,
                 directions,
-                bounds=self.scene,
+                bounds=self.teacher.scene,
                 settings=cfg.render_settings(),
             )
             return out["features"][..., :3]
 
         with torch.no_grad():
-            want = rgb(target, self.teacher_decoder)
+            want = rgb(target, self.teacher.decoder)
         return rgb(planes, self.student.decoder.weights()), want
 
-    def _discriminator_step(
+    def discriminator_step(
         self, step: int, batch: Batch, fake: ViewRenders, is_ref: bool
     ) -> dict[str, float]:
         """Teacher renders are real, student renders fake (paper §3.2: no real photographs)."""
-        cfg = self.config
+        cfg, opt = self.config, self.optimisation
         self.discriminator.requires_grad_(True)
         real_high = torch.cat([batch.mv.high, batch.ref.high]) if is_ref and batch.ref else batch.mv.high
         real_raw = torch.cat([batch.mv.raw, batch.ref.raw]) if is_ref and batch.ref else batch.mv.raw
@@ -360,10 +360,10 @@ class TrainingSteps:
             r1 = r1_penalty(self.discriminator(high, raw), [high, raw]).mean()
             loss = loss + r1 * (cfg.r1_gamma / 2) * cfg.r1_interval
             out["r1"] = float(r1.detach())
-        self.opt_d.zero_grad(set_to_none=True)
+        opt.opt_d.zero_grad(set_to_none=True)
         loss.backward()
         distributed.average_gradients(self.discriminator.parameters())
-        self.opt_d.step()
-        self.sched_d.step()
+        opt.opt_d.step()
+        opt.sched_d.step()
         self.discriminator.requires_grad_(False)
         return out

@@ -82,7 +82,7 @@ def resolve_teacher_args(ckpt: dict[str, Any] | None, **given: str | None) -> di
     return out
 
 
-def _recordable(args: dict[str, str | None]) -> dict[str, str | None]:
+def recordable_teacher_args(args: dict[str, str | None]) -> dict[str, str | None]:
     """``args`` with paths made absolute, so a resume from another directory finds them."""
     return {
         k: (str(Path(v).expanduser().resolve()) if k != "conditioning" and v else v) for k, v in args.items()

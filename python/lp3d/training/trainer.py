@@ -1,7 +1,10 @@
 """The :class:`Trainer` of one run: models, optimisers, the run directory (log, checkpoints, samples),
-resuming and the training loop. Its per-step methods are in :class:`lp3d.training.steps.TrainingSteps`,
-the held-out learning curve and sample sheets in :class:`lp3d.training.heldout.HeldoutViews`, the
-optimisers in :mod:`lp3d.training.optim`, ``log.csv`` in :mod:`lp3d.training.run_log`.
+resuming and the training loop. It is made of parts it builds and owns, each given exactly what it
+uses: the teacher as the run uses it (:class:`lp3d.training.run_teacher.RunTeacher`), the optimisers
+(:class:`lp3d.training.optim.Optimisation`), the per-step work
+(:class:`lp3d.training.steps.TrainingSteps`) and the held-out learning curve and sample sheets
+(:class:`lp3d.training.heldout.HeldoutViews`); checkpoints are written and read through
+:mod:`lp3d.training.checkpoint`'s functions, ``log.csv`` through :mod:`lp3d.training.run_log`.
 
 Imports the modules of :mod:`lp3d.training` before it (``config`` to ``steps``, ``heldout``, ``optim``,
 ``resume``, ``run_log``), not ``cli``."""
@@ -12,6 +15,7 @@ import json
 import os
 import signal
 import threading
+from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -20,43 +24,52 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from lp3d.atomic import atomic_write_text
 from lp3d.nets.discriminator import DualDiscriminator
 from lp3d.teachers import Teacher
 from lp3d.training import distributed
 from lp3d.training.checkpoint import (
     CHECKPOINT_FORMAT,
     CheckpointError,
-    _atomic_torch_save,
-    _atomic_write_text,
-    _load_shared_checkpoint,
-    _rank_seed,
-    _rng_states,
-    _set_rng_states,
+    load_shared_checkpoint,
+    rank_seed,
+    restore_rng_states,
+    rng_states,
+    write_checkpoint,
 )
 from lp3d.training.config import TrainConfig
 from lp3d.training.heldout import HeldoutViews
 from lp3d.training.losses import DistillationLoss
-from lp3d.training.optim import build_optimisers, student_lr_factor
+from lp3d.training.optim import Optimisation, student_lr_factor
 from lp3d.training.resume import check_resumable
 from lp3d.training.run_dir import (
     RunLock,
     checkpoint_path,
-    checkpoints,
     latest_checkpoint,
     remove_stale_temporaries,
     set_aside_checkpoints_after,
 )
 from lp3d.training.run_log import LOG_COLUMNS as LOG_COLUMNS  # re-exported for older imports
 from lp3d.training.run_log import append_log, start_log
-from lp3d.training.steps import TrainingSteps
+from lp3d.training.run_teacher import RunTeacher
+from lp3d.training.steps import Batch, Ranks, TrainingSteps
 from lp3d.training.student import SceneBounds, Student, principal_planes
 from lp3d.training.synthetic_data import SyntheticDataset
-from lp3d.training.teacher_factory import _recordable, resolve_teacher_args, teacher_superres_state
+from lp3d.training.teacher_factory import (
+    recordable_teacher_args,
+    resolve_teacher_args,
+    teacher_superres_state,
+)
 from lp3d.training.tensorboard_log import TensorBoardLog
 
 
-class Trainer(TrainingSteps, HeldoutViews):
+class Trainer:
     """Owns the models, optimisers, data stream and run directory of one training run.
+
+    Its parts, built here from what each uses: ``run_teacher`` (:class:`RunTeacher`), ``optimisation``
+    (:class:`Optimisation`), ``steps`` (:class:`TrainingSteps`, one step of either recipe) and
+    ``heldout`` (:class:`HeldoutViews`, the learning curve and sample sheets). The trainer keeps the
+    step count and hands it to them.
 
     Args:
         config: the run's configuration (on resume it must equal the checkpoint's).
@@ -107,9 +120,9 @@ class Trainer(TrainingSteps, HeldoutViews):
         self.progress = progress and self.is_main  # one progress bar, rank 0's
         self.amp = bool(cfg.amp and self.device.type == "cuda")
 
-        ckpt = _load_shared_checkpoint(resume, self.device) if resume is not None else None
+        ckpt = load_shared_checkpoint(resume, self.device) if resume is not None else None
         # Recorded in every checkpoint; a resume without them keeps the recorded ones.
-        self.teacher_args = _recordable(
+        self.teacher_args = recordable_teacher_args(
             teacher_args if teacher_args is not None else resolve_teacher_args(ckpt)
         )
         if ckpt is not None:
@@ -145,23 +158,29 @@ class Trainer(TrainingSteps, HeldoutViews):
                 set_aside_checkpoints_after(self.out_dir, self.step)
         else:
             self._start_fresh()
-        self._set_trainable(self.step)
+        self.steps.set_trainable(self.step)
         if self.world_size > 1:
             self._note_world()
         if self.is_main:
             self._write_run_dir(fresh=ckpt is None)
 
     def _build_models(self) -> None:
-        """The student, the discriminator and the teacher's decoder; the student's SR starts from the
-        teacher's where it fits."""
+        """The teacher's side of the run, the student, the discriminator and the held-out views; the
+        student's SR starts from the teacher's where it fits."""
         cfg, teacher = self.config, self.teacher
         # Initial weights come from the config's seed (resume overwrites them).
         torch.manual_seed(cfg.seed)
-        probe = teacher.sample(cfg.eval_seed_start)
-        self.scene = SceneBounds.of(probe)
+        self.run_teacher = RunTeacher.of(
+            teacher,
+            self.teacher_name,
+            cfg,
+            self.device,
+            data_cache=self.data_cache,
+            progress=self.progress,
+        )
         self.student = Student(cfg, teacher.decoder(), self.scene).to(self.device)
         self.discriminator = DualDiscriminator(cfg.discriminator).to(self.device)
-        self.teacher_decoder = [torch.as_tensor(a, device=self.device) for a in teacher.decoder()]
+        self.heldout = HeldoutViews(self.run_teacher, self.student, self.out_dir)
         # The paper fine-tunes EG3D's SR; start from the teacher's when it has one that fits.
         self.pretrained_sr = False
         sr_state = teacher_superres_state(teacher)
@@ -175,28 +194,37 @@ class Trainer(TrainingSteps, HeldoutViews):
                     "the student's SR starts from scratch and trains from stage 1"
                 )
 
+    @property
+    def scene(self) -> SceneBounds:
+        """The scene bounds of the run's heads (a resumed run's are its checkpoint's)."""
+        return self.run_teacher.scene
+
+    @property
+    def teacher_decoder(self) -> list[Tensor]:
+        """The teacher's decoder weights on the training device."""
+        return self.run_teacher.decoder
+
     def _open_data(self) -> None:
         """The CPU recipe's synthetic dataset and the channel scales of its triplanes (the paper recipe
         synthesises its batches as it goes)."""
         cfg = self.config
         self.dataset: SyntheticDataset | None = None
-        self.heldout: SyntheticDataset | None = None
-        self._heldout_truth: list[Tensor] | None = None
+        self.plane_scale: Tensor | None = None
         if cfg.recipe == "cpu":
             # Under torchrun: rank 0 synthesises a missing dataset, then the other machines' first
             # processes (a no-op on shared storage), then the rest read it.
-            self.dataset = distributed.in_turn(self.open_dataset)
+            self.dataset = distributed.in_turn(self.run_teacher.open_dataset)
             # Channel scales of the normalised L_tri: each channel's spread over identities and texels.
             sample = torch.from_numpy(self.dataset.planes[: min(256, len(self.dataset))].astype(np.float32))
-            self.plane_scale = sample.transpose(0, 2).reshape(sample.shape[2], -1).std(dim=1).clamp_min(1e-3)
-            self.plane_scale = self.plane_scale.to(self.device)
+            scale = sample.transpose(0, 2).reshape(sample.shape[2], -1).std(dim=1).clamp_min(1e-3)
+            self.plane_scale = scale.to(self.device)
 
     def _start_student(self) -> None:
         """A new run's student starts from the dataset's principal planes (CPU recipe) or, with
         ``mean_triplane_offset``, from the teacher's mean triplane."""
         cfg = self.config
         if cfg.recipe == "cpu":
-            assert self.dataset is not None
+            assert self.dataset is not None and self.plane_scale is not None
             mean, components = principal_planes(
                 self.dataset.planes,
                 cfg.encoder.basis_components,
@@ -208,17 +236,29 @@ class Trainer(TrainingSteps, HeldoutViews):
             if self.student.encoder.basis is not None:
                 self.student.encoder.basis.components.data.copy_(components)
         elif cfg.mean_triplane_offset:
-            self.student.start_from_mean(self.mean_teacher_planes(cfg.mean_triplane_identities))
+            self.student.start_from_mean(self.run_teacher.mean_planes(cfg.mean_triplane_identities))
 
     def _build_optimisers(self) -> None:
-        """Optimisers, schedules, the AMP scaler, the losses and the data stream, at step 0."""
+        """Optimisers, schedules, the AMP scaler, the losses, the data stream and the per-step work,
+        at step 0."""
         cfg = self.config
-        self.opt_g, self.opt_d = build_optimisers(cfg, self.student, self.discriminator)
-        self.sched_g = torch.optim.lr_scheduler.LambdaLR(self.opt_g, self.lr_factor)
-        self.sched_d = torch.optim.lr_scheduler.LambdaLR(self.opt_d, lambda s: 1.0)
-        self.scaler = torch.amp.GradScaler("cuda", enabled=self.amp)
+        self.optimisation = Optimisation.build(cfg, self.student, self.discriminator, amp=self.amp)
         self.losses = DistillationLoss(self._perceptual, self._category)
         self.data_rng = np.random.Generator(np.random.PCG64(cfg.seed))
+        self.steps = TrainingSteps(
+            cfg,
+            self.run_teacher,
+            self.student,
+            self.discriminator,
+            self.optimisation,
+            self.losses,
+            self.data_rng,
+            Ranks(self.rank, self.world_size),
+            amp=self.amp,
+            pretrained_sr=self.pretrained_sr,
+            dataset=self.dataset,
+            plane_scale=self.plane_scale,
+        )
         self.step = 0
         self.interrupted = False
 
@@ -237,24 +277,24 @@ class Trainer(TrainingSteps, HeldoutViews):
             # and the other ranks draw their own dropout masks.
             distributed.broadcast_module(self.student)
             distributed.broadcast_module(self.discriminator)
-            if cfg.recipe == "cpu":
+            if self.plane_scale is not None:
                 distributed.broadcast_tensor(self.plane_scale)
             if not self.is_main:
-                torch.manual_seed(_rank_seed(cfg.seed, self.rank, 0))
+                torch.manual_seed(rank_seed(cfg.seed, self.rank, 0))
 
     def _write_run_dir(self, *, fresh: bool) -> None:
         """Rank 0 writes ``config.json``, ``world.json`` and the log's header (keeping a resumed run's
         earlier rows); a new CPU-recipe run logs the untrained student's held-out point."""
         cfg = self.config
         self.out_dir.mkdir(parents=True, exist_ok=True)
-        _atomic_write_text(self.out_dir / "config.json", cfg.to_json() + "\n")
+        atomic_write_text(self.out_dir / "config.json", cfg.to_json() + "\n")
         world = {
             "world_size": self.world_size,
             "backend": distributed.backend(),
             "batch_size": cfg.batch_size,
             "batch_per_process": self.local_batch,
         }
-        _atomic_write_text(self.out_dir / "world.json", json.dumps(world, indent=2) + "\n")
+        atomic_write_text(self.out_dir / "world.json", json.dumps(world, indent=2) + "\n")
         start_log(self.out_dir, self.step)
         if cfg.recipe == "cpu" and fresh:
             self.log_heldout()  # the learning curve starts at the untrained student
@@ -279,13 +319,38 @@ class Trainer(TrainingSteps, HeldoutViews):
         """The student's learning-rate multiplier (:func:`lp3d.training.optim.student_lr_factor`)."""
         return student_lr_factor(self.config, step)
 
+    # -- the parts' work at the current step ---------------------------------------------------------
+    def synthesize(self, step: int) -> Batch:
+        """The paper recipe's batch of ``step`` (:meth:`TrainingSteps.synthesize`)."""
+        return self.steps.synthesize(step)
+
+    def train_step(self, batch: Batch | None = None) -> dict[str, Any]:
+        """Run step ``self.step`` (synthesising its batch unless given) and advance; returns the log row."""
+        row = self.steps.run(self.step, batch)
+        self.step += 1
+        return row
+
+    def heldout_metrics(self) -> dict[str, float]:
+        """The learning curve's point now (:meth:`HeldoutViews.metrics`)."""
+        return self.heldout.metrics()
+
+    def log_heldout(self) -> dict[str, float]:
+        """Append the learning curve's point at the current step to ``heldout.csv``."""
+        return self.heldout.log(self.step, self._tensorboard())
+
+    def save_samples(
+        self, seeds: Sequence[int] | None = None, yaws: Sequence[float] = (-30.0, 0.0, 30.0)
+    ) -> Path:
+        """``samples/step-NNNNNN.png`` at the current step (:meth:`HeldoutViews.save_samples`)."""
+        return self.heldout.save_samples(self.step, self._tensorboard(), seeds, yaws)
+
     # -- state -------------------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
         """The checkpoint: tensors, plain numbers and JSON strings only.
 
         Under torchrun this is a collective call (every rank's RNG states are gathered, so a resume on
         the same number of processes continues each rank's streams): call it on every rank."""
-        rngs = distributed.all_gather_objects(_rng_states())
+        rngs = distributed.all_gather_objects(rng_states())
         return {
             "format": CHECKPOINT_FORMAT,
             "config": self.config.to_json(),
@@ -295,11 +360,7 @@ class Trainer(TrainingSteps, HeldoutViews):
             "step": self.step,
             "student": self.student.state_dict(),
             "discriminator": self.discriminator.state_dict(),
-            "optimizer_g": self.opt_g.state_dict(),
-            "optimizer_d": self.opt_d.state_dict(),
-            "scheduler_g": self.sched_g.state_dict(),
-            "scheduler_d": self.sched_d.state_dict(),
-            "scaler": self.scaler.state_dict(),
+            **self.optimisation.state_dict(),  # optimizer_g, optimizer_d, scheduler_g, scheduler_d, scaler
             "data_rng": json.dumps(self.data_rng.bit_generator.state),
             "world_size": self.world_size,
             "rng": rngs[0],
@@ -307,17 +368,15 @@ class Trainer(TrainingSteps, HeldoutViews):
         }
 
     def _restore(self, ckpt: dict[str, Any]) -> None:
+        """Continue from ``ckpt`` (:func:`lp3d.training.checkpoint.load_checkpoint`): every part's
+        state is restored in place, the scene bounds and the step are the checkpoint's."""
         try:
             self.student.load_state_dict(ckpt["student"])
             self.discriminator.load_state_dict(ckpt["discriminator"])
-            self.opt_g.load_state_dict(ckpt["optimizer_g"])
-            self.opt_d.load_state_dict(ckpt["optimizer_d"])
+            self.optimisation.load_optimisers(ckpt)
         except (RuntimeError, ValueError, KeyError) as e:
             raise CheckpointError(f"checkpoint {ckpt['path']!r} does not fit this run: {e}") from None
-        self.sched_g.load_state_dict(ckpt["scheduler_g"])
-        self.sched_d.load_state_dict(ckpt["scheduler_d"])
-        if ckpt.get("scaler"):
-            self.scaler.load_state_dict(ckpt["scaler"])
+        self.optimisation.load_schedules(ckpt)
         self.data_rng.bit_generator.state = json.loads(ckpt["data_rng"])
         recorded = int(ckpt.get("world_size", 1))  # checkpoints from before torchrun: one process
         if recorded != self.world_size:
@@ -327,10 +386,10 @@ class Trainer(TrainingSteps, HeldoutViews):
                 "it continues the same training up to float rounding (not bit for bit)"
             )
         states = [ckpt["rng"], *ckpt.get("rng_other_ranks", [])]
-        _set_rng_states(states[self.rank] if self.rank < len(states) else states[0])
+        restore_rng_states(states[self.rank] if self.rank < len(states) else states[0])
         if self.rank >= len(states):  # a rank the checkpoint has no streams for: its own
-            torch.manual_seed(_rank_seed(self.config.seed, self.rank, int(ckpt["step"])))
-        self.scene = SceneBounds(**json.loads(ckpt["scene"]))
+            torch.manual_seed(rank_seed(self.config.seed, self.rank, int(ckpt["step"])))
+        self.run_teacher.scene = SceneBounds(**json.loads(ckpt["scene"]))
         self.student.scene = self.scene
         self.step = int(ckpt["step"])
 
@@ -339,24 +398,10 @@ class Trainer(TrainingSteps, HeldoutViews):
         Under torchrun every rank calls it and rank 0 writes."""
         if self.config.recipe == "cpu" and self.is_main:
             self.log_heldout()  # the other ranks wait in state_dict()'s gather
-        path = checkpoint_path(self.out_dir, self.step)
         state = self.state_dict()  # on every rank: it gathers their RNG states
         if not self.is_main:
-            return path
-        _atomic_torch_save(state, path)
-        for _, p in checkpoints(self.out_dir)[: -self.config.keep_checkpoints]:
-            p.unlink(missing_ok=True)
-        return path
-
-    def _set_trainable(self, step: int) -> None:
-        """Stage 1 freezes the decoder, and the SR when it came pretrained (supplement, "Training")."""
-        if self.config.recipe == "cpu":  # the teacher's decoder is kept; there is no SR to train
-            self.student.decoder.requires_grad_(False)
-            self.student.superres.requires_grad_(False)
-            return
-        stage2 = self.config.stage(step) == 2
-        self.student.decoder.requires_grad_(stage2)
-        self.student.superres.requires_grad_(stage2 or not self.pretrained_sr)
+            return checkpoint_path(self.out_dir, self.step)
+        return write_checkpoint(state, self.out_dir, self.config.keep_checkpoints)
 
     # -- the loop ----------------------------------------------------------------------------------
     def train(self, max_steps: int | None = None) -> dict[str, Any] | None:
