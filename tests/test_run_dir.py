@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 
 from lp3d.teachers import ProceduralTeacher
-from lp3d.train import TRAIN_CONFIGS, CheckpointError, TrainConfig, Trainer, load_checkpoint
 from lp3d.train import main as train_main
+from lp3d.training import TRAIN_CONFIGS, CheckpointError, TrainConfig, Trainer, load_checkpoint
 from lp3d.training.run_dir import RunBusyError, RunLock, checkpoints
 
 

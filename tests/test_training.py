@@ -25,19 +25,19 @@ import torch
 from lp3d.cli.eval import main as eval_main
 from lp3d.evaluation import EvalSettings, evaluate
 from lp3d.teachers import ProceduralTeacher
-from lp3d.train import (
+from lp3d.train import main as train_main
+from lp3d.training import (
     TRAIN_CONFIGS,
     CheckpointError,
     NonFiniteError,
     TrainConfig,
     Trainer,
     build_teacher,
-    latest_checkpoint,
     load_checkpoint,
     student_from_checkpoint,
 )
-from lp3d.train import main as train_main
 from lp3d.training.losses import build_perceptual
+from lp3d.training.run_dir import latest_checkpoint
 
 LEARN_STEPS = 30
 MIN_GAIN_DB = 2.0
