@@ -113,10 +113,11 @@ teacher as a run uses it), :mod:`~lp3d.training.steps` (the per-step data and lo
 :class:`~lp3d.training.heldout.HeldoutViews`), :mod:`~lp3d.training.trainer` (:class:`Trainer`, which
 builds those parts and owns them) and :mod:`~lp3d.training.cli` (``main``). No module imports another
 one's private names.
-Beside it: ``eval*`` (``lp3d eval``), ``export*`` (``lp3d export``), ``superres_fit*`` (a
-super-resolution network for a recipe without one), ``camera_sampling``, ``synthetic_data``,
-``run_dir``, ``distributed`` and ``tensorboard_log``. ``lp3d.train`` re-exports the public names
-below for ``python -m lp3d.train`` and older imports.
+Beside it: ``camera_sampling``, ``synthetic_data``, ``run_dir``, ``distributed`` and
+``tensorboard_log``. What uses a trained student lives in packages of its own beside this one:
+:mod:`lp3d.evaluation` (``lp3d eval``), :mod:`lp3d.export` (``lp3d export``) and
+:mod:`lp3d.superres_fit` (``lp3d superres-fit``). ``lp3d.train`` re-exports the public names below
+for ``python -m lp3d.train`` and older imports.
 
 May import: :mod:`lp3d.teachers`, :mod:`lp3d.nets`, :mod:`lp3d.render`, :mod:`lp3d.lift` and the
 plumbing modules. Not the command line (:mod:`lp3d.cli`).
