@@ -188,7 +188,16 @@ def test_sigterm_during_orbit_leaves_no_temporary_file(gpu, sphere: Path) -> Non
 def test_ctrl_c_during_start_up_is_one_line(sphere: Path) -> None:
     """Ctrl-C while numpy was being imported ended in a traceback, or in numpy's ImportError about
     "PyCapsule_Import could not import module datetime"."""
-    proc = lp3d("orbit", str(sphere), "-o", str(sphere.parent / "o.gif"), *SMALL)
+    # As a terminal starts it: Ctrl-C at its default. A test run started in the background of a
+    # non-interactive shell has SIGINT ignored, and a child would inherit that across exec.
+    proc = lp3d(
+        "orbit",
+        str(sphere),
+        "-o",
+        str(sphere.parent / "o.gif"),
+        *SMALL,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     maps, cmdline = Path(f"/proc/{proc.pid}/maps"), Path(f"/proc/{proc.pid}/cmdline")
     deadline = time.monotonic() + 30
     while time.monotonic() < deadline and proc.poll() is None:
