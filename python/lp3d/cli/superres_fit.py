@@ -7,6 +7,7 @@ or run."""
 from __future__ import annotations
 
 import argparse
+import sys
 from collections.abc import Sequence
 from dataclasses import fields
 from pathlib import Path
@@ -75,10 +76,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 def build_parser(prog: str = "python -m lp3d.superres_fit") -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=prog, description=DESCRIPTION)
-    add_arguments(p)
-    p.set_defaults(func=run)
-    return p
+    """This command's parser on its own (as ``lp3d-view``'s and ``lp3d demo``'s are)."""
+    from lp3d.cli import standalone_parser
+
+    return standalone_parser(sys.modules[__name__], prog)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
