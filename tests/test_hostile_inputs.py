@@ -276,13 +276,13 @@ def test_orbit_pitch_range_must_stay_below_the_poles(capsys, tmp_path) -> None:
 def test_training_flags_are_checked_before_any_set_up(
     capsys, monkeypatch, tmp_path, entry, argv, words
 ) -> None:
-    import lp3d.training.cli
+    import lp3d.cli.train
     from lp3d.train import main as train_main
 
     def set_up(args: object) -> int:
         raise AssertionError("training set-up started")
 
-    monkeypatch.setattr(lp3d.training.cli, "run_cli", set_up)
+    monkeypatch.setattr(lp3d.cli.train, "run", set_up)
     full = [*argv, "--out", str(tmp_path / "run")]
     code = main(["train", *full]) if entry == "lp3d train" else train_main(full)
     err = capsys.readouterr().err

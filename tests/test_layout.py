@@ -61,7 +61,9 @@ ALLOWED = {
         "images",
     },
     "export": {"training", "superres_fit", "render", "nets", "lift", "atomic", "errors", "outputs"},
-    "train": {"training"},
+    # python -m lp3d.train, the README's command: an entry point that runs lp3d.cli.train (and keeps
+    # older imports of the training names working).
+    "train": {"training", "cli"},
     # The library commands (train, eval, export, superres-fit) are imported inside the functions that
     # parse or run them, so that lp3d encode never imports torch.
     "cli": {
@@ -204,6 +206,7 @@ OLD_NAMES = [
     ("lp3d.cli", "render_triplane"),
     ("lp3d.cli", "render_views"),
     ("lp3d.training.config", "_scaled_schedule"),
+    ("lp3d.train", "run_cli"),
 ]
 
 
@@ -218,6 +221,19 @@ def test_old_module_names_end_at_their_stated_release() -> None:
         assert not _moved.MOVED
         for module, name in OLD_NAMES:
             assert not hasattr(importlib.import_module(module), name), f"{module}.{name}"
+
+
+def test_the_command_line_names_left_lp3d_training_with_a_pointer() -> None:
+    """``lp3d.training.main`` (and the other names of the old ``training/cli.py``) now live in
+    ``lp3d.train`` / :mod:`lp3d.cli.train`; asking the library for them says where they went."""
+    import lp3d.train
+    import lp3d.training
+
+    for name in lp3d.training._COMMAND_LINE:
+        with pytest.raises(AttributeError, match=f"lp3d.train.{name} .*lp3d.training.train"):
+            getattr(lp3d.training, name)
+        assert hasattr(lp3d.train, name), name
+    assert callable(lp3d.training.train) and "train" in lp3d.training.__all__
 
 
 def test_the_repo_uses_no_old_name() -> None:

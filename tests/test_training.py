@@ -226,6 +226,24 @@ def test_nan_batches_and_wrong_sizes_are_clear_errors(tmp_path):
         bad_loss.train_step()
 
 
+def test_train_is_a_plain_function_that_raises(tmp_path):
+    """``lp3d.training.train()`` is the library call behind ``lp3d train``: it returns where the run
+    stopped and raises (not prints) what is wrong."""
+    from lp3d.training import CheckpointError, TrainResult, train
+
+    result = train("tiny-paper", out=tmp_path / "lib", max_steps=1, batch=1, progress=False)
+    assert isinstance(result, TrainResult) and result.step == 1 and not result.interrupted
+    assert result.checkpoint == tmp_path / "lib" / "checkpoints" / "step-000001.pt"
+    assert result.checkpoint.is_file()
+    with pytest.raises(ValueError, match="'no-such': not one of .*tiny"):
+        train("no-such", out=tmp_path / "x")
+    with pytest.raises(ValueError, match="--batch must be >= 1"):
+        train("tiny-paper", out=tmp_path / "x", batch=0)
+    with pytest.raises(CheckpointError, match="configuration 'tiny-paper', not 'small'"):
+        train("small", resume=result.checkpoint)
+    assert not (tmp_path / "x").exists()
+
+
 def test_train_cli_runs_and_reports_bad_inputs(tmp_path, capsys):
     out = tmp_path / "cli"
     assert train_main(["--config", "tiny-paper", "--max-steps", "1", "--batch", "1", "--out", str(out)]) == 0

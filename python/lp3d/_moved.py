@@ -57,6 +57,8 @@ MOVED = {
     "training.superres_fit_config": "lp3d.superres_fit.config",
     "training.superres_fit_data": "lp3d.superres_fit.data",
     "training.superres_fit_train": "lp3d.superres_fit.train",
+    # lp3d train's parser joined the other commands' in lp3d.cli; lp3d.training.train() is the library call.
+    "training.cli": "lp3d.cli.train",
 }
 
 #: The release in which the old names stop importing (a test fails once ``__version__`` reaches it

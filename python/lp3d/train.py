@@ -1,14 +1,16 @@
 """``python -m lp3d.train``: distil a teacher into the LP3D encoder (``lp3d train`` is the same command).
 
-The code is the package :mod:`lp3d.training`, whose docstring describes the recipe; this module keeps
-the command and re-exports the names other code imports from ``lp3d.train``.
+The command line is :mod:`lp3d.cli.train`; the library it calls is :func:`lp3d.training.train` (the
+package's docstring describes the recipe). This module keeps the README's command and re-exports the
+names older code imports from ``lp3d.train``.
 """
 
 from __future__ import annotations
 
+from lp3d.cli.train import DESCRIPTION, add_arguments, build_parser, main
+from lp3d.cli.train import run as run_cli
 from lp3d.training import (
     CHECKPOINT_FORMAT,
-    DESCRIPTION,
     TEACHERS,
     TRAIN_CONFIGS,
     Batch,
@@ -18,19 +20,17 @@ from lp3d.training import (
     Student,
     TrainConfig,
     Trainer,
-    add_arguments,
-    build_parser,
+    TrainResult,
     build_teacher,
     dataset_key,
     load_checkpoint,
-    main,
     principal_planes,
     render_teacher,
     render_views,
     resolve_teacher_args,
-    run_cli,
     student_from_checkpoint,
     teacher_superres_state,
+    train,
 )
 from lp3d.training.config import _scaled_schedule as _scaled_schedule
 from lp3d.training.run_dir import latest_checkpoint as latest_checkpoint
@@ -46,6 +46,7 @@ __all__ = [
     "SceneBounds",
     "Student",
     "TrainConfig",
+    "TrainResult",
     "Trainer",
     "add_arguments",
     "build_parser",
@@ -60,6 +61,7 @@ __all__ = [
     "run_cli",
     "student_from_checkpoint",
     "teacher_superres_state",
+    "train",
 ]
 
 if __name__ == "__main__":

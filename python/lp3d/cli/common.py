@@ -7,7 +7,6 @@ Errors are :class:`CLIError` (:class:`lp3d.errors.UserError`): one line, exit st
 from __future__ import annotations
 
 import argparse
-import importlib
 import math
 import sys
 from collections.abc import Callable, Sequence
@@ -58,7 +57,6 @@ __all__ = [
     "int_in",
     "load_triplane_file",
     "make_camera",
-    "module_command",
     "parse_samples",
     "progress",
     "render_args",
@@ -363,21 +361,3 @@ def describe_size(sr: Any, size: int) -> str:
         return f"{size}²"
     text = f"{sr.input_resolution}² raw -> {sr.output_resolution}²"
     return text if size == sr.output_resolution else f"{text}, resized to {size}²"
-
-
-def module_command(
-    module: str,
-) -> tuple[Callable[[argparse.ArgumentParser], None], Callable[[argparse.Namespace], int]]:
-    """``(add_arguments, run)`` of a subcommand that is a library module's own command line
-    (``lp3d train`` is ``python -m lp3d.train``): its ``DESCRIPTION``, ``add_arguments`` and ``run_cli``,
-    imported only when the subcommand is parsed or run (those modules import torch)."""
-
-    def add_arguments(p: argparse.ArgumentParser) -> None:
-        target = importlib.import_module(module)
-        p.description = target.DESCRIPTION
-        target.add_arguments(p)
-
-    def run(args: argparse.Namespace) -> int:
-        return int(importlib.import_module(module).run_cli(args))
-
-    return add_arguments, run

@@ -111,8 +111,9 @@ teacher as a run uses it), :mod:`~lp3d.training.steps` (the per-step data and lo
 :mod:`~lp3d.training.resume` (what a resumed run must share with its checkpoint),
 :mod:`~lp3d.training.heldout` (the held-out curve and samples,
 :class:`~lp3d.training.heldout.HeldoutViews`), :mod:`~lp3d.training.trainer` (:class:`Trainer`, which
-builds those parts and owns them) and :mod:`~lp3d.training.cli` (``main``). No module imports another
-one's private names.
+builds those parts and owns them) and :mod:`~lp3d.training.distil` (:func:`train`, the one call that
+builds the teacher and the trainer and runs it; ``lp3d train``'s options in :mod:`lp3d.cli.train`
+become its arguments). No module imports another one's private names.
 Beside it: ``camera_sampling``, ``synthetic_data``, ``run_dir``, ``distributed`` and
 ``tensorboard_log``. What uses a trained student lives in packages of its own beside this one:
 :mod:`lp3d.evaluation` (``lp3d eval``), :mod:`lp3d.export` (``lp3d export``) and
@@ -132,7 +133,6 @@ _EXPORTS = {
     "Batch": "steps",
     "CHECKPOINT_FORMAT": "checkpoint",
     "CheckpointError": "checkpoint",
-    "DESCRIPTION": "cli",
     "LOG_COLUMNS": "run_log",
     "MAIN_WEIGHTS": "config",
     "NonFiniteError": "steps",
@@ -144,30 +144,37 @@ _EXPORTS = {
     "TEACHER_ARGS": "teacher_factory",
     "TRAIN_CONFIGS": "config",
     "TrainConfig": "config",
+    "TrainResult": "distil",
     "Trainer": "trainer",
     "TriplaneDecoder": "student",
     "WARMUP_WEIGHTS": "config",
-    "add_arguments": "cli",
-    "build_parser": "cli",
     "build_teacher": "teacher_factory",
     "config_differences": "config",
     "dataset_key": "teacher_factory",
     "load_checkpoint": "checkpoint",
-    "main": "cli",
     "principal_planes": "student",
     "render_teacher": "student",
     "render_views": "student",
     "resolve_teacher_args": "teacher_factory",
-    "run_cli": "cli",
     "student_from_checkpoint": "checkpoint",
     "teacher_superres_state": "teacher_factory",
+    "train": "distil",
 }
 
 __all__ = sorted(_EXPORTS)
 
 
+#: Names of the command line that left this package for :mod:`lp3d.cli.train` (issue 24).
+_COMMAND_LINE = ("DESCRIPTION", "add_arguments", "build_parser", "main", "run_cli")
+
+
 def __getattr__(name: str) -> Any:
     module = _EXPORTS.get(name)
+    if module is None and name in _COMMAND_LINE:
+        raise AttributeError(
+            f"lp3d.training.{name} moved with the command line: lp3d.train.{name} (python -m lp3d.train) "
+            "has it; the library's call is lp3d.training.train()"
+        )
     if module is None:
         raise AttributeError(f"module 'lp3d.training' has no attribute {name!r}")
     value = getattr(importlib.import_module(f"lp3d.training.{module}"), name)
