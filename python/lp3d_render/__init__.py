@@ -11,7 +11,7 @@ Renders EG3D-format triplanes exactly as EG3D does (deterministic by default)::
 See ``docs/triplane-format.md`` for the file format and ``lp3d.render.camera`` for cameras.
 """
 
-from lp3d_render._guard import adapter_info, last_frame_device_bytes, render  # fork and size checks
+from lp3d_render._guard import adapter_info, bake, last_frame_device_bytes, render  # fork and size checks
 from lp3d_render._lp3d_render import (
     DEFAULT_BOX_WARP,
     DEFAULT_RAY_END,
@@ -25,6 +25,7 @@ from lp3d_render._lp3d_render import (
     MAX_SAMPLES,
     PLANE_AXES,
     VIEW_USAGE,
+    BakedField,
     Triplane,
     __version__,
     look_at_camera,
@@ -34,6 +35,7 @@ from lp3d_render._lp3d_render import (
 )
 
 __all__ = [
+    "BakedField",
     "DEFAULT_BOX_WARP",
     "DEFAULT_RAY_END",
     "DEFAULT_RAY_START",
@@ -49,6 +51,7 @@ __all__ = [
     "VIEW_USAGE",
     "__version__",
     "adapter_info",
+    "bake",
     "last_frame_device_bytes",
     "look_at_camera",
     "render",

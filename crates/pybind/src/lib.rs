@@ -3,10 +3,12 @@
 //! `lp3d-renderer` crate. GPU work runs with the GIL released; no panic crosses into Python.
 //!
 //! One module per Python type or function: `triplane.rs` (`Triplane`), `render.rs` (`render`),
+//! `baked.rs` (`bake`, `BakedField`),
 //! `camera.rs` (`look_at_camera`), `shaders.rs` (`shader_sources`), `view.rs` (`view`),
 //! `device.rs` (the shared GPU, `adapter_info`, `last_frame_device_bytes`); this file registers
 //! them and the constants.
 
+mod baked;
 mod camera;
 mod convert;
 mod device;
@@ -29,6 +31,8 @@ use pyo3::types::PyDict;
 #[pymodule]
 fn _lp3d_render(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<triplane::Triplane>()?;
+    m.add_class::<baked::BakedField>()?;
+    m.add_function(wrap_pyfunction!(baked::bake, m)?)?;
     m.add_function(wrap_pyfunction!(render::render, m)?)?;
     m.add_function(wrap_pyfunction!(device::adapter_info, m)?)?;
     m.add_function(wrap_pyfunction!(device::last_frame_device_bytes, m)?)?;

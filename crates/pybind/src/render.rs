@@ -3,6 +3,7 @@
 
 use std::hash::BuildHasher;
 
+use lp3d_renderer::baked::MAX_SUBDIVISIONS;
 use lp3d_renderer::settings::{MAX_RESOLUTION, MAX_SAMPLES};
 use lp3d_renderer::triplane::N_CHANNELS;
 use lp3d_renderer::{Camera, Outputs, RenderOutput, RenderSettings, Skips};
@@ -26,6 +27,10 @@ use crate::triplane::Triplane;
 /// none), at most ``occupancy_epsilon`` opacity per skipped interval (docs/occupancy.md), in the
 /// final composite; ``occupancy_coarse`` skips in the coarse pass too (faster; moves the
 /// importance samples, so that part of the error is measured, not bounded).
+/// ``baked_subdivisions`` = k > 0 skips the decoder: samples are looked up in the triplane's
+/// baked field (``bake``; baked with k points per cell edge on first use), which holds
+/// density and RGB only, so ``features`` cannot be asked for (docs/baked.md); it needs
+/// ``occupancy_epsilon`` > 0.
 ///
 /// Every argument is checked here, before any GPU work: a wrong type is a TypeError and a bad
 /// value a ValueError, each naming the argument and the value (`resolution=True` and
@@ -36,8 +41,9 @@ use crate::triplane::Triplane;
                  depth_resolution_importance=Arg::Default(48), deterministic=Arg::Default(true), seed=None,
                  outputs=None, white_back=Arg::Default(false), *,
                  transmittance_threshold=Arg::Default(0.0), empty_threshold=Arg::Default(0.0),
-                 occupancy_epsilon=Arg::Default(0.0), occupancy_coarse=Arg::Default(false)),
-    text_signature = "(triplane, camera, resolution=128, depth_resolution=48, depth_resolution_importance=48, deterministic=True, seed=None, outputs=None, white_back=False, *, transmittance_threshold=0.0, empty_threshold=0.0, occupancy_epsilon=0.0, occupancy_coarse=False)"
+                 occupancy_epsilon=Arg::Default(0.0), occupancy_coarse=Arg::Default(false),
+                 baked_subdivisions=Arg::Default(0)),
+    text_signature = "(triplane, camera, resolution=128, depth_resolution=48, depth_resolution_importance=48, deterministic=True, seed=None, outputs=None, white_back=False, *, transmittance_threshold=0.0, empty_threshold=0.0, occupancy_epsilon=0.0, occupancy_coarse=False, baked_subdivisions=0)"
 )]
 #[allow(clippy::too_many_arguments)]
 pub fn render<'py>(
@@ -55,6 +61,7 @@ pub fn render<'py>(
     empty_threshold: Arg<'py, f64>,
     occupancy_epsilon: Arg<'py, f64>,
     occupancy_coarse: Arg<'py, bool>,
+    baked_subdivisions: Arg<'py, i64>,
 ) -> PyResult<Bound<'py, PyDict>> {
     guarded(|| {
         let tri = triplane.cast::<Triplane>().map_err(|_| {
@@ -96,6 +103,12 @@ pub fn render<'py>(
                 empty_threshold: f32_arg(&empty_threshold, "empty_threshold")?,
                 occupancy_epsilon: f32_arg(&occupancy_epsilon, "occupancy_epsilon")?,
                 occupancy_coarse: bool_arg(&occupancy_coarse, "occupancy_coarse")?,
+                baked_subdivisions: int_arg(
+                    &baked_subdivisions,
+                    "baked_subdivisions",
+                    0,
+                    MAX_SUBDIVISIONS as i64,
+                )? as u32,
             },
         };
         settings.validate().map_err(to_py)?;

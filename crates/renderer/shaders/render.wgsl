@@ -8,7 +8,8 @@
 // merging two sorted lists replaces EG3D's sort.
 // needs: params, out_features, out_depth, out_weights_sum, depth_bounds, MAX_SAMPLES,
 // needs: FLAG_OCCUPANCY_COARSE, FLAG_WHITE_BACK, camera_ray, importance_depths, sample_triplane,
-// needs: decode, interval_alpha, transmit, Walk, walk_start, walk_advance, walk_to_needed
+// needs: decode, interval_alpha, transmit, Walk, walk_start, walk_advance, walk_to_needed,
+// needs: BAKED, baked_sample
 // provides: COARSE_CACHE, Composite, composite_sample, render_rays
 
 // One loop walks a ray twice: first its coarse samples (the density pass of sample_importance,
@@ -140,10 +141,16 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
                 break;
             }
             let t = walk.t_cur;
-            sample_triplane(ray.origin + t * ray.dir, &feat);
-            // Only the requested decoder rows: all 32 features or the 4 that hold RGB (also in the
-            // coarse walk, for the cache).
-            let sigma_raw = decode(n_feat, &feat, &cur_feat);
+            var sigma_raw: f32;
+            if (BAKED) {
+                // The baked field's lookup in place of the fetch and the decoder (RGB only).
+                sigma_raw = baked_sample(ray.origin + t * ray.dir, &cur_feat);
+            } else {
+                sample_triplane(ray.origin + t * ray.dir, &feat);
+                // Only the requested decoder rows: all 32 features or the 4 that hold RGB (also in
+                // the coarse walk, for the cache).
+                sigma_raw = decode(n_feat, &feat, &cur_feat);
+            }
             if (coarse && walk.k_cur == n_cached && n_cached < COARSE_CACHE) {
                 cache_sigma_raw[n_cached] = sigma_raw;
                 if (n_feat == 32u) {

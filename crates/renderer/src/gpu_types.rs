@@ -38,7 +38,11 @@ pub struct Params {
     pub empty_threshold: f32,
     /// Occupancy grid cells per axis; 0 = no occupancy skip.
     pub occupancy_resolution: u32,
+    pub baked_subdivisions: u32,
+    pub baked_cells: u32,
+    pub _pad0: u32,
     pub _pad1: u32,
+    pub _pad2: u32,
 }
 
 impl Params {
@@ -77,7 +81,11 @@ impl Params {
             transmittance_threshold: settings.skips.transmittance_threshold,
             empty_threshold: settings.skips.empty_threshold,
             occupancy_resolution: 0,
+            baked_subdivisions: 0,
+            baked_cells: 0,
+            _pad0: 0,
             _pad1: 0,
+            _pad2: 0,
         }
     }
 }

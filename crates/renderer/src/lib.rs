@@ -7,6 +7,7 @@
 //! (GPU pipelines and dispatch), [`npz`] (the `.npz` triplane file).
 
 pub mod atomic;
+pub mod baked;
 pub mod camera;
 pub mod device;
 pub mod error;
@@ -19,11 +20,12 @@ pub mod settings;
 pub mod shaders;
 pub mod triplane;
 
+pub use baked::BakeSpec;
 pub use camera::Camera;
 pub use device::GpuContext;
 pub use error::{Error, Result};
 pub use kernel::{Kernel, KernelChoice};
 pub use occupancy::Occupancy;
-pub use renderer::{GpuTriplane, RenderOutput, Renderer, DISPLAY_FORMAT};
+pub use renderer::{GpuBaked, GpuTriplane, RenderOutput, Renderer, DISPLAY_FORMAT};
 pub use settings::{Display, Outputs, RenderSettings, Skips};
 pub use triplane::{Decoder, PlaneDtype, SceneBounds, SceneInfo, Triplane};

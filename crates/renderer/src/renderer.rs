@@ -3,6 +3,7 @@
 //! `renderer/upload.rs`, one request's buffers and dispatches `renderer/frame.rs`.
 
 mod background;
+mod baking;
 mod frame;
 mod layouts;
 mod upload;
@@ -24,6 +25,8 @@ use crate::shaders;
 use crate::triplane::{PlaneDtype, SceneInfo, Triplane, N_CHANNELS};
 use background::spawn_fast_kernel_compile;
 use layouts::Layouts;
+
+pub use baking::{GpuBaked, BAKE_CHUNK};
 
 // Old paths for users until lp3d 0.2 (the repo's own code uses `crate::kernel`, `crate::settings`
 // and the crate root): `lp3d_renderer::renderer::{KernelChoice, Kernel, check_decoder_range, Display}`.
@@ -47,6 +50,8 @@ pub struct GpuTriplane {
     /// lossless and halves the plane memory and its traffic.
     half: bool,
     occupancy: Mutex<Option<GpuOccupancy>>,
+    /// The baked field (`Renderer::bake`), made from the occupancy grid on first use.
+    baked: Mutex<Option<Arc<GpuBaked>>>,
 }
 
 /// The grid (bounds on the CPU) and its bits on the GPU for the last threshold used.
@@ -108,6 +113,14 @@ pub struct Renderer {
     present_pipeline: wgpu::ComputePipeline,
     /// Bound in place of occupancy bits when the skip is off.
     no_occupancy: wgpu::Buffer,
+    /// render_rays looking samples up in a baked field, built on first use.
+    baked_pipeline: OnceLock<wgpu::ComputePipeline>,
+    /// The bake kernel, built on first use, and its bindings.
+    bake_pipeline: OnceLock<wgpu::ComputePipeline>,
+    bake_layout: wgpu::BindGroupLayout,
+    bake_pipeline_layout: wgpu::PipelineLayout,
+    /// Bound in place of a baked field when the render decodes.
+    no_baked: wgpu::Buffer,
     /// Device bytes of the last frame's own buffers, readbacks included.
     last_frame_bytes: AtomicU64,
     /// Errors wgpu reports outside an error scope, kept instead of panicking.
@@ -135,6 +148,8 @@ impl Renderer {
             render_pipeline_layout: pipeline_layout,
             present: present_layout,
             present_pipeline_layout,
+            bake: bake_layout,
+            bake_pipeline_layout,
         } = Layouts::new(&device);
         let make = |entry: &str, label: &str, layout: &wgpu::PipelineLayout| {
             device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
@@ -174,6 +189,12 @@ impl Renderer {
             usage: wgpu::BufferUsages::STORAGE,
             mapped_at_creation: false,
         });
+        let no_baked = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("lp3d no baked field"),
+            size: 16,
+            usage: wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: false,
+        });
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(Error::Gpu(format!("building the render pipelines failed: {e}")));
         }
@@ -182,6 +203,11 @@ impl Renderer {
             .transpose()?;
         Ok(Renderer {
             no_occupancy,
+            baked_pipeline: OnceLock::new(),
+            bake_pipeline: OnceLock::new(),
+            bake_layout,
+            bake_pipeline_layout,
+            no_baked,
             last_frame_bytes: AtomicU64::new(0),
             device,
             queue: ctx.queue.clone(),

@@ -48,6 +48,11 @@ pub struct Skips {
     /// Apply the occupancy skip to the coarse pass as well: faster, but the changed coarse
     /// weights move the importance samples, so that part of the error is measured, not bounded.
     pub occupancy_coarse: bool,
+    /// Skip the decoder: look samples up in the triplane's baked field (`crate::baked`,
+    /// `docs/baked.md`), decoded once at this many points per baked cell edge (`baked::baked_cells`) in the cells
+    /// the occupancy skip keeps; RGB, depth and weights only. Needs `occupancy_epsilon` > 0 (the
+    /// bake stores nothing where that skip takes the density as 0). 0 = off.
+    pub baked_subdivisions: u32,
 }
 
 impl Skips {
@@ -56,6 +61,7 @@ impl Skips {
         empty_threshold: 0.0,
         occupancy_epsilon: 0.0,
         occupancy_coarse: false,
+        baked_subdivisions: 0,
     };
 
     pub fn validate(&self) -> Result<()> {
@@ -70,6 +76,16 @@ impl Skips {
         }
         if self.occupancy_coarse && self.occupancy_epsilon == 0.0 {
             return Err(Error::invalid("occupancy_coarse", "needs occupancy_epsilon > 0"));
+        }
+        let k = self.baked_subdivisions;
+        if k > crate::baked::MAX_SUBDIVISIONS {
+            return Err(Error::invalid(
+                "baked_subdivisions",
+                format!("must be in [0, {}], got {k}", crate::baked::MAX_SUBDIVISIONS),
+            ));
+        }
+        if k > 0 && self.occupancy_epsilon == 0.0 {
+            return Err(Error::invalid("baked_subdivisions", "needs occupancy_epsilon > 0"));
         }
         Ok(())
     }

@@ -34,6 +34,10 @@ pub const DECODER: Stage = stage!("decoder.wgsl");
 pub const MARCH: Stage = stage!("march.wgsl");
 /// The occupancy grid test and the sample walk that skips empty intervals.
 pub const OCCUPANCY: Stage = stage!("occupancy.wgsl");
+/// The baked field's lookup (`baked_sample`), in place of the fetch and decoder in baked mode.
+pub const BAKED: Stage = stage!("baked.wgsl");
+/// The `bake_field` entry point (decodes the baked field's points once).
+pub const BAKE: Stage = stage!("bake.wgsl");
 /// The `render_rays` entry point.
 pub const RENDER: Stage = stage!("render.wgsl");
 /// The `depth_bounds_pass` entry point (the range of EG3D's depth clamp).
@@ -42,8 +46,20 @@ pub const DEPTH_BOUNDS: Stage = stage!("depth_bounds.wgsl");
 pub const PRESENT: Stage = stage!("present.wgsl");
 
 /// Every stage file. A test fails if a `.wgsl` file in `shaders/` is missing from this list.
-pub const STAGES: [Stage; 10] =
-    [PARAMS, CAMERA, SAMPLING, TRIPLANE, DECODER, MARCH, OCCUPANCY, RENDER, DEPTH_BOUNDS, PRESENT];
+pub const STAGES: [Stage; 12] = [
+    PARAMS,
+    CAMERA,
+    SAMPLING,
+    TRIPLANE,
+    DECODER,
+    MARCH,
+    OCCUPANCY,
+    BAKED,
+    RENDER,
+    DEPTH_BOUNDS,
+    PRESENT,
+    BAKE,
+];
 
 /// An entry point and the stage files its module is made of, in dependency order (a file uses
 /// only names defined in itself or in files before it; the entry point is in the last file).
@@ -55,19 +71,22 @@ pub struct EntryPoint {
 
 pub const RENDER_RAYS: EntryPoint = EntryPoint {
     name: "render_rays",
-    stages: &[PARAMS, CAMERA, SAMPLING, TRIPLANE, DECODER, MARCH, OCCUPANCY, RENDER],
+    stages: &[PARAMS, CAMERA, SAMPLING, TRIPLANE, DECODER, MARCH, OCCUPANCY, BAKED, RENDER],
 };
 pub const DEPTH_BOUNDS_PASS: EntryPoint =
     EntryPoint { name: "depth_bounds_pass", stages: &[PARAMS, SAMPLING, DEPTH_BOUNDS] };
 pub const PRESENT_PASS: EntryPoint = EntryPoint { name: "present", stages: &[PARAMS, PRESENT] };
+pub const BAKE_FIELD: EntryPoint =
+    EntryPoint { name: "bake_field", stages: &[PARAMS, TRIPLANE, DECODER, BAKE] };
 
 /// Every entry point of the renderer.
-pub const ENTRY_POINTS: [EntryPoint; 3] = [RENDER_RAYS, DEPTH_BOUNDS_PASS, PRESENT_PASS];
+pub const ENTRY_POINTS: [EntryPoint; 4] = [RENDER_RAYS, DEPTH_BOUNDS_PASS, PRESENT_PASS, BAKE_FIELD];
 
 /// Entry point names, as the pipelines ask for them.
 pub const RENDER_ENTRY: &str = RENDER_RAYS.name;
 pub const DEPTH_BOUNDS_ENTRY: &str = DEPTH_BOUNDS_PASS.name;
 pub const PRESENT_ENTRY: &str = PRESENT_PASS.name;
+pub const BAKE_ENTRY: &str = BAKE_FIELD.name;
 
 /// The WGSL source of a module made of `stages`, in that order.
 pub fn module_source(stages: &[Stage]) -> String {

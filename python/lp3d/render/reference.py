@@ -11,6 +11,7 @@ Everything is vectorised over rays; ``...`` in shapes means any leading ray axes
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -305,18 +306,31 @@ def render_reference(
     settings.require_exact("the float64 reference")
     if bounds != tri.bounds:  # rendered with other bounds than the triplane's own
         tri = dataclasses.replace(tri, **dataclasses.asdict(bounds))
+    planes = tri.planes.astype(np.float64)
+    return render_with(tri, camera, settings, lambda o, d, t: _evaluate(tri, planes, o, d, t))
+
+
+#: ``evaluate(origins (n, 3), dirs (n, 3), depths (n, K)) -> (sigma_raw (n, K), features (n, K, C))``.
+Evaluate = Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+def render_with(
+    tri: TriplaneData, camera: np.ndarray, settings: RenderSettings, evaluate: Evaluate
+) -> dict[str, np.ndarray]:
+    """:func:`render_reference`'s sampler and compositing around any field ``evaluate`` (the decoder
+    in :func:`render_reference`, the baked field's lookup in :mod:`lp3d.render.baked`); ``settings``
+    resolved and the scene bounds ``tri``'s."""
     cams, batched = validate_camera(camera)
     B, R = cams.shape[0], settings.resolution
     S, N = settings.depth_resolution, settings.depth_resolution_importance
     origins, dirs = (a.reshape(-1, 3) for a in rays_from_cameras(cams, R))
     n_total = origins.shape[0]
-    planes = tri.planes.astype(np.float64)
     jitter = u_all = None
     if not settings.deterministic:
         jitter = coarse_jitter(settings.seed, n_total, S)
         u_all = sorted_importance_u(settings.seed, n_total, N) if N > 0 else None
 
-    features = np.empty((n_total, planes.shape[1]))
+    features: np.ndarray | None = None
     depth = np.empty(n_total)
     weights_sum = np.empty(n_total)
     t_min, t_max = np.inf, -np.inf
@@ -330,11 +344,11 @@ def render_reference(
             ray_end=tri.ray_end,
             jitter=None if jitter is None else jitter[sl],
         )
-        sigma_raw, feat = _evaluate(tri, planes, o, d, t)
+        sigma_raw, feat = evaluate(o, d, t)
         if N > 0:
             coarse = march(t, sigma_raw, feat, white_back=settings.white_back)
             t_fine = sample_importance(t, coarse.weights, N, None if u_all is None else u_all[sl])
-            sigma_raw_fine, feat_fine = _evaluate(tri, planes, o, d, t_fine)
+            sigma_raw_fine, feat_fine = evaluate(o, d, t_fine)
             # Merge coarse then fine and sort by depth; the coarse samples are reused, not recomputed.
             t = np.concatenate([t, t_fine], axis=-1)
             order = np.argsort(t, axis=-1, kind="stable")
@@ -344,10 +358,13 @@ def render_reference(
             feat = np.take_along_axis(np.concatenate([feat, feat_fine], axis=-2), order[..., None], axis=-2)
         result = march(t, sigma_raw, feat, white_back=settings.white_back)
         t_min, t_max = min(t_min, float(t.min())), max(t_max, float(t.max()))
+        if features is None:
+            features = np.empty((n_total, result.features.shape[-1]))
         features[sl], depth[sl], weights_sum[sl] = result.features, result.depth, result.weights_sum
 
     # EG3D clamps with the min/max over the whole batch tensor of sample depths (matters only for W = 0).
     depth = np.clip(depth, t_min, t_max)
+    assert features is not None
     out = {
         "features": features.reshape(B, R, R, -1).transpose(0, 3, 1, 2),
         "depth": depth.reshape(B, R, R),

@@ -29,6 +29,10 @@ HIDDEN = 64
 N_OUT = 33
 
 
+#: Largest baked-field points per cell edge (Rust's ``baked::MAX_SUBDIVISIONS``).
+MAX_BAKED_SUBDIVISIONS = 8
+
+
 @dataclass(frozen=True)
 class Skips:
     """Work the renderer may skip, each bounded by a threshold; all 0 (the default) is exact EG3D.
@@ -44,6 +48,10 @@ class Skips:
     occupancy_epsilon: float = 0.0
     #: ... in the coarse pass too (faster; moves the importance samples, error measured not bounded).
     occupancy_coarse: bool = False
+    #: Skip the decoder (docs/baked.md): look samples up in the triplane's baked field, decoded once
+    #: at k points per baked cell edge in the cells the occupancy skip keeps (density and RGB
+    #: only; needs occupancy_epsilon > 0). 0 = off.
+    baked_subdivisions: int = 0
 
     @property
     def exact(self) -> bool:
@@ -56,6 +64,11 @@ class Skips:
                 raise ValueError(f"{name} must be in [0, 1), got {value!r}")
         if self.occupancy_coarse and self.occupancy_epsilon == 0.0:
             raise ValueError("occupancy_coarse needs occupancy_epsilon > 0")
+        k = self.baked_subdivisions
+        if not _is_int(k) or not 0 <= k <= MAX_BAKED_SUBDIVISIONS:
+            raise ValueError(f"baked_subdivisions must be an int in [0, {MAX_BAKED_SUBDIVISIONS}], got {k!r}")
+        if k > 0 and self.occupancy_epsilon == 0.0:
+            raise ValueError("baked_subdivisions needs occupancy_epsilon > 0")
 
 
 @dataclass(frozen=True)

@@ -49,6 +49,19 @@ impl Renderer {
         if let Some((g, _)) = &occupancy {
             params.occupancy_resolution = *g;
         }
+        if settings.skips.baked_subdivisions > 0 && fc == N_CHANNELS {
+            return Err(Error::invalid(
+                "outputs",
+                "a baked field holds density and RGB only: ask for rgb, depth or weights_sum, or \
+                 render without baked_subdivisions for the 32 features",
+            ));
+        }
+        let baked = self.baked_for(tri, settings)?;
+        if let Some(b) = &baked {
+            params.baked_subdivisions = b.spec.subdivisions;
+            params.baked_cells = b.cells as u32;
+        }
+        let (baked_index, baked_values) = self.baked_bindings(baked.as_deref());
 
         let chunk = self.cameras_per_dispatch(fc, n_pix, n_cam)?;
 
@@ -98,6 +111,8 @@ impl Renderer {
                     binding: 8,
                     resource: occupancy.as_ref().map_or(&self.no_occupancy, |(_, b)| b).as_entire_binding(),
                 },
+                wgpu::BindGroupEntry { binding: 9, resource: baked_index.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 10, resource: baked_values.as_entire_binding() },
             ],
         });
         let bytes = [&camera_buf, &params_buf, &bounds_buf, &features, &depth, &weights_sum]
@@ -142,7 +157,11 @@ impl Renderer {
                 pass.set_pipeline(&self.bounds_pipeline);
                 pass.dispatch_workgroups(groups_x, frame.n_cam as u32, 1);
             }
-            pass.set_pipeline(self.render_pipeline());
+            if frame.params.baked_subdivisions > 0 {
+                pass.set_pipeline(self.baked_pipeline());
+            } else {
+                pass.set_pipeline(self.render_pipeline());
+            }
             pass.dispatch_workgroups(groups_x, count as u32, 1);
         }
         encoder

@@ -35,6 +35,9 @@ pub(super) struct Layouts {
     pub(super) render_pipeline_layout: wgpu::PipelineLayout,
     pub(super) present: wgpu::BindGroupLayout,
     pub(super) present_pipeline_layout: wgpu::PipelineLayout,
+    /// The bake kernel's: params, planes, decoder, the bricks' cells and the values it writes.
+    pub(super) bake: wgpu::BindGroupLayout,
+    pub(super) bake_pipeline_layout: wgpu::PipelineLayout,
 }
 
 impl Layouts {
@@ -51,6 +54,8 @@ impl Layouts {
                 storage_entry(6, false),
                 storage_entry(7, false),
                 storage_entry(8, true),
+                storage_entry(9, true),
+                storage_entry(10, true),
             ],
         });
         let render_pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -79,6 +84,28 @@ impl Layouts {
             bind_group_layouts: &[Some(&render), Some(&present)],
             immediate_size: 0,
         });
-        Layouts { render, render_pipeline_layout, present, present_pipeline_layout }
+        let bake = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("lp3d bake bindings"),
+            entries: &[
+                uniform_entry(0),
+                storage_entry(2, true),
+                uniform_entry(3),
+                storage_entry(11, true),
+                storage_entry(12, false),
+            ],
+        });
+        let bake_pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("lp3d bake pipeline layout"),
+            bind_group_layouts: &[Some(&bake)],
+            immediate_size: 0,
+        });
+        Layouts {
+            render,
+            render_pipeline_layout,
+            present,
+            present_pipeline_layout,
+            bake,
+            bake_pipeline_layout,
+        }
     }
 }

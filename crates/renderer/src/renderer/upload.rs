@@ -18,7 +18,7 @@ impl GpuTriplane {
         self.occupancy.lock().map(|o| o.is_some()).unwrap_or(false)
     }
 
-    /// Bytes of device memory this triplane holds: planes, decoder and occupancy bits.
+    /// Bytes of device memory this triplane holds: planes, decoder, occupancy bits and baked field.
     pub fn device_bytes(&self) -> u64 {
         let bits = self
             .occupancy
@@ -26,7 +26,8 @@ impl GpuTriplane {
             .ok()
             .and_then(|o| o.as_ref().and_then(|o| o.bits.as_ref().map(|(_, b)| b.size())))
             .unwrap_or(0);
-        self.planes.size() + self.decoder.size() + bits
+        let baked = self.baked().map_or(0, |b| b.device_bytes());
+        self.planes.size() + self.decoder.size() + bits + baked
     }
 }
 
@@ -130,7 +131,14 @@ impl Renderer {
             return Err(Error::Gpu(format!("uploading the triplane failed: {e}")));
         }
         let occupancy = tri.occupancy.clone().map(|grid| GpuOccupancy { grid: Arc::new(grid), bits: None });
-        Ok(GpuTriplane { planes, decoder, scene: tri.scene(), half, occupancy: Mutex::new(occupancy) })
+        Ok(GpuTriplane {
+            planes,
+            decoder,
+            scene: tri.scene(),
+            half,
+            occupancy: Mutex::new(occupancy),
+            baked: Mutex::new(None),
+        })
     }
 
     /// Attaches (or replaces) an uploaded triplane's occupancy grid, e.g. one baked after
@@ -139,6 +147,8 @@ impl Renderer {
         grid.validate()?;
         let mut slot = tri.occupancy.lock().map_err(|_| Error::Gpu("occupancy lock poisoned".into()))?;
         *slot = Some(GpuOccupancy { grid: Arc::new(grid), bits: None });
+        // A baked field was made from the old grid's cells.
+        *tri.baked.lock().map_err(|_| Error::Gpu("baked field lock poisoned".into()))? = None;
         Ok(())
     }
 

@@ -1,0 +1,141 @@
+//! `bake` and the `BakedField` it returns: a triplane's field decoded once into a grid
+//! (`docs/baked.md`), kept with the triplane's GPU copy so that `render(...,
+//! baked_subdivisions=k)` looks samples up instead of decoding them.
+
+use std::sync::Arc;
+
+use lp3d_renderer::baked::{BrickLayout, EMPTY, MAX_SUBDIVISIONS};
+use lp3d_renderer::settings::MAX_SAMPLES;
+use lp3d_renderer::{BakeSpec, GpuBaked, RenderSettings, Skips};
+use numpy::{PyArray1, PyArrayMethods};
+use pyo3::prelude::*;
+
+use crate::convert::{self, bool_arg, f32_arg, int_arg, Arg};
+use crate::device::{gpu, guarded};
+use crate::error::{invalid, to_py};
+use crate::triplane::Triplane;
+
+/// A baked field on the GPU: per baked cell a brick of (k + 1)³ points of (sigma_raw, r, g,
+/// b) float16, in the cells the occupancy skip keeps (docs/baked.md).
+#[pyclass(module = "lp3d_render", frozen)]
+pub struct BakedField {
+    inner: Arc<GpuBaked>,
+}
+
+#[pymethods]
+impl BakedField {
+    /// Points per baked cell edge, k.
+    #[getter]
+    fn subdivisions(&self) -> u32 {
+        self.inner.spec.subdivisions
+    }
+    /// The occupancy skip's per-interval opacity bound the bake kept cells for.
+    #[getter]
+    fn occupancy_epsilon(&self) -> f32 {
+        self.inner.spec.epsilon
+    }
+    /// The longest sample interval (scene units) the bake covers.
+    #[getter]
+    fn max_delta(&self) -> f64 {
+        self.inner.spec.max_delta
+    }
+    /// Baked cells per axis, G: the occupancy grid's, or blocks of its cells (docs/baked.md).
+    #[getter]
+    fn cells(&self) -> usize {
+        self.inner.cells
+    }
+    /// Cells that hold a brick.
+    #[getter]
+    fn bricks(&self) -> usize {
+        self.inner.n_bricks
+    }
+    #[getter]
+    fn bake_seconds(&self) -> f64 {
+        self.inner.bake_seconds
+    }
+    #[getter]
+    fn device_bytes(&self) -> u64 {
+        self.inner.device_bytes()
+    }
+    /// (G, G, G) int64: each cell's brick number, -1 for a cell without one.
+    #[getter]
+    fn index<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let idx: Vec<i64> =
+            self.inner.index.iter().map(|&b| if b == EMPTY { -1 } else { b as i64 }).collect();
+        Ok(PyArray1::from_vec(py, idx).reshape([self.inner.cells; 3])?.into_any())
+    }
+    /// (bricks, k + 1, k + 1, k + 1, 4) float16: (sigma_raw, r, g, b) at each brick point, read
+    /// back from the GPU; point (a, b, c) of the brick of cell (ix, iy, iz) sits at plane
+    /// coordinates -1 + 2 ((ix, iy, iz) k + (a, b, c)) / (G k).
+    #[getter]
+    fn values<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let g = gpu(py)?;
+        let halves = py.detach(|| g.renderer.read_baked_values(&self.inner)).map_err(to_py)?;
+        let k1 = self.inner.spec.subdivisions as usize + 1;
+        let shape = [self.inner.n_bricks, k1, k1, k1, 4];
+        let arr = PyArray1::from_vec(py, halves).reshape(shape)?;
+        arr.call_method1("view", ("float16",))
+    }
+    fn __repr__(&self) -> String {
+        format!(
+            "BakedField(subdivisions={}, cells={}, bricks={}, occupancy_epsilon={}, {:.1} MiB)",
+            self.inner.spec.subdivisions,
+            self.inner.cells,
+            self.inner.n_bricks,
+            self.inner.spec.epsilon,
+            self.inner.device_bytes() as f64 / (1 << 20) as f64
+        )
+    }
+}
+
+/// Bakes ``triplane``'s field on the GPU for renders with ``baked_subdivisions=subdivisions``,
+/// ``occupancy_epsilon`` and sample intervals up to those of ``depth_resolution`` coarse samples
+/// (jittered or not), keeps it with the triplane and returns it. ``render`` bakes on first use
+/// too; call this to time the bake, to bake before the first frame, or to read the field.
+#[pyfunction]
+#[pyo3(
+    signature = (triplane, subdivisions=Arg::Default(4), occupancy_epsilon=Arg::Default(1e-4),
+                 depth_resolution=Arg::Default(48), deterministic=Arg::Default(true)),
+    text_signature = "(triplane, subdivisions=4, occupancy_epsilon=0.0001, depth_resolution=48, deterministic=True)"
+)]
+pub fn bake<'py>(
+    py: Python<'py>,
+    triplane: &Bound<'py, PyAny>,
+    subdivisions: Arg<'py, i64>,
+    occupancy_epsilon: Arg<'py, f64>,
+    depth_resolution: Arg<'py, i64>,
+    deterministic: Arg<'py, bool>,
+) -> PyResult<BakedField> {
+    guarded(|| {
+        let tri = triplane.cast::<Triplane>().map_err(|_| {
+            invalid(
+                "triplane",
+                format!("expected lp3d_render.Triplane, got {}", convert::type_name(triplane)),
+            )
+        })?;
+        let k = int_arg(&subdivisions, "subdivisions", 1, MAX_SUBDIVISIONS as i64)? as u32;
+        let settings = RenderSettings {
+            depth_resolution: int_arg(&depth_resolution, "depth_resolution", 4, MAX_SAMPLES as i64)? as u32,
+            deterministic: bool_arg(&deterministic, "deterministic")?,
+            skips: Skips {
+                occupancy_epsilon: f32_arg(&occupancy_epsilon, "occupancy_epsilon")?,
+                baked_subdivisions: k,
+                ..Skips::EXACT
+            },
+            ..RenderSettings::default()
+        };
+        settings.validate().map_err(to_py)?;
+        let g = gpu(py)?;
+        let tri = tri.get();
+        let uploaded = py.detach(|| guarded(|| tri.on_gpu(g, true)))?;
+        let bounds = uploaded.scene().bounds;
+        let spec = BakeSpec {
+            subdivisions: k,
+            epsilon: settings.skips.occupancy_epsilon,
+            max_delta: settings.max_interval(bounds.ray_start, bounds.ray_end),
+        };
+        let inner = py.detach(|| g.renderer.bake(&uploaded, spec)).map_err(to_py)?;
+        debug_assert_eq!(BrickLayout::points_per_brick(k), (k as usize + 1).pow(3));
+        Ok(BakedField { inner })
+    })
+}

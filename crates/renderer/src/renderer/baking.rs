@@ -1,0 +1,275 @@
+//! The baked field on the GPU (`crate::baked`, `docs/baked.md`): `Renderer::bake` decodes every
+//! brick point once with the `bake_field` kernel, and a render with
+//! `Skips::baked_subdivisions` > 0 binds the field and runs render_rays specialised to look
+//! samples up in it (`BAKED`). The field lives with its triplane (`GpuTriplane`) and is reused
+//! by every render it covers (`BakeSpec::covers`).
+
+use std::time::Instant;
+
+use super::*;
+use crate::baked::{BakeSpec, BrickLayout, POINT_BYTES};
+
+/// Points per bake dispatch: ~0.1 s each on lavapipe, so a viewer drawing meanwhile waits at most
+/// that long for its frame.
+pub const BAKE_CHUNK: usize = 1 << 16;
+
+/// A baked field resident on the GPU.
+pub struct GpuBaked {
+    pub spec: BakeSpec,
+    /// Cells per axis, G, and per cell its brick or `baked::EMPTY` (kept on the CPU too).
+    pub cells: usize,
+    pub index: Vec<u32>,
+    pub n_bricks: usize,
+    /// Seconds the bake took (brick layout, upload, kernel, wait).
+    pub bake_seconds: f64,
+    index_buf: wgpu::Buffer,
+    values: wgpu::Buffer,
+}
+
+impl GpuBaked {
+    /// Device bytes: the index and the values.
+    pub fn device_bytes(&self) -> u64 {
+        self.index_buf.size() + self.values.size()
+    }
+}
+
+impl GpuTriplane {
+    /// The baked field this triplane holds, if any.
+    pub fn baked(&self) -> Option<Arc<GpuBaked>> {
+        self.baked.lock().ok().and_then(|b| b.clone())
+    }
+}
+
+impl Renderer {
+    /// Bakes `tri`'s field for `spec` on the GPU and keeps it with the triplane (replacing an
+    /// older one). Needs the triplane's occupancy grid (`set_occupancy`).
+    pub fn bake(&self, tri: &GpuTriplane, spec: BakeSpec) -> Result<Arc<GpuBaked>> {
+        self.bake_with_progress(tri, spec, &mut |_, _| true)
+    }
+
+    /// [`Renderer::bake`] in dispatches of [`BAKE_CHUNK`] points, each waited for, calling
+    /// `progress(points done, points)` after each; returning false stops the bake (an error
+    /// naming it). Other work on the device (a viewer's frames) runs between the dispatches.
+    // Long because: one error scope covers every buffer and dispatch of the bake, so that a
+    // device that runs out reports it once, as the bake's error.
+    pub fn bake_with_progress(
+        &self,
+        tri: &GpuTriplane,
+        spec: BakeSpec,
+        progress: &mut dyn FnMut(usize, usize) -> bool,
+    ) -> Result<Arc<GpuBaked>> {
+        let start = Instant::now();
+        if !(spec.epsilon > 0.0 && spec.epsilon < 1.0 && spec.max_delta > 0.0) {
+            return Err(Error::invalid(
+                "occupancy_epsilon",
+                format!("a bake needs epsilon in (0, 1), got {}", spec.epsilon),
+            ));
+        }
+        let grid = {
+            let slot = tri.occupancy.lock().map_err(|_| Error::Gpu("occupancy lock poisoned".into()))?;
+            let Some(occ) = slot.as_ref() else {
+                return Err(Error::invalid(
+                    "baked_subdivisions",
+                    "this triplane has no occupancy grid: bake one first (Occupancy::bake)",
+                ));
+            };
+            occ.grid.clone()
+        };
+        let layout = BrickLayout::new(&grid, &spec, tri.scene.bounds.box_warp)?;
+        let per_brick = BrickLayout::points_per_brick(spec.subdivisions);
+        let n_points = layout.brick_cells.len() * per_brick;
+        let value_bytes = (n_points.max(1) * POINT_BYTES) as u64;
+        let max_binding = self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size);
+        if value_bytes > max_binding {
+            return Err(Error::invalid(
+                "baked_subdivisions",
+                format!(
+                    "the baked field ({} MiB) exceeds the device's buffer limit ({} MiB): use fewer \
+                     subdivisions or a larger occupancy_epsilon",
+                    value_bytes >> 20,
+                    max_binding >> 20
+                ),
+            ));
+        }
+
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let oom = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let dev = &self.device;
+        let init = |label: &str, data: &[u32]| {
+            let padded: &[u32] = if data.is_empty() { &[0] } else { data };
+            dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents: bytemuck::cast_slice(padded),
+                usage: wgpu::BufferUsages::STORAGE,
+            })
+        };
+        let index_buf = init("lp3d baked index", &layout.index);
+        let cells_buf = init("lp3d bake cells", &layout.brick_cells);
+        let values = dev.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("lp3d baked values"),
+            size: value_bytes,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        let mut params = Params::new(&tri.scene, &RenderSettings::default(), 3, 1);
+        if tri.half {
+            params.flags |= FLAG_HALF_PLANES;
+        }
+        params.baked_cells = layout.cells as u32;
+        params.baked_subdivisions = spec.subdivisions;
+        let params_buf = dev.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("lp3d bake params"),
+            size: std::mem::size_of::<Params>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let group = dev.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("lp3d bake bind group"),
+            layout: &self.bake_layout,
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: params_buf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 2, resource: tri.planes.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 3, resource: tri.decoder.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 11, resource: cells_buf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 12, resource: values.as_entire_binding() },
+            ],
+        });
+        if let Some(e) = pollster::block_on(oom.pop()) {
+            return Err(Error::Gpu(format!("out of device memory allocating the baked field: {e}")));
+        }
+        let mut done = 0;
+        while done < n_points {
+            let count = BAKE_CHUNK.min(n_points - done);
+            params.camera_offset = done as u32;
+            self.queue.write_buffer(&params_buf, 0, bytemuck::bytes_of(&params));
+            let groups = count.div_ceil(WORKGROUP as usize) as u32;
+            let gx = groups.min(self.limits.max_compute_workgroups_per_dimension);
+            let gy = groups.div_ceil(gx);
+            let mut encoder =
+                dev.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("lp3d bake") });
+            {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("lp3d bake pass"),
+                    timestamp_writes: None,
+                });
+                pass.set_pipeline(self.bake_pipeline());
+                pass.set_bind_group(0, &group, &[]);
+                pass.dispatch_workgroups(gx, gy, 1);
+            }
+            self.queue.submit([encoder.finish()]);
+            self.device
+                .poll(wgpu::PollType::wait_indefinitely())
+                .map_err(|e| Error::Gpu(format!("waiting for the bake failed: {e}")))?;
+            done += count;
+            if !progress(done, n_points) {
+                let _ = pollster::block_on(scope.pop());
+                return Err(Error::invalid("bake", "stopped before it finished"));
+            }
+        }
+        self.check(scope, "baking the field")?;
+        let baked = Arc::new(GpuBaked {
+            spec,
+            cells: layout.cells,
+            n_bricks: layout.brick_cells.len(),
+            index: layout.index,
+            bake_seconds: start.elapsed().as_secs_f64(),
+            index_buf,
+            values,
+        });
+        *tri.baked.lock().map_err(|_| Error::Gpu("baked field lock poisoned".into()))? = Some(baked.clone());
+        Ok(baked)
+    }
+
+    /// The baked field a render with `settings` uses: the triplane's, when it covers them, else
+    /// a new bake; `None` when the settings do not ask for one.
+    pub(super) fn baked_for(
+        &self,
+        tri: &GpuTriplane,
+        settings: &RenderSettings,
+    ) -> Result<Option<Arc<GpuBaked>>> {
+        let k = settings.skips.baked_subdivisions;
+        if k == 0 {
+            return Ok(None);
+        }
+        let need = BakeSpec {
+            subdivisions: k,
+            epsilon: settings.skips.occupancy_epsilon,
+            max_delta: settings.max_interval(tri.scene.bounds.ray_start, tri.scene.bounds.ray_end),
+        };
+        if let Some(b) = tri.baked().filter(|b| b.spec.covers(&need)) {
+            return Ok(Some(b));
+        }
+        self.bake(tri, need).map(Some)
+    }
+
+    /// The values of a baked field, read back: `n_bricks * (k + 1)³` points of four float16
+    /// bits (sigma_raw, r, g, b).
+    pub fn read_baked_values(&self, baked: &GpuBaked) -> Result<Vec<u16>> {
+        let size = baked.values.size();
+        let read = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("lp3d baked values readback"),
+            size,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut encoder = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("lp3d baked readback") });
+        encoder.copy_buffer_to_buffer(&baked.values, 0, &read, 0, size);
+        self.queue.submit([encoder.finish()]);
+        let mut words = vec![0f32; (size / 4) as usize];
+        self.read_back(&mut [(&read, size, &mut words)])?;
+        let n = baked.n_bricks * BrickLayout::points_per_brick(baked.spec.subdivisions) * 4;
+        let halves = words.iter().flat_map(|w| {
+            let b = w.to_bits();
+            [(b & 0xffff) as u16, (b >> 16) as u16]
+        });
+        Ok(halves.take(n).collect())
+    }
+
+    /// render_rays with the baked lookup (`BAKED`), built on first use; the rolled decoder,
+    /// which this pipeline never runs, keeps its compile short.
+    pub(super) fn baked_pipeline(&self) -> &wgpu::ComputePipeline {
+        self.baked_pipeline.get_or_init(|| {
+            self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some("lp3d render_rays (baked)"),
+                layout: Some(&self.pipeline_layout),
+                module: &self.module,
+                entry_point: Some(shaders::RENDER_ENTRY),
+                compilation_options: wgpu::PipelineCompilationOptions {
+                    constants: &[("BAKED", 1.0), ("ROLLED_DECODER", 1.0)],
+                    ..Default::default()
+                },
+                cache: None,
+            })
+        })
+    }
+
+    /// The bake kernel (rolled decoder: a short compile; the bake runs once per field).
+    fn bake_pipeline(&self) -> &wgpu::ComputePipeline {
+        self.bake_pipeline.get_or_init(|| {
+            self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some("lp3d bake_field"),
+                layout: Some(&self.bake_pipeline_layout),
+                module: &self.module,
+                entry_point: Some(shaders::BAKE_ENTRY),
+                compilation_options: wgpu::PipelineCompilationOptions {
+                    constants: &[("ROLLED_DECODER", 1.0)],
+                    ..Default::default()
+                },
+                cache: None,
+            })
+        })
+    }
+
+    /// The buffers bound at the baked field's bindings (9, 10): the field's, or a placeholder.
+    pub(super) fn baked_bindings<'a>(
+        &'a self,
+        baked: Option<&'a GpuBaked>,
+    ) -> (&'a wgpu::Buffer, &'a wgpu::Buffer) {
+        match baked {
+            Some(b) => (&b.index_buf, &b.values),
+            None => (&self.no_baked, &self.no_baked),
+        }
+    }
+}

@@ -1,0 +1,92 @@
+"""The baked field's float64 reference (``docs/baked.md``): what ``shaders/bake.wgsl`` stores and what
+``shaders/baked.wgsl`` looks up, stated as slow, obvious NumPy, for the tests of the GPU's
+``lp3d_render.bake`` and ``render(..., baked_subdivisions=k)``.
+
+A baked field is the occupancy grid's G³ cells, each split into k³ sub-cells; a cell that holds a
+*brick* stores its (k + 1)³ corner points, each (sigma_raw, r, g, b) as float16. ``index`` (G, G, G)
+gives each cell's brick number or -1; ``values`` (bricks, k+1, k+1, k+1, 4) the points. Point (a, b, c)
+of the brick of cell (ix, iy, iz) sits at plane coordinates ``-1 + 2 ((ix, iy, iz) k + (a, b, c)) / (G
+k)``. A point in a cell without a brick has raw density :data:`EMPTY_RAW` and RGB 0.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lp3d.render.reference import decode, render_with, sample_triplane
+from lp3d.render.settings import RenderSettings
+from lp3d.render.triplane import TriplaneData
+
+#: The raw density of a point in a cell without a brick (``BAKED_EMPTY_RAW`` in ``baked.wgsl``).
+EMPTY_RAW = -60.0
+
+
+def brick_points(index: np.ndarray, k: int) -> np.ndarray:
+    """Plane coordinates (bricks, k+1, k+1, k+1, 3) of every brick point, in brick order."""
+    g = index.shape[0]
+    order = np.argsort(index.ravel())
+    cells = order[index.ravel()[order] >= 0]
+    ijk = np.stack(np.unravel_index(cells, index.shape), axis=-1)  # (bricks, 3)
+    abc = np.stack(np.meshgrid(*[np.arange(k + 1)] * 3, indexing="ij"), axis=-1)  # (k+1, k+1, k+1, 3)
+    grid = ijk[:, None, None, None, :] * k + abc[None]
+    return grid * (2.0 / (g * k)) - 1.0
+
+
+def bake_reference(tri: TriplaneData, index: np.ndarray, k: int) -> np.ndarray:
+    """The field's values in float64 (bricks, k+1, k+1, k+1, 4): the decoder's raw density and its
+    first three features at every brick point of ``index``."""
+    q = brick_points(index, k)
+    world = q * (0.5 * tri.box_warp)
+    feat = sample_triplane(tri.planes.astype(np.float64), world.reshape(1, -1, 3), box_warp=tri.box_warp)
+    sigma_raw, out = decode(feat, tri.w0, tri.b0, tri.w1, tri.b1)
+    values = np.concatenate([sigma_raw[..., None], out[..., :3]], axis=-1)
+    return values.reshape(*q.shape[:-1], 4)
+
+
+def baked_lookup(
+    index: np.ndarray, values: np.ndarray, k: int, box_warp: float, points: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(sigma_raw (...), rgb (..., 3))`` at world ``points`` (..., 3): trilinear inside the point's
+    cell (edge cells clamped, so they stand for everything beyond), :data:`EMPTY_RAW` and 0 in a cell
+    without a brick."""
+    g = index.shape[0]
+    s = (np.asarray(points, np.float64) * (2.0 / box_warp) + 1.0) * (0.5 * g)
+    cell = np.clip(np.floor(s), 0, g - 1)
+    local = np.clip((s - cell) * k, 0.0, k)
+    i0 = np.minimum(np.floor(local), k - 1)
+    f = local - i0
+    cell, i0 = cell.astype(np.int64), i0.astype(np.int64)
+    brick = index[cell[..., 0], cell[..., 1], cell[..., 2]]
+    full = values.astype(np.float64)
+    safe = np.maximum(brick, 0)
+    acc = np.zeros((*brick.shape, 4))
+    for corner in range(8):
+        d = np.array([corner & 1, (corner >> 1) & 1, corner >> 2])
+        w = np.prod(np.where(d == 1, f, 1.0 - f), axis=-1)
+        at = i0 + d
+        acc += w[..., None] * full[safe, at[..., 0], at[..., 1], at[..., 2]]
+    empty = brick < 0
+    sigma_raw = np.where(empty, EMPTY_RAW, acc[..., 0])
+    rgb = np.where(empty[..., None], 0.0, acc[..., 1:])
+    return sigma_raw, rgb
+
+
+def render_baked_reference(
+    tri: TriplaneData,
+    index: np.ndarray,
+    values: np.ndarray,
+    k: int,
+    camera: np.ndarray,
+    settings: RenderSettings,
+) -> dict[str, np.ndarray]:
+    """:func:`lp3d.render.reference.render_reference` with every sample looked up in the field
+    instead of decoded (the same sampler and compositing); ``rgb``, ``depth`` and ``weights_sum``."""
+
+    def evaluate(o: np.ndarray, d: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        points = o[:, None, :] + t[..., None] * d[:, None, :]
+        sigma_raw, rgb = baked_lookup(index, values, k, tri.box_warp, points)
+        return sigma_raw, rgb
+
+    out = render_with(tri, camera, settings, evaluate)
+    del out["features"]  # the three RGB channels, as out["rgb"]
+    return out

@@ -1,0 +1,140 @@
+"""The baked field (docs/baked.md): the GPU's bake against the float64 decoder, its brick layout
+against the rule it states, baked renders against the float64 reference of the same lookups, and
+the arguments it refuses. Small configs (32² rays, 12+12 samples, G = 16) keep lavapipe fast; the
+speed and the error against exact mode are measured in bench/baked.py, not here."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+import lp3d_render
+from lp3d.render.baked import EMPTY_RAW, bake_reference, baked_lookup, render_baked_reference
+from lp3d.render.camera import look_at_camera
+from lp3d.render.settings import RenderSettings, Skips
+from lp3d.render.triplane import TriplaneData
+from lp3d.teachers import ProceduralTeacher
+
+S, N, R, G, K = 12, 12, 32, 32, 2
+EPS = 1e-6
+
+
+@pytest.fixture(scope="module")
+def head() -> TriplaneData:
+    return ProceduralTeacher(resolution=64).sample(5)
+
+
+@pytest.fixture(scope="module")
+def native(head: TriplaneData, gpu) -> lp3d_render.Triplane:
+    """The head with its own G = 32 occupancy grid (the default 64 would make the test slow)."""
+    plain = head.to_native()
+    return dataclasses.replace(head, occupancy=plain.bake_occupancy(G)).to_native()
+
+
+@pytest.fixture(scope="module")
+def field(native: lp3d_render.Triplane) -> lp3d_render.BakedField:
+    """Baked for 48 coarse samples: intervals shorter than a cell, so the reach is one cell."""
+    return lp3d_render.bake(native, subdivisions=K, occupancy_epsilon=EPS, depth_resolution=48)
+
+
+def max_delta(t: TriplaneData, s: int) -> float:
+    return (t.ray_end - t.ray_start) / (s - 1)
+
+
+def test_the_bricks_are_the_occupied_cells_and_their_reach(native, head, field) -> None:
+    """A cell holds a brick iff an occupied cell (bound above the skip's threshold) lies within one
+    sample interval of it on every axis; bricks are numbered in cell order."""
+    assert (field.subdivisions, field.cells, field.occupancy_epsilon) == (K, G, pytest.approx(EPS))
+    # RenderSettings.max_interval: one coarse step, with a few ulps of slack for float32 rounding.
+    assert field.max_delta == pytest.approx(max_delta(head, 48), abs=1e-5)
+    threshold = 1.0 + math.log(math.expm1(EPS / field.max_delta))
+    occupied = native.occupancy.astype(np.float64) > threshold
+    reach = math.ceil(field.max_delta / (head.box_warp / G))
+    kept = occupied.copy()
+    for axis in range(3):
+        grown = np.zeros_like(kept)
+        for shift in range(-reach, reach + 1):
+            src = [slice(None)] * 3
+            dst = [slice(None)] * 3
+            src[axis] = slice(max(0, -shift), G - max(0, shift))
+            dst[axis] = slice(max(0, shift), G - max(0, -shift))
+            grown[tuple(dst)] |= kept[tuple(src)]
+        kept = grown
+    index = field.index
+    assert index.shape == (G, G, G) and np.array_equal(index >= 0, kept)
+    assert 0 < field.bricks == int(kept.sum()) < G**3
+    assert np.array_equal(index[kept], np.arange(field.bricks))  # cell order
+
+
+def test_the_bake_is_the_decoder_rounded_to_float16(head, field) -> None:
+    """Every stored point is the float64 decoder's raw density and RGB at that point, within one
+    float16 rounding plus float32's decoder error (1e-4 on the raw density, a sum of 64 terms that
+    can cancel, as in the renderer's own tests; 1e-5 on RGB, after the sigmoid)."""
+    got = field.values
+    assert got.dtype == np.float16 and got.shape == (field.bricks, K + 1, K + 1, K + 1, 4)
+    want = bake_reference(head, field.index, K)
+    err = np.abs(got.astype(np.float64) - want)
+    half_ulp = np.abs(want) * 2.0**-11 + 2.0**-25  # relative; the subnormal step below 2^-14
+    f32 = np.array([1e-4, 1e-5, 1e-5, 1e-5])
+    assert np.all(err <= half_ulp + f32), float(np.max(err - half_ulp - f32))
+    assert np.any(want[..., 0] > 5.0) and np.any(want[..., 0] < -5.0)  # surfaces and empty space
+
+
+def test_a_baked_render_is_the_reference_lookup(head, native) -> None:
+    """The GPU's baked render against the float64 reference with the same field (its float16 values
+    read back): the same sampler, lookups and compositing, to 1e-4."""
+    field = lp3d_render.bake(native, subdivisions=K, occupancy_epsilon=EPS, depth_resolution=S)
+    cams = np.stack([look_at_camera(yaw_deg=y, pitch_deg=p) for y, p in [(0, 0), (35, -10), (-50, 20)]])
+    baked = Skips(occupancy_epsilon=EPS, baked_subdivisions=K)
+    settings = RenderSettings(resolution=R, depth_resolution=S, depth_resolution_importance=N, skips=baked)
+    outputs = ["rgb", "depth", "weights_sum"]
+    got = lp3d_render.render(native, cams, **settings.native_kwargs(), outputs=outputs)
+    exact_settings = dataclasses.replace(settings, skips=Skips())
+    want = render_baked_reference(head, field.index, field.values, K, cams, exact_settings)
+    for name in ("rgb", "depth", "weights_sum"):
+        np.testing.assert_allclose(got[name], want[name], atol=1e-4, rtol=0, err_msg=name)
+    assert float(want["weights_sum"].max()) > 0.9  # the head is in view
+
+
+def test_a_baked_render_is_close_to_exact_mode(native) -> None:
+    """Interpolating decoded values instead of decoding interpolated features costs little at k = 4
+    on a smooth teacher head (bench/baked.py measures it at the users' settings)."""
+    cam = look_at_camera(yaw_deg=20, pitch_deg=5)
+    kw = {"resolution": R, "depth_resolution": S, "depth_resolution_importance": N, "outputs": ["rgb"]}
+    exact = lp3d_render.render(native, cam, **kw)["rgb"]
+    baked = lp3d_render.render(native, cam, **kw, occupancy_epsilon=EPS, baked_subdivisions=4)["rgb"]
+    psnr = 10 * np.log10(4.0 / np.mean((exact - baked) ** 2))
+    assert psnr > 30.0, psnr
+
+
+def test_a_cell_without_a_brick_is_empty(field, head) -> None:
+    g = field.cells
+    empty = np.argwhere(field.index < 0)
+    assert len(empty) > 0
+    centres = (empty + 0.5) * (2.0 / g) - 1.0  # plane coordinates of the empty cells' centres
+    sigma, rgb = baked_lookup(field.index, field.values, K, head.box_warp, centres * head.box_warp / 2)
+    assert np.all(sigma == EMPTY_RAW) and not rgb.any()
+
+
+def test_bad_baked_arguments_are_named(native) -> None:
+    cam = look_at_camera()
+    kw = {"resolution": 8, "depth_resolution": S, "depth_resolution_importance": N}
+    with pytest.raises(ValueError, match="baked_subdivisions: needs occupancy_epsilon > 0"):
+        lp3d_render.render(native, cam, **kw, baked_subdivisions=2)
+    with pytest.raises(ValueError, match="baked_subdivisions"):
+        lp3d_render.render(native, cam, **kw, occupancy_epsilon=EPS, baked_subdivisions=9)
+    with pytest.raises(ValueError, match="outputs: a baked field holds density and RGB only"):
+        lp3d_render.render(native, cam, **kw, occupancy_epsilon=EPS, baked_subdivisions=2)
+    with pytest.raises(ValueError, match="subdivisions"):
+        lp3d_render.bake(native, subdivisions=0)
+    with pytest.raises(ValueError, match="occupancy_epsilon"):
+        lp3d_render.bake(native, occupancy_epsilon=0.0)
+    with pytest.raises(ValueError, match="triplane: expected lp3d_render.Triplane"):
+        lp3d_render.bake("head.npz")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="baked_subdivisions needs occupancy_epsilon"):
+        RenderSettings(skips=Skips(baked_subdivisions=2)).validate()
+    with pytest.raises(ValueError, match="baked_subdivisions must be an int"):
+        RenderSettings(skips=Skips(occupancy_epsilon=EPS, baked_subdivisions=True)).validate()  # type: ignore[arg-type]
