@@ -119,6 +119,30 @@ def test_a_cell_without_a_brick_is_empty(field, head) -> None:
     assert np.all(sigma == EMPTY_RAW) and not rgb.any()
 
 
+def test_the_bake_reports_progress_and_a_raising_callback_stops_it(native) -> None:
+    seen: list[tuple[int, int]] = []
+    lp3d_render.bake(native, subdivisions=3, occupancy_epsilon=EPS, progress=lambda d, t: seen.append((d, t)))
+    done = [d for d, _ in seen]
+    assert done and done[-1] == seen[-1][1] and done == sorted(set(done))
+
+    def stop(done: int, total: int) -> None:
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        lp3d_render.bake(native, subdivisions=5, occupancy_epsilon=EPS, progress=stop)
+    with pytest.raises(ValueError, match="progress: must be callable"):
+        lp3d_render.bake(native, progress=3)
+
+
+def test_one_baked_setting_in_both_languages() -> None:
+    from lp3d.render.settings import BAKED
+
+    native = lp3d_render._lp3d_render
+    assert BAKED.baked_subdivisions == native.BAKED_SUBDIVISIONS
+    assert BAKED.occupancy_epsilon == pytest.approx(native.BAKED_OCCUPANCY_EPSILON, rel=1e-7)
+    assert dataclasses.replace(BAKED, occupancy_epsilon=0.0, baked_subdivisions=0) == Skips()  # nothing else
+
+
 def test_bad_baked_arguments_are_named(native) -> None:
     cam = look_at_camera()
     kw = {"resolution": 8, "depth_resolution": S, "depth_resolution_importance": N}

@@ -394,6 +394,21 @@ def test_orbit_gif_and_mp4(capsys, sphere, tmp_path) -> None:
     assert listing(tmp_path) == {"orbit.gif", "orbit.mp4"}
 
 
+def test_orbit_baked_bakes_once_and_stays_close_to_exact(capsys, sphere, tmp_path) -> None:
+    """``lp3d orbit --baked`` bakes before the first frame (and says so) and renders every frame by
+    lookups; its frames stay close to the exact ones (the error is measured in bench/baked.py)."""
+    import imageio.v3 as iio
+
+    exact, baked = tmp_path / "exact.gif", tmp_path / "baked.gif"
+    code, _, err = run(capsys, "orbit", sphere, "-o", exact, "--frames", 2, "--raw", *SMALL)
+    assert code == 0, err
+    code, out, err = run(capsys, "orbit", sphere, "-o", baked, "--frames", 2, "--raw", "--baked", *SMALL)
+    assert code == 0 and "baked the field in" in out and "bricks" in out, err
+    a, b = (iio.imread(p, index=None).astype(float) for p in (exact, baked))
+    assert a.shape == b.shape and a.shape[1:] == (32, 32, 3)  # a GIF keeps one of equal frames
+    assert np.abs(a - b).mean() < 4.0  # gray levels of 255
+
+
 def test_orbit_bad_inputs(capsys, sphere, bad_npz, tmp_path) -> None:
     code, _, err = run(capsys, "orbit", sphere, "-o", tmp_path / "o.avi", *SMALL)
     assert code == 1 and ".mp4" in err

@@ -1,6 +1,6 @@
 """Type stubs for the native module; tests/test_stubs_and_packaging.py checks them against the runtime."""
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from os import PathLike
 from typing import Any
 
@@ -9,6 +9,8 @@ import numpy.typing as npt
 
 MAX_RESOLUTION: int
 MAX_SAMPLES: int
+BAKED_SUBDIVISIONS: int
+BAKED_OCCUPANCY_EPSILON: float
 PLANE_AXES: list[tuple[int, int]]
 #: EG3D FFHQ conventions, the defaults of Triplane and look_at_camera
 #: (lp3d.render.camera and lp3d.render.settings agree).
@@ -116,6 +118,7 @@ def bake(
     occupancy_epsilon: float = 0.0001,
     depth_resolution: int = 48,
     deterministic: bool = True,
+    progress: Callable[[int, int], object] | None = None,
 ) -> BakedField: ...
 def adapter_info() -> dict[str, str]: ...
 def last_frame_device_bytes() -> int: ...
@@ -143,5 +146,6 @@ def view(
     frame_budget_ms: float = 100.0,
     frames: int = 3,
     drag_frames: int = 0,
+    bake: bool = True,
 ) -> None: ...
 def view_options(argv: list[str]) -> dict[str, Any]: ...

@@ -92,11 +92,13 @@ impl BakedField {
 /// ``occupancy_epsilon`` and sample intervals up to those of ``depth_resolution`` coarse samples
 /// (jittered or not), keeps it with the triplane and returns it. ``render`` bakes on first use
 /// too; call this to time the bake, to bake before the first frame, or to read the field.
+/// ``progress(done, total)``, if given, is called after each GPU dispatch of the bake (points
+/// done, points in all); an exception it raises stops the bake and is raised here.
 #[pyfunction]
 #[pyo3(
     signature = (triplane, subdivisions=Arg::Default(4), occupancy_epsilon=Arg::Default(1e-4),
-                 depth_resolution=Arg::Default(48), deterministic=Arg::Default(true)),
-    text_signature = "(triplane, subdivisions=4, occupancy_epsilon=0.0001, depth_resolution=48, deterministic=True)"
+                 depth_resolution=Arg::Default(48), deterministic=Arg::Default(true), progress=None),
+    text_signature = "(triplane, subdivisions=4, occupancy_epsilon=0.0001, depth_resolution=48, deterministic=True, progress=None)"
 )]
 pub fn bake<'py>(
     py: Python<'py>,
@@ -105,6 +107,7 @@ pub fn bake<'py>(
     occupancy_epsilon: Arg<'py, f64>,
     depth_resolution: Arg<'py, i64>,
     deterministic: Arg<'py, bool>,
+    progress: Option<Bound<'py, PyAny>>,
 ) -> PyResult<BakedField> {
     guarded(|| {
         let tri = triplane.cast::<Triplane>().map_err(|_| {
@@ -134,7 +137,31 @@ pub fn bake<'py>(
             epsilon: settings.skips.occupancy_epsilon,
             max_delta: settings.max_interval(bounds.ray_start, bounds.ray_end),
         };
-        let inner = py.detach(|| g.renderer.bake(&uploaded, spec)).map_err(to_py)?;
+        let callback = match progress {
+            Some(p) if !p.is_none() => {
+                if !p.is_callable() {
+                    return Err(invalid(
+                        "progress",
+                        format!("must be callable, got {}", convert::type_name(&p)),
+                    ));
+                }
+                Some(p.unbind())
+            }
+            _ => None,
+        };
+        let mut raised: Option<PyErr> = None;
+        let baked = py.detach(|| {
+            g.renderer.bake_with_progress(&uploaded, spec, &mut |done, total| match &callback {
+                None => true,
+                Some(f) => {
+                    Python::attach(|py| f.call1(py, (done, total)).map_err(|e| raised = Some(e)).is_ok())
+                }
+            })
+        });
+        if let Some(e) = raised {
+            return Err(e);
+        }
+        let inner = baked.map_err(to_py)?;
         debug_assert_eq!(BrickLayout::points_per_brick(k), (k as usize + 1).pow(3));
         Ok(BakedField { inner })
     })

@@ -21,6 +21,7 @@ mod view;
 
 use lp3d_renderer::camera::{FFHQ_FOCAL, FFHQ_PIVOT, FFHQ_RADIUS};
 use lp3d_renderer::settings::{MAX_RESOLUTION, MAX_SAMPLES};
+use lp3d_renderer::Skips;
 // EG3D FFHQ's scene bounds: the defaults of ``Triplane(...)``, exposed as module constants;
 // ``lp3d.render.settings.DEFAULT_*`` must agree (tests/test_render_api.py checks, and that the
 // text signatures in triplane.rs spell the same values).
@@ -46,6 +47,9 @@ fn _lp3d_render(m: &Bound<'_, PyModule>) -> PyResult<()> {
     }
     m.add("MAX_RESOLUTION", MAX_RESOLUTION)?;
     m.add("MAX_SAMPLES", MAX_SAMPLES)?;
+    // Skips::BAKED, for the test that ties it to lp3d.render.settings.BAKED.
+    m.add("BAKED_SUBDIVISIONS", Skips::BAKED.baked_subdivisions)?;
+    m.add("BAKED_OCCUPANCY_EPSILON", Skips::BAKED.occupancy_epsilon)?;
     m.add("FFHQ_FOCAL", FFHQ_FOCAL)?;
     m.add("FFHQ_RADIUS", FFHQ_RADIUS)?;
     m.add("FFHQ_PIVOT", (FFHQ_PIVOT[0], FFHQ_PIVOT[1], FFHQ_PIVOT[2]))?;

@@ -64,6 +64,12 @@ impl Skips {
         baked_subdivisions: 0,
     };
 
+    /// The baked field as the viewer's moving frames and `lp3d orbit --baked` use it
+    /// (`docs/baked.md`, `bench/RESULTS.md` "Baked field"): k = 6, the largest that fits lavapipe's
+    /// 128 MiB storage binding on teacher heads and the best error at the same frame time; the
+    /// occupancy skip at 1e-4 per interval. `lp3d.render.settings.BAKED` is the same (a test).
+    pub const BAKED: Skips = Skips { occupancy_epsilon: 1e-4, baked_subdivisions: 6, ..Skips::EXACT };
+
     pub fn validate(&self) -> Result<()> {
         for (name, v) in [
             ("transmittance_threshold", self.transmittance_threshold),

@@ -31,7 +31,7 @@ from lp3d.outputs import (
 from lp3d.render.camera import FFHQ_FOCAL, FFHQ_RADIUS
 from lp3d.render.native import native_triplane, renderer
 from lp3d.render.native import render as native_render
-from lp3d.render.settings import RenderSettings
+from lp3d.render.settings import RenderSettings, Skips
 
 __all__ = [
     "IMAGE_SUFFIXES",
@@ -262,11 +262,14 @@ def render_gpu_views(
     *,
     resolution: int | None = None,
 ) -> dict[str, np.ndarray]:
-    """Render (B, 25) cameras on the GPU at ``resolution`` (default ``args.resolution``); every output has a
-    leading B axis."""
+    """Render (B, 25) cameras on the GPU at ``resolution`` (default ``args.resolution``) with the
+    skips ``args.skips`` (default none: exact); every output has a leading B axis."""
     coarse, fine = args.samples
     settings = RenderSettings(
-        resolution=resolution or args.resolution, depth_resolution=coarse, depth_resolution_importance=fine
+        resolution=resolution or args.resolution,
+        depth_resolution=coarse,
+        depth_resolution_importance=fine,
+        skips=getattr(args, "skips", None) or Skips(),
     )
     return native_render(tri, np.atleast_2d(cameras), settings, outputs=outputs)
 

@@ -29,6 +29,7 @@ from lp3d.cli.common import (
     superres_model_arg,
 )
 from lp3d.render.camera import orbit_angles
+from lp3d.render.settings import BAKED, Skips
 
 HELP = "render a turntable video (.gif or .mp4)"
 DESCRIPTION = (
@@ -54,6 +55,52 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     camera_args(p, yaw=None)
     render_args(p, 128)
     superres_model_arg(p)
+    p.add_argument(
+        "--baked",
+        action="store_true",
+        help="decode the field once and render every frame by lookups (docs/baked.md): several times "
+        "faster after a bake of a few seconds, but adds error (about 43-49 dB PSNR against exact "
+        "192+192 where exact 48+48 has 54-60; bench/RESULTS.md); RGB only, so with --raw",
+    )
+
+
+def bake_for(args: argparse.Namespace, rtri: object, sr: object) -> Skips:
+    """Bake ``rtri``'s field for ``args``' samples before the first frame (saying how long it took);
+    the skips that render with it."""
+    import lp3d_render
+
+    if sr is not None:
+        raise CLIError(
+            "--baked: the baked field holds RGB, and the super-resolution network reads all 32 features; "
+            "add --raw (or drop --baked)"
+        )
+    start = time.perf_counter()
+    bar = progress(None, "bake", unit="point")
+    shown = [0]
+
+    def advance(done: int, total: int) -> None:
+        if hasattr(bar, "total"):
+            bar.total = total
+        bar.update(done - shown[0])
+        shown[0] = done
+
+    try:
+        field = lp3d_render.bake(
+            rtri,
+            subdivisions=BAKED.baked_subdivisions,
+            occupancy_epsilon=BAKED.occupancy_epsilon,
+            depth_resolution=args.samples[0],
+            progress=advance,
+        )
+    except ValueError as e:
+        raise CLIError(f"{args.triplane}: --baked: {e}") from None
+    finally:
+        bar.close()
+    say(
+        f"baked the field in {time.perf_counter() - start:.1f} s ({field.bricks} bricks, "
+        f"{field.device_bytes / 2**20:.0f} MiB)"
+    )
+    return BAKED
 
 
 def run(args: argparse.Namespace) -> int:
@@ -69,6 +116,8 @@ def run(args: argparse.Namespace) -> int:
     angles = orbit_angles(args.frames, args.yaw_range, args.pitch_range)
     cams = np.stack([make_camera(args, yaw=y, pitch=args.pitch + p) for y, p in angles])
     say(f"orbit: {len(cams)} frames of {describe_size(sr, size)}; {how}")
+    if args.baked:
+        args.skips = bake_for(args, rtri, sr)
 
     start = time.perf_counter()
     with Staged() as staged:

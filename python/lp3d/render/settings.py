@@ -71,6 +71,11 @@ class Skips:
             raise ValueError("baked_subdivisions needs occupancy_epsilon > 0")
 
 
+#: The baked field as ``lp3d orbit --baked`` and the viewer's moving frames use it (docs/baked.md):
+#: Rust's ``Skips::BAKED`` (tests/test_baked.py ties them).
+BAKED = Skips(occupancy_epsilon=1e-4, baked_subdivisions=6)
+
+
 @dataclass(frozen=True)
 class RenderSettings:
     """How to render (not what): sample counts, resolution, sampling mode and skips; the one settings
