@@ -1,0 +1,282 @@
+"""The baked field (docs/baked.md) against exact mode and EG3D's own renderer: run time against error.
+
+    EG3D_SRC=/path/to/eg3d/eg3d python bench/baked.py [--out bench/baked.md] [--plot bench/baked.png]
+
+Scenes: procedural teacher heads of held-out identities, and what the shipped encoder makes of a
+frontal render of each. Per scene, three novel views (yaw -30, 0, 30; pitch 5) at 128², each setting
+timed as the median of ``--repeats`` calls rendering the three views (RGB only, the fast kernel warmed
+up first) and scored against exact 192+192 (PSNR over RGB in [-1, 1], as bench/pareto.py). The bake
+is timed once per field and reported with its bricks and device memory; "frames to amortise" is the
+bake time over the time a frame saves against exact 48+48. With ``EG3D_SRC`` (NVlabs/eg3d's
+``eg3d/`` folder) EG3D's unmodified ``ImportanceRenderer`` renders the same views at 48+48 in the
+same process (bench/eg3d_speed.py's set-up), and every row gets its speed-up over it; without it
+that column says so.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import platform
+import statistics
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+import lp3d_render
+from lp3d.render.camera import look_at_camera
+from lp3d.render.psnr import psnr_db
+from lp3d.render.triplane import TriplaneData
+from lp3d.teachers import ProceduralTeacher
+from render_bench import median_ms  # bench/ is on sys.path when run as a script
+
+os.environ.setdefault("LP3D_KERNEL", "fast")
+
+#: Held-out identities: the training configurations draw theirs from [0, 1,000,000).
+SEEDS = (1_000_003, 1_000_011)
+YAWS = (-30.0, 0.0, 30.0)
+PITCH = 5.0
+R = 128
+EPS = 1e-4
+SKIP = 1e-3
+
+
+@dataclass(frozen=True)
+class Setting:
+    name: str
+    samples: int
+    kwargs: dict
+
+
+SETTINGS = [
+    *(Setting(f"exact {s}+{s}", s, {}) for s in (12, 24, 48)),
+    Setting(
+        "exact 48+48, grid + T + empty skips",
+        48,
+        {"occupancy_epsilon": EPS, "transmittance_threshold": SKIP, "empty_threshold": SKIP},
+    ),
+    *(
+        Setting(
+            f"baked k {k} {s}+{s}{', T + empty skips' if t else ''}",
+            s,
+            {"occupancy_epsilon": EPS, "baked_subdivisions": k}
+            | ({"transmittance_threshold": SKIP, "empty_threshold": SKIP} if t else {}),
+        )
+        for k in (2, 4, 6)
+        for s in (24, 48)
+        for t in (False, True)
+    ),
+]
+
+
+def scenes() -> list[tuple[str, TriplaneData]]:
+    """Teacher heads and the shipped encoder's triplanes of frontal renders of them."""
+    from lp3d.lift.inference import DEFAULT_MODEL, load_encoder
+
+    teacher = ProceduralTeacher(resolution=64)
+    heads = [(f"teacher head {s}", teacher.sample(s)) for s in SEEDS]
+    out = list(heads)
+    if DEFAULT_MODEL.exists():
+        enc = load_encoder(DEFAULT_MODEL)
+        front = look_at_camera()
+        for name, head in heads:
+            image = lp3d_render.render(head.to_native(), front, resolution=enc.package.image_size)["rgb"]
+            planes = enc.run(image[None].astype(np.float32))[0]
+            out.append((f"encoder output of {name.split()[-1]}", enc.package.triplane(planes)))
+    return out
+
+
+def eg3d_timer(src: str, head: TriplaneData, cams: np.ndarray, repeats: int):
+    """ms per frame of EG3D's ImportanceRenderer at 48+48 on ``cams`` (bench/eg3d_speed.py's set-up)."""
+    import torch
+
+    from eg3d_speed import eg3d_renderer  # bench/ is on sys.path when run as a script
+
+    renderer, rays, decoder = eg3d_renderer(Path(src), head.w0, head.b0, head.w1, head.b1)
+    options = {
+        "ray_start": head.ray_start,
+        "ray_end": head.ray_end,
+        "box_warp": head.box_warp,
+        "depth_resolution": 48,
+        "depth_resolution_importance": 48,
+        "disparity_space_sampling": False,
+        "clamp_mode": "softplus",
+        "white_back": False,
+    }
+    planes = torch.from_numpy(head.planes).unsqueeze(0)
+
+    def frame() -> None:
+        with torch.no_grad():
+            for c in cams:
+                cam = torch.from_numpy(np.asarray(c, np.float32)).unsqueeze(0)
+                origins, directions = rays(cam[:, :16].view(-1, 4, 4), cam[:, 16:25].view(-1, 3, 3), R)
+                renderer(planes, decoder, origins, directions, options)
+
+    frame()
+    return median_ms(frame, repeats) / len(cams)
+
+
+def measure(name: str, head: TriplaneData, repeats: int, eg3d_src: str | None) -> dict:
+    tri = head.to_native()
+    cams = np.stack([look_at_camera(yaw_deg=y, pitch_deg=PITCH) for y in YAWS])
+    common = {"resolution": R, "outputs": ["rgb"]}
+    fine = {"depth_resolution": 192, "depth_resolution_importance": 192}
+    ref = lp3d_render.render(tri, cams, **common, **fine)["rgb"]
+    bakes = {}
+    for k in (2, 4, 6):
+        start = time.perf_counter()
+        field = lp3d_render.bake(tri, subdivisions=k, occupancy_epsilon=EPS, depth_resolution=24)
+        bakes[k] = {
+            "s": time.perf_counter() - start,
+            "bricks": field.bricks,
+            "cells": field.cells,
+            "mib": field.device_bytes / 2**20,
+        }
+    rows = []
+    for st in SETTINGS:
+        k = st.kwargs.get("baked_subdivisions")
+        if k is not None:  # the field for this k (the bake above covers 24 samples and more)
+            lp3d_render.bake(tri, subdivisions=k, occupancy_epsilon=EPS, depth_resolution=24)
+
+        def call(st: Setting = st) -> np.ndarray:
+            samples = {"depth_resolution": st.samples, "depth_resolution_importance": st.samples}
+            return lp3d_render.render(tri, cams, **common, **samples, **st.kwargs)["rgb"]
+
+        rgb = call()
+        ms = median_ms(call, repeats) / len(cams)
+        rows.append(
+            {
+                "setting": st.name,
+                "baked": k,
+                "ms": ms,
+                "psnr": statistics.mean(psnr_db(rgb[i], ref[i]) for i in range(len(cams))),
+                "max_err": float(np.abs(rgb - ref).max()),
+            }
+        )
+        print(f"  {name}: {st.name}: {ms:.1f} ms, {rows[-1]['psnr']:.2f} dB", file=sys.stderr, flush=True)
+    eg3d_ms = eg3d_timer(eg3d_src, head, cams, repeats) if eg3d_src else None
+    return {"scene": name, "rows": rows, "bakes": bakes, "eg3d_ms": eg3d_ms}
+
+
+def report(results: list[dict], args: argparse.Namespace) -> str:
+    info = lp3d_render.adapter_info()
+    lines = [
+        f"Command: `EG3D_SRC=... python bench/baked.py --repeats {args.repeats}`  ",
+        f"{platform.machine()}, {os.cpu_count()} CPUs, load {os.getloadavg()[0]:.1f}, "
+        f"{time.strftime('%Y-%m-%d')}; adapter {info.get('name')} ({info.get('driver_info', '')})",
+        "",
+    ]
+    for res in results:
+        rows, eg3d = res["rows"], res["eg3d_ms"]
+        exact48 = next(r for r in rows if r["setting"] == "exact 48+48")
+        exact24 = next(r for r in rows if r["setting"] == "exact 24+24")
+        lines += [
+            f"**{res['scene']}** (EG3D ImportanceRenderer 48+48: "
+            + (f"{eg3d:.0f} ms/frame)" if eg3d else "not run: EG3D_SRC unset)"),
+            "",
+            "| setting | ms/frame | PSNR vs exact 192+192 | max abs err | EG3D 48+48 / this |",
+            "|---|---|---|---|---|",
+        ]
+        for r in rows:
+            speed = f"{eg3d / r['ms']:.1f}×" if eg3d else "–"
+            cells = f"{r['ms']:.1f} | {r['psnr']:.2f} | {r['max_err']:.3f}"
+            lines.append(f"| {r['setting']} | {cells} | {speed} |")
+        lines += [
+            "",
+            "| k | cells | bricks | MiB | bake s | frames to amortise vs exact 48+48 |",
+            "|---|---|---|---|---|---|",
+        ]
+        for k, b in res["bakes"].items():
+            best = min((r for r in rows if r["baked"] == k), key=lambda r: r["ms"])
+            saved = exact48["ms"] - best["ms"]
+            frames = math.ceil(b["s"] * 1e3 / saved) if saved > 0 else "never"
+            size = f"{b['cells']}³ | {b['bricks']} | {b['mib']:.1f}"
+            lines.append(f"| {k} | {size} | {b['s']:.2f} | {frames} |")
+        lines.append("")
+        for bar, ref in (("exact 48+48", exact48), ("exact 24+24", exact24)):
+            ok = [r for r in rows if r["baked"] and r["psnr"] >= ref["psnr"]]
+            if ok:
+                best = min(ok, key=lambda r: r["ms"])
+                vs = f", {eg3d / best['ms']:.1f}× EG3D" if eg3d else ""
+                lines.append(
+                    f"- fastest baked setting at {bar}'s error ({ref['psnr']:.2f} dB) or better: "
+                    f"{best['setting']}, {best['ms']:.1f} ms ({ref['ms'] / best['ms']:.1f}× {bar}{vs})"
+                )
+            else:
+                top = max((r for r in rows if r["baked"]), key=lambda r: r["psnr"])
+                lines.append(
+                    f"- no baked setting reaches {bar}'s error ({ref['psnr']:.2f} dB); the best is "
+                    f"{top['setting']} at {top['psnr']:.2f} dB"
+                )
+        lines.append("")
+    return "\n".join(lines)
+
+
+def plot(results: list[dict], path: Path) -> None:
+    """Time (log) against PSNR per scene: exact settings as circles, baked as squares."""
+    from PIL import Image, ImageDraw
+
+    w, h, m = 960, 600, 70
+    img = Image.new("RGB", (w, h), "white")
+    d = ImageDraw.Draw(img)
+    allrows = [r for res in results for r in res["rows"]]
+    t0, t1 = math.log10(min(r["ms"] for r in allrows) * 0.8), math.log10(max(r["ms"] for r in allrows) * 1.25)
+    p0, p1 = min(r["psnr"] for r in allrows) - 2, max(r["psnr"] for r in allrows) + 2
+
+    def xy(r: dict) -> tuple[float, float]:
+        x = m + (math.log10(r["ms"]) - t0) / (t1 - t0) * (w - 2 * m)
+        y = h - m - (r["psnr"] - p0) / (p1 - p0) * (h - 2 * m)
+        return x, y
+
+    d.rectangle([m, m, w - m, h - m], outline="black")
+    for ms in (10, 30, 100, 300, 1000, 3000):
+        if t0 <= math.log10(ms) <= t1:
+            x = m + (math.log10(ms) - t0) / (t1 - t0) * (w - 2 * m)
+            d.line([x, h - m, x, h - m + 6], fill="black")
+            d.text((x - 12, h - m + 10), f"{ms} ms", fill="black")
+    for db in range(int(p0) // 5 * 5 + 5, int(p1) + 1, 5):
+        y = h - m - (db - p0) / (p1 - p0) * (h - 2 * m)
+        d.line([m - 6, y, m, y], fill="black")
+        d.text((m - 40, y - 6), f"{db} dB", fill="black")
+    colours = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e"]
+    for i, res in enumerate(results):
+        c = colours[i % len(colours)]
+        for r in res["rows"]:
+            x, y = xy(r)
+            box = [x - 4, y - 4, x + 4, y + 4]
+            (d.rectangle if r["baked"] else d.ellipse)(box, fill=c if r["baked"] else None, outline=c)
+        d.text((w - m - 260, h - m - 100 + 16 * i), res["scene"], fill=c)
+    title = "baked field (filled squares) vs exact mode (circles): ms per 128x128 frame vs PSNR"
+    d.text((m, 20), title, fill="black")
+    d.text((w - m - 260, h - m - 100 + 16 * len(results)), "PSNR against exact 192+192", fill="black")
+    img.save(path)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--repeats", type=int, default=3, help="timed calls per setting (default 3)")
+    p.add_argument("--out", type=Path, help="also write the markdown report here")
+    p.add_argument("--plot", type=Path, help="write the time-vs-error plot (PNG) here")
+    args = p.parse_args(argv)
+    if args.repeats < 1:
+        p.error("--repeats must be >= 1")
+    src = os.environ.get("EG3D_SRC")
+    results = []
+    for name, head in scenes():
+        print(f"{name} ...", file=sys.stderr, flush=True)
+        results.append(measure(name, head, args.repeats, src))
+    text = report(results, args)
+    print(text)
+    if args.out:
+        args.out.write_text(text + "\n")
+    if args.plot:
+        plot(results, args.plot)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
