@@ -134,6 +134,43 @@ def test_the_bake_reports_progress_and_a_raising_callback_stops_it(native) -> No
         lp3d_render.bake(native, progress=3)
 
 
+def test_a_saved_field_renders_as_the_baked_one_and_belongs_to_its_triplane(head, tmp_path) -> None:
+    """save_baked / load_baked: a field loaded into a fresh copy of the triplane renders exactly as
+    the one baked (no second bake); another triplane's file, and damaged files, are refused by name."""
+    from lp3d.render.baked import load_baked, save_baked
+
+    first = dataclasses.replace(head, occupancy=head.to_native().bake_occupancy(G)).to_native()
+    field = lp3d_render.bake(first, subdivisions=K, occupancy_epsilon=EPS, depth_resolution=S)
+    path = save_baked(tmp_path / "head.baked.npz", field, first)
+    kw = {"resolution": R, "depth_resolution": S, "depth_resolution_importance": N, "outputs": ["rgb"]}
+    kw |= {"occupancy_epsilon": EPS, "baked_subdivisions": K}
+    cam = look_at_camera(yaw_deg=-20)
+    want = lp3d_render.render(first, cam, **kw)["rgb"]
+    second = dataclasses.replace(head, occupancy=first.occupancy).to_native()
+    loaded = load_baked(path, second)
+    assert (loaded.bricks, loaded.bake_seconds) == (field.bricks, 0.0)
+    assert np.array_equal(lp3d_render.render(second, cam, **kw)["rgb"], want)
+    other = ProceduralTeacher(resolution=64).sample(6).to_native()
+    with pytest.raises(ValueError, match="head.baked.npz: baked for other planes"):
+        load_baked(path, other)
+    good = dict(np.load(path, allow_pickle=False))
+    damaged = {
+        "missing": ({k: v for k, v in good.items() if k != "values"}, "missing values"),
+        "nan": (good | {"values": np.full_like(good["values"], np.nan)}, "values: NaN or Inf"),
+        "index": (good | {"index": np.zeros_like(good["index"])}, "index: must name bricks"),
+        "dtype": (good | {"values": good["values"].astype(np.float32)}, "values must be"),
+        "scalar": (good | {"subdivisions": np.array("six")}, "subdivisions: must be one finite number"),
+    }
+    for name, (arrays, words) in damaged.items():
+        bad = tmp_path / f"{name}.npz"
+        np.savez(bad, **arrays)
+        with pytest.raises(ValueError, match=words):
+            load_baked(bad, second)
+    (tmp_path / "junk.npz").write_bytes(b"not a zip")
+    with pytest.raises(ValueError, match="not a baked-field .npz"):
+        load_baked(tmp_path / "junk.npz", second)
+
+
 def test_one_baked_setting_in_both_languages() -> None:
     from lp3d.render.settings import BAKED
 

@@ -11,7 +11,13 @@ Renders EG3D-format triplanes exactly as EG3D does (deterministic by default)::
 See ``docs/triplane-format.md`` for the file format and ``lp3d.render.camera`` for cameras.
 """
 
-from lp3d_render._guard import adapter_info, bake, last_frame_device_bytes, render  # fork and size checks
+from lp3d_render._guard import (  # fork and size checks
+    adapter_info,
+    attach_baked,
+    bake,
+    last_frame_device_bytes,
+    render,
+)
 from lp3d_render._lp3d_render import (
     DEFAULT_BOX_WARP,
     DEFAULT_RAY_END,
@@ -51,6 +57,7 @@ __all__ = [
     "VIEW_USAGE",
     "__version__",
     "adapter_info",
+    "attach_baked",
     "bake",
     "last_frame_device_bytes",
     "look_at_camera",

@@ -14,7 +14,7 @@ import numpy as np
 
 from lp3d_render import _lp3d_render as _native
 
-__all__ = ["adapter_info", "bake", "last_frame_device_bytes", "output_bytes", "render"]
+__all__ = ["adapter_info", "attach_baked", "bake", "last_frame_device_bytes", "output_bytes", "render"]
 
 _F = TypeVar("_F", bound=Callable[..., Any])
 
@@ -101,4 +101,5 @@ def render(triplane: Any, camera: Any, resolution: Any = 128, *args: Any, **kwar
 
 adapter_info = _gpu_call(_native.adapter_info)
 bake = _gpu_call(_native.bake)
+attach_baked = _gpu_call(_native.attach_baked)
 last_frame_device_bytes = _gpu_call(_native.last_frame_device_bytes)

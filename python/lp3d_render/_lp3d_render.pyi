@@ -120,6 +120,15 @@ def bake(
     deterministic: bool = True,
     progress: Callable[[int, int], object] | None = None,
 ) -> BakedField: ...
+def attach_baked(
+    triplane: Triplane,
+    index: npt.NDArray[np.int64],
+    values: npt.NDArray[np.uint16],
+    *,
+    subdivisions: int,
+    occupancy_epsilon: float,
+    max_delta: float,
+) -> BakedField: ...
 def adapter_info() -> dict[str, str]: ...
 def last_frame_device_bytes() -> int: ...
 def look_at_camera(

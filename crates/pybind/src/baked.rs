@@ -7,7 +7,7 @@ use std::sync::Arc;
 use lp3d_renderer::baked::{BrickLayout, EMPTY, MAX_SUBDIVISIONS};
 use lp3d_renderer::settings::MAX_SAMPLES;
 use lp3d_renderer::{BakeSpec, GpuBaked, RenderSettings, Skips};
-use numpy::{PyArray1, PyArrayMethods};
+use numpy::{PyArray1, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 
 use crate::convert::{self, bool_arg, f32_arg, int_arg, Arg};
@@ -163,6 +163,56 @@ pub fn bake<'py>(
         }
         let inner = baked.map_err(to_py)?;
         debug_assert_eq!(BrickLayout::points_per_brick(k), (k as usize + 1).pow(3));
+        Ok(BakedField { inner })
+    })
+}
+
+/// Attaches a field saved earlier (``lp3d.render.baked.load_baked`` reads the file and checks it
+/// belongs to ``triplane``) to the triplane's GPU copy: ``index`` (G, G, G) int64 (-1 empty),
+/// ``values`` (bricks, k+1, k+1, k+1, 4) float16 bits as uint16. Every array is checked here.
+#[pyfunction]
+#[pyo3(signature = (triplane, index, values, *, subdivisions, occupancy_epsilon, max_delta))]
+pub fn attach_baked<'py>(
+    py: Python<'py>,
+    triplane: &Bound<'py, PyAny>,
+    index: &Bound<'py, PyAny>,
+    values: &Bound<'py, PyAny>,
+    subdivisions: i64,
+    occupancy_epsilon: f64,
+    max_delta: f64,
+) -> PyResult<BakedField> {
+    guarded(|| {
+        let tri = triplane.cast::<Triplane>().map_err(|_| {
+            invalid(
+                "triplane",
+                format!("expected lp3d_render.Triplane, got {}", convert::type_name(triplane)),
+            )
+        })?;
+        let index = index
+            .cast::<numpy::PyArrayDyn<i64>>()
+            .map_err(|_| invalid("index", "expected an int64 array (G, G, G)"))?;
+        let values = values
+            .cast::<numpy::PyArrayDyn<u16>>()
+            .map_err(|_| invalid("values", "expected a uint16 array of float16 bits"))?;
+        let shape = index.shape().to_vec();
+        if shape.len() != 3 || shape[0] != shape[1] || shape[1] != shape[2] {
+            return Err(invalid("index", format!("must be (G, G, G), got {shape:?}")));
+        }
+        let index: Vec<u32> = index
+            .to_vec()
+            .map_err(|_| invalid("index", "must be contiguous"))?
+            .into_iter()
+            .map(|b| if b < 0 { EMPTY } else { u32::try_from(b).unwrap_or(EMPTY - 1) })
+            .collect();
+        let values = values.to_vec().map_err(|_| invalid("values", "must be contiguous"))?;
+        let k = u32::try_from(subdivisions).map_err(|_| invalid("subdivisions", "must be in [1, 8]"))?;
+        let spec = BakeSpec { subdivisions: k, epsilon: occupancy_epsilon as f32, max_delta };
+        let g = gpu(py)?;
+        let tri = tri.get();
+        let uploaded = py.detach(|| guarded(|| tri.on_gpu(g, true)))?;
+        let inner = py
+            .detach(|| g.renderer.attach_baked(&uploaded, spec, shape[0], index, &values))
+            .map_err(to_py)?;
         Ok(BakedField { inner })
     })
 }

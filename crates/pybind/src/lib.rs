@@ -34,6 +34,7 @@ fn _lp3d_render(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<triplane::Triplane>()?;
     m.add_class::<baked::BakedField>()?;
     m.add_function(wrap_pyfunction!(baked::bake, m)?)?;
+    m.add_function(wrap_pyfunction!(baked::attach_baked, m)?)?;
     m.add_function(wrap_pyfunction!(render::render, m)?)?;
     m.add_function(wrap_pyfunction!(device::adapter_info, m)?)?;
     m.add_function(wrap_pyfunction!(device::last_frame_device_bytes, m)?)?;

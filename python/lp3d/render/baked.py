@@ -11,8 +11,15 @@ k)``. A point in a cell without a brick has raw density :data:`EMPTY_RAW` and RG
 
 from __future__ import annotations
 
+import hashlib
+import os
+import zipfile
+from pathlib import Path
+from typing import Any
+
 import numpy as np
 
+from lp3d.atomic import atomic_path
 from lp3d.render.reference import decode, render_with, sample_triplane
 from lp3d.render.settings import RenderSettings
 from lp3d.render.triplane import TriplaneData
@@ -90,3 +97,86 @@ def render_baked_reference(
     out = render_with(tri, camera, settings, evaluate)
     del out["features"]  # the three RGB channels, as out["rgb"]
     return out
+
+
+# ------------------------------------------------------------------------------------------ the file
+
+#: ``format`` of a saved baked field (``save_baked``).
+BAKED_FORMAT = "lp3d-baked-field-v1"
+#: The numbers a saved field holds besides its arrays.
+SCALARS = ("subdivisions", "occupancy_epsilon", "max_delta")
+#: Largest cells per axis a file may claim (the occupancy grid's limit).
+MAX_CELLS = 512
+
+
+def triplane_digest(triplane: Any) -> str:
+    """SHA-256 of what a baked field was decoded from: the planes and decoder as float32 (C order) and
+    the box width, so that a field saved for one triplane is refused for another."""
+    h = hashlib.sha256()
+    for name in ("planes", "w0", "b0", "w1", "b1"):
+        h.update(np.ascontiguousarray(np.asarray(getattr(triplane, name), np.float32)).tobytes())
+    h.update(np.float32(triplane.box_warp).tobytes())
+    return h.hexdigest()
+
+
+def save_baked(path: str | os.PathLike[str], field: Any, triplane: Any) -> Path:
+    """Write ``field`` (an ``lp3d_render.BakedField`` of ``triplane``) to ``path`` (.npz, atomically),
+    with the triplane's digest; :func:`load_baked` puts it back on the GPU without baking again."""
+    out = Path(path)
+    arrays = {
+        "format": np.array(BAKED_FORMAT),
+        "triplane_sha256": np.array(triplane_digest(triplane)),
+        "subdivisions": np.array(field.subdivisions, np.int64),
+        "occupancy_epsilon": np.array(field.occupancy_epsilon, np.float64),
+        "max_delta": np.array(field.max_delta, np.float64),
+        "index": field.index.astype(np.int64),
+        "values": field.values,
+    }
+    with atomic_path(out) as tmp, open(tmp, "wb") as f:
+        np.savez(f, **arrays)
+    return out
+
+
+def load_baked(path: str | os.PathLike[str], triplane: Any) -> Any:
+    """The baked field saved at ``path`` for ``triplane`` (an ``lp3d_render.Triplane``), attached to its
+    GPU copy (later renders with its settings look it up); a ``ValueError`` naming the file and the
+    field for anything that does not fit (no pickle is ever loaded)."""
+    import lp3d_render
+
+    where = str(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            data = {k: z[k] for k in z.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as e:
+        if isinstance(e, FileNotFoundError | IsADirectoryError | PermissionError):
+            raise
+        raise ValueError(f"{where}: not a baked-field .npz ({e})") from None
+    fields = ("format", "triplane_sha256", *SCALARS, "index", "values")
+    missing = sorted(set(fields) - set(data))
+    if missing:
+        raise ValueError(f"{where}: missing {', '.join(missing)}")
+    if str(data["format"]) != BAKED_FORMAT:
+        raise ValueError(f"{where}: format {str(data['format'])[:40]!r}, expected {BAKED_FORMAT!r}")
+    if str(data["triplane_sha256"]) != triplane_digest(triplane):
+        raise ValueError(f"{where}: baked for other planes or another decoder than this triplane's")
+    scalars = {name: _scalar(data[name], f"{where}: {name}") for name in SCALARS}
+    index, values = data["index"], data["values"]
+    if index.dtype.kind != "i" or index.ndim != 3 or len(set(index.shape)) != 1 or index.shape[0] > MAX_CELLS:
+        raise ValueError(f"{where}: index must be (G, G, G) integers, G <= {MAX_CELLS}, got {index.shape}")
+    if values.dtype != np.float16 or values.ndim != 5 or values.shape[-1] != 4:
+        raise ValueError(f"{where}: values must be (bricks, k+1, k+1, k+1, 4) float16, got {values.shape}")
+    return lp3d_render.attach_baked(
+        triplane,
+        index.astype(np.int64),
+        np.ascontiguousarray(values).view(np.uint16),
+        subdivisions=int(scalars["subdivisions"]),
+        occupancy_epsilon=scalars["occupancy_epsilon"],
+        max_delta=scalars["max_delta"],
+    )
+
+
+def _scalar(a: np.ndarray, what: str) -> float:
+    """A 0-d finite number from a file, or a ValueError saying ``what`` it should have been."""
+    if a.shape != () or a.dtype.kind not in "iuf" or not np.isfinite(a):
+        raise ValueError(f"{what}: must be one finite number, got {a.dtype} {a.shape}")
+    return float(a)

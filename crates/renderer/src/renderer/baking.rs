@@ -13,6 +13,45 @@ use crate::baked::{BakeSpec, BrickLayout, POINT_BYTES};
 /// that long for its frame.
 pub const BAKE_CHUNK: usize = 1 << 16;
 
+/// Checks a saved field before it is uploaded; its number of bricks.
+fn check_saved_field(spec: &BakeSpec, cells: usize, index: &[u32], values: &[u16]) -> Result<usize> {
+    let k = spec.subdivisions;
+    if !(1..=crate::baked::MAX_SUBDIVISIONS).contains(&k) {
+        return Err(Error::invalid("subdivisions", format!("must be in [1, 8], got {k}")));
+    }
+    if !(spec.epsilon > 0.0 && spec.epsilon < 1.0 && spec.max_delta.is_finite() && spec.max_delta > 0.0) {
+        return Err(Error::invalid("occupancy_epsilon", "must be in (0, 1), with a positive max_delta"));
+    }
+    if !(1..=crate::occupancy::MAX_RESOLUTION).contains(&cells) || index.len() != cells.pow(3) {
+        return Err(Error::invalid(
+            "index",
+            format!("must be (G, G, G) with G in [1, 512], got {} entries", index.len()),
+        ));
+    }
+    let per_brick = 4 * BrickLayout::points_per_brick(k);
+    if values.len() % per_brick != 0 {
+        return Err(Error::invalid("values", format!("must be (bricks, {0}, {0}, {0}, 4)", k + 1)));
+    }
+    let n_bricks = values.len() / per_brick;
+    // Every brick named by exactly one cell, in cell order (as a bake numbers them).
+    let named: Vec<u32> = index.iter().copied().filter(|&b| b != crate::baked::EMPTY).collect();
+    if named.len() != n_bricks || named.iter().enumerate().any(|(i, &b)| b as usize != i) {
+        return Err(Error::invalid(
+            "index",
+            format!("must name bricks 0..{n_bricks} once each, in cell order"),
+        ));
+    }
+    // Finite float16 only (exponent 31 is Inf or NaN): the renderer's output stays finite.
+    if let Some(i) = values.iter().position(|&h| (h >> 10) & 0x1f == 0x1f) {
+        return Err(Error::invalid("values", format!("NaN or Inf at flat index {i}")));
+    }
+    let bytes = (values.len() * 2) as u64;
+    if bytes > (1u64 << 31) {
+        return Err(Error::invalid("values", "larger than any device binding"));
+    }
+    Ok(n_bricks)
+}
+
 /// A baked field resident on the GPU.
 pub struct GpuBaked {
     pub spec: BakeSpec,
@@ -175,6 +214,40 @@ impl Renderer {
             bake_seconds: start.elapsed().as_secs_f64(),
             index_buf,
             values,
+        });
+        *tri.baked.lock().map_err(|_| Error::Gpu("baked field lock poisoned".into()))? = Some(baked.clone());
+        Ok(baked)
+    }
+
+    /// Attaches a field baked earlier (its `index` and `values` as `read_baked_values` gave them,
+    /// e.g. saved and loaded) to `tri` without baking again. Everything is checked: the caller
+    /// vouches only that it was baked from these planes and decoder.
+    pub fn attach_baked(
+        &self,
+        tri: &GpuTriplane,
+        spec: BakeSpec,
+        cells: usize,
+        index: Vec<u32>,
+        values: &[u16],
+    ) -> Result<Arc<GpuBaked>> {
+        let n_bricks = check_saved_field(&spec, cells, &index, values)?;
+        let words: Vec<u32> = values.chunks(2).map(|h| h[0] as u32 | (h[1] as u32) << 16).collect();
+        let init = |label: &str, data: &[u32]| {
+            let padded: &[u32] = if data.is_empty() { &[0, 0] } else { data };
+            self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents: bytemuck::cast_slice(padded),
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            })
+        };
+        let baked = Arc::new(GpuBaked {
+            spec,
+            cells,
+            n_bricks,
+            index_buf: init("lp3d baked index", &index),
+            values: init("lp3d baked values", &words),
+            index,
+            bake_seconds: 0.0,
         });
         *tri.baked.lock().map_err(|_| Error::Gpu("baked field lock poisoned".into()))? = Some(baked.clone());
         Ok(baked)
