@@ -46,6 +46,8 @@ use crate::triplane::Triplane;
     text_signature = "(triplane, camera, resolution=128, depth_resolution=48, depth_resolution_importance=48, deterministic=True, seed=None, outputs=None, white_back=False, *, transmittance_threshold=0.0, empty_threshold=0.0, occupancy_epsilon=0.0, occupancy_coarse=False, baked_subdivisions=0)"
 )]
 #[allow(clippy::too_many_arguments)]
+// Long because: every argument is checked here, before any GPU work, one after another in the
+// signature's order.
 pub fn render<'py>(
     py: Python<'py>,
     triplane: &Bound<'py, PyAny>,

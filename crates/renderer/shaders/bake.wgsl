@@ -45,8 +45,7 @@ fn bake_field(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgr
     var rgb = array<vec4<f32>, 8>();
     sample_triplane(q * (0.5 * params.box_warp), &feat);
     let sigma_raw = decode(3u, &feat, &rgb);
-    bake_out[id] = vec2<u32>(
-        f32_to_half(sigma_raw) | (f32_to_half(rgb[0].x) << 16u),
-        f32_to_half(rgb[0].y) | (f32_to_half(rgb[0].z) << 16u),
-    );
+    let w = params.baked_values_offset + 2u * id;
+    bake_out[w] = f32_to_half(sigma_raw) | (f32_to_half(rgb[0].x) << 16u);
+    bake_out[w + 1u] = f32_to_half(rgb[0].y) | (f32_to_half(rgb[0].z) << 16u);
 }

@@ -3,7 +3,7 @@
 // (trilinearly) from values the decoder produced once at the points of a finer grid, stored
 // only in the occupancy cells that may hold density (and their neighbours a sample interval
 // away): the decoder is skipped.
-// needs: params, baked_index, baked_values, halves_to_f32, plane_coords
+// needs: params, baked, halves_to_f32, plane_coords
 // provides: BAKED, BAKED_EMPTY, BAKED_EMPTY_RAW, baked_point, baked_sample
 
 // true: render_rays looks samples up in the baked field (a pipeline of its own).
@@ -18,8 +18,8 @@ const BAKED_EMPTY_RAW: f32 = -60.0;
 
 // Point (a, b, c) of `brick`, each in 0..=k: (sigma_raw, r, g, b).
 fn baked_point(brick: u32, a: u32, b: u32, c: u32, k1: u32) -> vec4<f32> {
-    let v = baked_values[((brick * k1 + a) * k1 + b) * k1 + c];
-    return vec4<f32>(halves_to_f32(v.x), halves_to_f32(v.y));
+    let w = params.baked_values_offset + 2u * (((brick * k1 + a) * k1 + b) * k1 + c);
+    return vec4<f32>(halves_to_f32(baked[w]), halves_to_f32(baked[w + 1u]));
 }
 
 // The baked raw density at world point `pos` (returned) and its RGB into dst[0].xyz (w = 0).
@@ -32,7 +32,7 @@ fn baked_sample(pos: vec3<f32>, dst: ptr<function, array<vec4<f32>, 8>>) -> f32 
     let s = (plane_coords(pos) + 1.0) * (0.5 * gf);
     let cell_f = clamp(floor(s), vec3<f32>(0.0), vec3<f32>(gf - 1.0));
     let cell = vec3<u32>(cell_f);
-    let brick = baked_index[(cell.x * g + cell.y) * g + cell.z];
+    let brick = baked[(cell.x * g + cell.y) * g + cell.z];
     if (brick == BAKED_EMPTY) {
         (*dst)[0] = vec4<f32>(0.0);
         return BAKED_EMPTY_RAW;

@@ -3,8 +3,8 @@
 // needs: nothing
 // provides: MAX_SAMPLES, N_CHANNELS, HIDDEN, FLAG_JITTER, FLAG_WHITE_BACK, FLAG_HALF_PLANES,
 // provides: FLAG_OCCUPANCY_COARSE, Params, Decoder, params, cameras, planes, decoder,
-// provides: out_features, out_depth, out_weights_sum, depth_bounds, occupancy_bits, baked_index,
-// provides: baked_values, bake_cells, bake_out
+// provides: out_features, out_depth, out_weights_sum, depth_bounds, occupancy_bits, baked,
+// provides: bake_cells, bake_out
 
 // Largest coarse or fine sample count per ray (per-invocation scratch arrays).
 const MAX_SAMPLES: u32 = 256u;
@@ -53,7 +53,8 @@ struct Params {
     baked_subdivisions: u32,
     // The baked field's cells per axis (the occupancy grid's, or a coarser one they tile).
     baked_cells: u32,
-    _pad0: u32,
+    // Where the points start in `baked` (u32 words: after the G^3 index).
+    baked_values_offset: u32,
     _pad1: u32,
     _pad2: u32,
 }
@@ -81,10 +82,11 @@ struct Decoder {
 @group(0) @binding(7) var<storage, read_write> depth_bounds: array<atomic<u32>, 2>;
 // Occupancy bits, one per grid cell (ix * G + iy) * G + iz: set = the cell may hold density.
 @group(0) @binding(8) var<storage, read> occupancy_bits: array<u32>;
-// The baked field (docs/baked.md): per baked cell, the number of its brick or BAKED_EMPTY;
-// and per brick, (k + 1)^3 points of (sigma_raw, r) and (g, b) as packed float16 pairs.
-@group(0) @binding(9) var<storage, read> baked_index: array<u32>;
-@group(0) @binding(10) var<storage, read> baked_values: array<vec2<u32>>;
-// The bake's own bindings: the occupancy cell of each brick, and the points it writes.
+// The baked field (docs/baked.md), one buffer so that render_rays keeps to WebGPU's default of 8
+// storage buffers per stage: per baked cell the number of its brick or BAKED_EMPTY (G^3 words),
+// then from baked_values_offset per brick (k + 1)^3 points of two words, (sigma_raw, r) and
+// (g, b) as packed float16 pairs.
+@group(0) @binding(9) var<storage, read> baked: array<u32>;
+// The bake's own bindings: the cell of each brick, and the field it writes the points into.
 @group(0) @binding(11) var<storage, read> bake_cells: array<u32>;
-@group(0) @binding(12) var<storage, read_write> bake_out: array<vec2<u32>>;
+@group(0) @binding(12) var<storage, read_write> bake_out: array<u32>;

@@ -40,7 +40,7 @@ pub struct Params {
     pub occupancy_resolution: u32,
     pub baked_subdivisions: u32,
     pub baked_cells: u32,
-    pub _pad0: u32,
+    pub baked_values_offset: u32,
     pub _pad1: u32,
     pub _pad2: u32,
 }
@@ -83,7 +83,7 @@ impl Params {
             occupancy_resolution: 0,
             baked_subdivisions: 0,
             baked_cells: 0,
-            _pad0: 0,
+            baked_values_offset: 0,
             _pad1: 0,
             _pad2: 0,
         }

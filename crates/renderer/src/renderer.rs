@@ -183,18 +183,8 @@ impl Renderer {
         };
         let bounds_pipeline = make(shaders::DEPTH_BOUNDS_ENTRY, "lp3d depth_bounds_pass", &pipeline_layout);
         let present_pipeline = make(shaders::PRESENT_ENTRY, "lp3d present", &present_pipeline_layout);
-        let no_occupancy = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("lp3d no occupancy"),
-            size: 4,
-            usage: wgpu::BufferUsages::STORAGE,
-            mapped_at_creation: false,
-        });
-        let no_baked = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("lp3d no baked field"),
-            size: 16,
-            usage: wgpu::BufferUsages::STORAGE,
-            mapped_at_creation: false,
-        });
+        let no_occupancy = layouts::placeholder(&device, "lp3d no occupancy");
+        let no_baked = layouts::placeholder(&device, "lp3d no baked field");
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(Error::Gpu(format!("building the render pipelines failed: {e}")));
         }

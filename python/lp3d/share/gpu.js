@@ -43,7 +43,7 @@ const WORKGROUP = 64;
 const DECODER_BYTES = (512 + 16 + 528 + 9) * 16;
 const FLAG_WHITE_BACK = 2;
 const FLAG_HALF_PLANES = 4;
-const PARAMS_BYTES = 80;
+const PARAMS_BYTES = 96;
 
 class Gpu {
   static async create(data, onError) {
@@ -97,6 +97,7 @@ class Gpu {
     this.weightsSum = buffer("lp3d weights_sum out", this.maxPixels * 4, U.STORAGE);
     this.depthBounds = buffer("lp3d depth bounds", 8, U.STORAGE | U.COPY_DST);
     this.noOccupancy = buffer("lp3d no occupancy", 4, U.STORAGE);
+    this.noBaked = buffer("lp3d no baked field", 16, U.STORAGE); // the page decodes every sample
     this.display = buffer("lp3d display", 16, U.UNIFORM | U.COPY_DST);
     device.queue.writeBuffer(this.display, 0, new Uint32Array([0, 0, 0, 0x3f800000])); // RGB, [0, 1]
     this.targets = new Map();
@@ -117,6 +118,7 @@ class Gpu {
       entries: [
         uniform(0), storage(1, true), storage(2, true), uniform(3),
         storage(4, false), storage(5, false), storage(6, false), storage(7, false), storage(8, true),
+        storage(9, true),
       ],
     });
     this.presentLayout = d.createBindGroupLayout({
@@ -162,7 +164,7 @@ class Gpu {
       layout: this.renderLayout,
       entries: [
         this.params, this.cameras, this.planes, this.decoder, this.features,
-        this.depth, this.weightsSum, this.depthBounds, this.noOccupancy,
+        this.depth, this.weightsSum, this.depthBounds, this.noOccupancy, this.noBaked,
       ].map((buffer, binding) => ({ binding, resource: { buffer } })),
     });
     this.kernel = "quick";
@@ -204,7 +206,8 @@ class Gpu {
     x[13] = f((end - start) / (s - 1)); // jitter_step: float64, rounded once
     x[14] = n > 1 ? f(1 / (n - 1)) : 0; // u_step
     u[15] = 1; // n_cameras
-    // 16, 17: transmittance_threshold, empty_threshold = 0; 18: occupancy_resolution = 0 (off).
+    // 16, 17: transmittance_threshold, empty_threshold = 0; 18: occupancy_resolution = 0 (off);
+    // 19-23: the baked field's = 0 (off).
     this.device.queue.writeBuffer(this.params, 0, buf);
   }
 

@@ -61,15 +61,36 @@ pub struct GpuBaked {
     pub n_bricks: usize,
     /// Seconds the bake took (brick layout, upload, kernel, wait).
     pub bake_seconds: f64,
-    index_buf: wgpu::Buffer,
-    values: wgpu::Buffer,
+    /// The index (G³ words), then the points (two words each): `baked` in `shaders/params.wgsl`.
+    data: wgpu::Buffer,
 }
 
 impl GpuBaked {
     /// Device bytes: the index and the values.
     pub fn device_bytes(&self) -> u64 {
-        self.index_buf.size() + self.values.size()
+        self.data.size()
     }
+
+    /// Where the points start in `data`, in 4-byte words.
+    pub fn values_offset(&self) -> u32 {
+        self.index.len() as u32
+    }
+}
+
+/// The field's buffer as the kernels read it: `index`, then `words` (or `n_words` zeros).
+fn field_buffer(dev: &wgpu::Device, index: &[u32], words: Option<&[u32]>, n_words: usize) -> wgpu::Buffer {
+    let mut contents = Vec::with_capacity((index.len() + n_words).max(2));
+    contents.extend_from_slice(index);
+    match words {
+        Some(w) => contents.extend_from_slice(w),
+        None => contents.resize(index.len() + n_words, 0),
+    }
+    contents.resize(contents.len().max(2), 0);
+    dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: Some("lp3d baked field"),
+        contents: bytemuck::cast_slice(&contents),
+        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+    })
 }
 
 impl GpuTriplane {
@@ -117,7 +138,7 @@ impl Renderer {
         let layout = BrickLayout::new(&grid, &spec, tri.scene.bounds.box_warp)?;
         let per_brick = BrickLayout::points_per_brick(spec.subdivisions);
         let n_points = layout.brick_cells.len() * per_brick;
-        let value_bytes = (n_points.max(1) * POINT_BYTES) as u64;
+        let value_bytes = (n_points * POINT_BYTES + layout.index.len() * 4) as u64;
         let max_binding = self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size);
         if value_bytes > max_binding {
             return Err(Error::invalid(
@@ -142,20 +163,15 @@ impl Renderer {
                 usage: wgpu::BufferUsages::STORAGE,
             })
         };
-        let index_buf = init("lp3d baked index", &layout.index);
         let cells_buf = init("lp3d bake cells", &layout.brick_cells);
-        let values = dev.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("lp3d baked values"),
-            size: value_bytes,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-            mapped_at_creation: false,
-        });
+        let data = field_buffer(dev, &layout.index, None, n_points * 2);
         let mut params = Params::new(&tri.scene, &RenderSettings::default(), 3, 1);
         if tri.half {
             params.flags |= FLAG_HALF_PLANES;
         }
         params.baked_cells = layout.cells as u32;
         params.baked_subdivisions = spec.subdivisions;
+        params.baked_values_offset = layout.index.len() as u32;
         let params_buf = dev.create_buffer(&wgpu::BufferDescriptor {
             label: Some("lp3d bake params"),
             size: std::mem::size_of::<Params>() as u64,
@@ -170,7 +186,7 @@ impl Renderer {
                 wgpu::BindGroupEntry { binding: 2, resource: tri.planes.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 3, resource: tri.decoder.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 11, resource: cells_buf.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 12, resource: values.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 12, resource: data.as_entire_binding() },
             ],
         });
         if let Some(e) = pollster::block_on(oom.pop()) {
@@ -212,8 +228,7 @@ impl Renderer {
             n_bricks: layout.brick_cells.len(),
             index: layout.index,
             bake_seconds: start.elapsed().as_secs_f64(),
-            index_buf,
-            values,
+            data,
         });
         *tri.baked.lock().map_err(|_| Error::Gpu("baked field lock poisoned".into()))? = Some(baked.clone());
         Ok(baked)
@@ -232,20 +247,11 @@ impl Renderer {
     ) -> Result<Arc<GpuBaked>> {
         let n_bricks = check_saved_field(&spec, cells, &index, values)?;
         let words: Vec<u32> = values.chunks(2).map(|h| h[0] as u32 | (h[1] as u32) << 16).collect();
-        let init = |label: &str, data: &[u32]| {
-            let padded: &[u32] = if data.is_empty() { &[0, 0] } else { data };
-            self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some(label),
-                contents: bytemuck::cast_slice(padded),
-                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-            })
-        };
         let baked = Arc::new(GpuBaked {
             spec,
             cells,
             n_bricks,
-            index_buf: init("lp3d baked index", &index),
-            values: init("lp3d baked values", &words),
+            data: field_buffer(&self.device, &index, Some(&words), words.len()),
             index,
             bake_seconds: 0.0,
         });
@@ -278,7 +284,8 @@ impl Renderer {
     /// The values of a baked field, read back: `n_bricks * (k + 1)³` points of four float16
     /// bits (sigma_raw, r, g, b).
     pub fn read_baked_values(&self, baked: &GpuBaked) -> Result<Vec<u16>> {
-        let size = baked.values.size();
+        let offset = baked.values_offset() as u64 * 4;
+        let size = baked.data.size() - offset;
         let read = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("lp3d baked values readback"),
             size,
@@ -288,7 +295,7 @@ impl Renderer {
         let mut encoder = self
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("lp3d baked readback") });
-        encoder.copy_buffer_to_buffer(&baked.values, 0, &read, 0, size);
+        encoder.copy_buffer_to_buffer(&baked.data, offset, &read, 0, size);
         self.queue.submit([encoder.finish()]);
         let mut words = vec![0f32; (size / 4) as usize];
         self.read_back(&mut [(&read, size, &mut words)])?;
@@ -335,14 +342,8 @@ impl Renderer {
         })
     }
 
-    /// The buffers bound at the baked field's bindings (9, 10): the field's, or a placeholder.
-    pub(super) fn baked_bindings<'a>(
-        &'a self,
-        baked: Option<&'a GpuBaked>,
-    ) -> (&'a wgpu::Buffer, &'a wgpu::Buffer) {
-        match baked {
-            Some(b) => (&b.index_buf, &b.values),
-            None => (&self.no_baked, &self.no_baked),
-        }
+    /// The buffer bound at the baked field's binding (9): the field's, or a placeholder.
+    pub(super) fn baked_binding<'a>(&'a self, baked: Option<&'a GpuBaked>) -> &'a wgpu::Buffer {
+        baked.map_or(&self.no_baked, |b| &b.data)
     }
 }

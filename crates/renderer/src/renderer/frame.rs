@@ -60,8 +60,9 @@ impl Renderer {
         if let Some(b) = &baked {
             params.baked_subdivisions = b.spec.subdivisions;
             params.baked_cells = b.cells as u32;
+            params.baked_values_offset = b.values_offset();
         }
-        let (baked_index, baked_values) = self.baked_bindings(baked.as_deref());
+        let baked_buffer = self.baked_binding(baked.as_deref());
 
         let chunk = self.cameras_per_dispatch(fc, n_pix, n_cam)?;
 
@@ -111,8 +112,7 @@ impl Renderer {
                     binding: 8,
                     resource: occupancy.as_ref().map_or(&self.no_occupancy, |(_, b)| b).as_entire_binding(),
                 },
-                wgpu::BindGroupEntry { binding: 9, resource: baked_index.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 10, resource: baked_values.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 9, resource: baked_buffer.as_entire_binding() },
             ],
         });
         let bytes = [&camera_buf, &params_buf, &bounds_buf, &features, &depth, &weights_sum]

@@ -55,7 +55,6 @@ impl Layouts {
                 storage_entry(7, false),
                 storage_entry(8, true),
                 storage_entry(9, true),
-                storage_entry(10, true),
             ],
         });
         let render_pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -108,4 +107,15 @@ impl Layouts {
             bake_pipeline_layout,
         }
     }
+}
+
+/// A small storage buffer bound where a render uses no occupancy bits or baked field (a binding
+/// needs a buffer; 16 bytes covers the largest element the kernels declare there).
+pub(super) fn placeholder(device: &wgpu::Device, label: &str) -> wgpu::Buffer {
+    device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size: 16,
+        usage: wgpu::BufferUsages::STORAGE,
+        mapped_at_creation: false,
+    })
 }
