@@ -1,19 +1,25 @@
 """Viewer frame times while dragging: ``lp3d-view`` in a real window under Xvfb, at its default
 final quality (128², 48+48) and frame budget (100 ms), drives a scripted drag (``--drag-frames``,
 synthetic pointer events through egui, the same path as a mouse), then refines to the final image.
+Each budget runs in two modes: ``baked`` (the default viewer: the drag starts once the file's baked
+field is ready, and frames drawn while dragging look samples up in it at the final quality when
+that fits the budget) and ``ladder`` (``--no-bake``: every frame decodes, the drag drops down the
+quality ladder).
 
     python bench/viewer_frames.py --out /tmp/viewer_frames.md
-    python bench/viewer_frames.py --runs 3 --drag-frames 40 --budgets 100,50 --out /tmp/v.md
+    python bench/viewer_frames.py --runs 3 --drag-frames 30 --budgets 100 --modes baked,ladder --out /tmp/v.md
 
 Everything comes from the screenshot's JSON sidecar, which logs every rendered frame: its render
 time (``render_ms``: from the start of the render call to the GPU finishing it), the time since the
 previous UI frame began (``interval_ms``: what the user sees as the frame time, UI work included),
-its rung of the quality ladder and whether a pointer button was down. Reported per run: the rungs
-drawn while dragging, median and 90th percentile of both times over the drag's frames, the time
-from releasing the pointer to the final image on screen (``release → final``, the 200 ms settle
-included) and the final frame's render time. A second table compares, for each rung, its first
-render in the process with the median of its later ones: a rung that needed a pipeline compile
-would show a first render seconds slower.
+its rung of the quality ladder, whether it was drawn from the baked field and whether a pointer
+button was down. Reported per run: the rungs drawn while dragging, median and 90th percentile of
+both times over the drag's frames, the frames per second on screen while dragging (1000 / median
+interval), the time from releasing the pointer to the final image on screen (``release → final``,
+the 200 ms settle included), the final frame's render time and, in baked mode, the bake's time
+(the occupancy grid and the field, from the file opening to the field being ready). A second table
+compares, for each rung, its first render in the process with the median of its later ones: a rung
+that needed a pipeline compile would show a first render seconds slower.
 """
 
 from __future__ import annotations
@@ -39,14 +45,17 @@ def _percentile(values: list[float], q: float) -> float:
     return float(np.percentile(np.asarray(values, dtype=float), q))
 
 
+MODES = ("baked", "ladder")
+
+
 def _rung(f: dict) -> str:
     fine = f["depth_resolution_importance"]
     samples = f"{f['depth_resolution']}+{fine}" if fine else f"{f['depth_resolution']}"
-    return f"{f['resolution']}² · {samples}"
+    return f"{f['resolution']}² · {samples}" + (" baked" if f.get("baked") else "")
 
 
-def run_once(scene: Path, work: Path, budget: float, drag_frames: int, timeout: float) -> dict:
-    shot = work / f"shot-{budget:g}-{time.monotonic_ns()}.png"
+def run_once(scene: Path, work: Path, budget: float, mode: str, drag_frames: int, timeout: float) -> dict:
+    shot = work / f"shot-{budget:g}-{mode}-{time.monotonic_ns()}.png"
     cmd = [
         *XVFB,
         sys.executable,
@@ -55,6 +64,7 @@ def run_once(scene: Path, work: Path, budget: float, drag_frames: int, timeout: 
         "view",
         *("--screenshot", str(shot), "--drag-frames", str(drag_frames)),
         *("--frame-budget-ms", str(budget), str(scene)),
+        *(["--no-bake"] if mode == "ladder" else []),
     ]
     env = {**os.environ, "OMP_WAIT_POLICY": "PASSIVE"}
     load = os.getloadavg()[0]
@@ -72,8 +82,14 @@ def run_once(scene: Path, work: Path, budget: float, drag_frames: int, timeout: 
     render = [f["render_ms"] for f in drag]
     # The first drag frame's interval includes the wait before the drag started.
     interval = [f["interval_ms"] for f in drag[1:]] or [drag[0]["interval_ms"]]
+    bake = meta["bake"]
+    if mode == "baked" and bake["state"] != "ready":
+        raise RuntimeError(f"the bake did not finish: {bake}")
     return {
         "budget": budget,
+        "mode": mode,
+        "bake_s": bake["job_seconds"],
+        "field": bake["field"],
         "load": load,
         "quality": meta["quality"],
         "adapter": meta["adapter"],
@@ -105,6 +121,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--runs", type=int, default=3, help="runs per budget (default 3)")
     p.add_argument("--drag-frames", type=int, default=30, help="UI frames the drag lasts (default 30)")
     p.add_argument("--budgets", default="100", help="comma list of frame budgets in ms (default 100)")
+    p.add_argument("--modes", default="baked,ladder", help="comma list of baked, ladder (default both)")
     p.add_argument("--seed", type=int, default=0, help="procedural teacher head to show (default 0)")
     p.add_argument("--timeout", type=float, default=1800.0, help="seconds per run before giving up")
     args = p.parse_args(argv)
@@ -112,6 +129,9 @@ def main(argv: list[str] | None = None) -> int:
         budgets = [float(b) for b in args.budgets.split(",") if b.strip()]
     except ValueError:
         p.error(f"--budgets: a comma list of numbers, got {args.budgets!r}")
+    modes = [m.strip() for m in args.modes.split(",") if m.strip()]
+    if not modes or any(m not in MODES for m in modes):
+        p.error(f"--modes: a comma list of {', '.join(MODES)}, got {args.modes!r}")
     if not budgets or args.runs < 1 or args.drag_frames < 1:
         p.error("--budgets, --runs and --drag-frames need at least one")
     if shutil.which("xvfb-run") is None:
@@ -125,21 +145,25 @@ def main(argv: list[str] | None = None) -> int:
         work = Path(tmp)
         scene = work / "head.npz"
         save_triplane(scene, ProceduralTeacher().sample(args.seed))
-        run_once(scene, work, budgets[0], 2, args.timeout)  # warm the shader cache (untimed)
+        for mode in modes:  # warm the shader cache (untimed)
+            run_once(scene, work, budgets[0], mode, 2, args.timeout)
+        # Modes alternate run by run, so that a change in the machine's load hits both alike.
         for budget in budgets:
             for _ in range(args.runs):
-                r = run_once(scene, work, budget, args.drag_frames, args.timeout)
-                results.append(r)
-                print(
-                    f"budget {budget:g} ms: drag render {r['render_median']:.1f}/{r['render_p90']:.1f} ms, "
-                    f"interval {r['interval_median']:.1f}/{r['interval_p90']:.1f} ms, "
-                    f"release → final {r['release_to_final']:.0f} ms, load {r['load']:.1f}",
-                    flush=True,
-                )
+                for mode in modes:
+                    r = run_once(scene, work, budget, mode, args.drag_frames, args.timeout)
+                    results.append(r)
+                    print(
+                        f"budget {budget:g} ms, {mode}: drag render {r['render_median']:.1f}/"
+                        f"{r['render_p90']:.1f} ms, interval {r['interval_median']:.1f}/"
+                        f"{r['interval_p90']:.1f} ms, release → final {r['release_to_final']:.0f} ms, "
+                        f"bake {r['bake_s'] or 0:.1f} s, load {r['load']:.1f}",
+                        flush=True,
+                    )
 
     command = (
         f"python bench/viewer_frames.py --runs {args.runs} --drag-frames {args.drag_frames} "
-        f"--budgets {args.budgets} --out {args.out}"
+        f"--budgets {args.budgets} --modes {args.modes} --out {args.out}"
     )
     lines = [
         f"Command: `{command}`  ",
@@ -147,27 +171,39 @@ def main(argv: list[str] | None = None) -> int:
         f"{results[0]['adapter']}; final quality {results[0]['quality'].removesuffix(' (final)')}; "
         f"procedural teacher head, seed {args.seed}; LP3D_KERNEL={os.environ.get('LP3D_KERNEL', '(unset)')}",
         "",
-        "| budget ms | rungs drawn while dragging (frames) | render ms median / p90 | frame interval ms "
-        "median / p90 | release → final ms | final render ms | load (1 min) |",
-        "|---|---|---|---|---|---|---|",
+        "| budget ms | mode | rungs drawn while dragging (frames) | render ms median / p90 | frame interval "
+        "ms median / p90 | drag frames / s | release → final ms | final render ms | bake s | load (1 min) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in results:
         rungs = ", ".join(f"{k} ({n})" for k, n in r["rungs"].items())
+        bake = f"{r['bake_s']:.1f}" if r["bake_s"] is not None else "–"
         lines.append(
-            f"| {r['budget']:g} | {rungs} | {r['render_median']:.1f} / {r['render_p90']:.1f} | "
-            f"{r['interval_median']:.1f} / {r['interval_p90']:.1f} | {r['release_to_final']:.0f} | "
-            f"{r['final_ms']:.0f} | {r['load']:.1f} |"
+            f"| {r['budget']:g} | {r['mode']} | {rungs} | {r['render_median']:.1f} / {r['render_p90']:.1f} | "
+            f"{r['interval_median']:.1f} / {r['interval_p90']:.1f} | {1e3 / r['interval_median']:.1f} | "
+            f"{r['release_to_final']:.0f} | {r['final_ms']:.0f} | {bake} | {r['load']:.1f} |"
         )
+    fields = [r["field"] for r in results if r["field"]]
+    if fields:
+        f = fields[0]
+        lines += [
+            "",
+            f"Baked field: k {f['subdivisions']}, epsilon {f['epsilon']:.0e}, {f['bricks']} bricks of "
+            f"{f['cells']}³ cells, {f['device_bytes'] / 2**20:.0f} MiB; the GPU part of the bake "
+            f"{statistics.median(x['bake_seconds'] for x in fields):.1f} s (median).",
+        ]
     lines += [
         "",
-        "First render of each rung in a process against its later renders (first run above):",
+        "First render of each rung in a process against its later renders (first run of each mode above):",
         "",
         "| rung | first render ms | median of later renders ms (count) |",
         "|---|---|---|",
     ]
-    for rung, first, later, n in first_vs_later(results[0]["frames"]):
-        later_s = f"{later:.1f} ({n})" if later is not None else "– (0)"
-        lines.append(f"| {rung} | {first:.1f} | {later_s} |")
+    for mode in modes:
+        first_run = next(r for r in results if r["mode"] == mode)
+        for rung, first, later, n in first_vs_later(first_run["frames"]):
+            later_s = f"{later:.1f} ({n})" if later is not None else "– (0)"
+            lines.append(f"| {rung} | {first:.1f} | {later_s} |")
     lines.append("")
     args.out.write_text("\n".join(lines))
     print(args.out)

@@ -1,6 +1,8 @@
 """lp3d-view end to end, in a real window under Xvfb: a scripted drag renders at the quality rung
 the frame budget picks, the refined final image must equal lp3d_render.render of the same camera
-and settings (both run the same kernels), and bad inputs exit non-zero with a clear message.
+and settings (both run the same kernels), once the baked field is ready a drag draws from it at
+the chosen quality and the still image is exact again, and bad inputs exit non-zero with a clear
+message.
 Needs xvfb-run (installed by scripts/install-system-deps.sh); without it the test fails, it is
 not skipped."""
 
@@ -54,17 +56,20 @@ def test_drag_then_refined_image_matches_render(gpu, sphere_file: Path, tmp_path
     """A scripted drag (synthetic pointer events through egui) renders at the ladder's cheapest
     rung under a budget no rung can meet, then the view refines rung by rung to the chosen
     settings; that final image, read back from its texture, equals lp3d_render.render, and the
-    window shows it scaled to fit with bilinear filtering."""
+    window shows it scaled to fit with bilinear filtering. Without the baked field (--no-bake):
+    the ladder alone."""
     shot = tmp_path / "shot.png"
     yaw, pitch, res, coarse, fine, drag = 25.0, -8.0, 48, 24, 16, 6
     proc = run_view(
         *("--screenshot", str(shot), "--yaw", str(yaw), "--pitch", str(pitch)),
         *("--resolution", str(res), "--samples", f"{coarse}+{fine}"),
-        *("--frame-budget-ms", "1", "--drag-frames", str(drag)),
+        *("--frame-budget-ms", "1", "--drag-frames", str(drag), "--no-bake"),
         str(sphere_file),
     )
     assert proc.returncode == 0, proc.stderr
     meta = json.loads(shot.with_suffix(".json").read_text())
+    assert meta["bake"] == {"state": "off", "error": None, "job_seconds": None, "field": None}
+    assert not any(f["baked"] for f in meta["frames"])
     assert meta["settings"] == {
         "resolution": res,
         "depth_resolution": coarse,
@@ -127,6 +132,42 @@ def test_drag_then_refined_image_matches_render(gpu, sphere_file: Path, tmp_path
     assert window[:, : view["x"] - 4].mean() > 10
 
 
+def test_drag_draws_from_the_baked_field_once_it_is_ready(gpu, sphere_file: Path, tmp_path: Path) -> None:
+    """The viewer bakes the file's field in the background; the scripted drag starts once it is
+    ready and every drag frame is drawn from it at the chosen resolution and samples (not a lower
+    rung of the ladder); after the release the still image is exact at the same quality."""
+    shot = tmp_path / "baked.png"
+    # 48 coarse samples: intervals under one baked cell, so few cells around the sphere are baked.
+    res, coarse, fine, drag = 32, 48, 8, 4
+    proc = run_view(
+        *("--screenshot", str(shot), "--resolution", str(res), "--samples", f"{coarse}+{fine}"),
+        *("--frame-budget-ms", "10000", "--drag-frames", str(drag)),
+        str(sphere_file),
+    )
+    assert proc.returncode == 0, proc.stderr
+    meta = json.loads(shot.with_suffix(".json").read_text())
+    bake, field = meta["bake"], meta["bake"]["field"]
+    assert bake["state"] == "ready" and bake["error"] is None, bake
+    assert field["subdivisions"] == 6 and field["epsilon"] == pytest.approx(1e-4), field
+    # The index (4 bytes per cell) and (k + 1)³ points of 8 bytes per brick.
+    assert field["bricks"] > 0
+    assert field["device_bytes"] == 4 * field["cells"] ** 3 + 8 * 7**3 * field["bricks"]
+    assert 0 < field["bake_seconds"] <= bake["job_seconds"]
+    frames = meta["frames"]
+    dragging = [f for f in frames if f["dragging"]]
+    assert len(dragging) == drag, dragging
+    for f in dragging:
+        assert (f["baked"], f["bake"], f["phase"]) == (True, "ready", "moving"), f
+        samples = (f["depth_resolution"], f["depth_resolution_importance"])
+        assert (f["resolution"], *samples) == (res, coarse, fine), f
+    # Before the drag, and after the release: exact frames (the still image never comes from the field).
+    before = frames[: frames.index(dragging[0])]
+    assert before and not any(f["baked"] for f in before)
+    after = frames[frames.index(dragging[-1]) + 1 :]
+    assert [(f["baked"], f["phase"], f["resolution"]) for f in after] == [(False, "final", res)], after
+    assert meta["quality"] == f"{res}² · {coarse}+{fine} (final)"
+
+
 def test_bad_inputs_exit_non_zero(tmp_path: Path) -> None:
     missing = run_view("--screenshot", str(tmp_path / "s.png"), str(tmp_path / "nope.npz"), timeout=120)
     assert missing.returncode != 0 and "nope.npz" in missing.stderr
@@ -173,8 +214,10 @@ def test_viewer_flags_are_parsed_in_one_place() -> None:
         "frame_budget_ms": 100.0,
         "frames": 2,
         "drag_frames": 0,
+        "bake": True,
     }
     assert lp3d_render.view_options(["-h"])["help"] is True
+    assert lp3d_render.view_options(["--no-bake", "h.npz"])["bake"] is False
     with pytest.raises(ValueError, match="unknown option --nope"):
         lp3d_render.view_options(["--nope"])
     shown = subprocess.run(

@@ -8,7 +8,7 @@ use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::convert::{float_arg, int_arg, Arg};
+use crate::convert::{bool_arg, float_arg, int_arg, Arg};
 use crate::device::guarded;
 use crate::error::invalid;
 
@@ -18,14 +18,16 @@ use crate::error::invalid;
 /// ``drag_frames``, a scripted drag; saves a PNG of the window, the render as ``*.render.png``
 /// and a JSON sidecar (the 3D view's pixel rectangle, every frame's render time and quality) and
 /// returns. While the camera moves, frames render at the quality predicted to fit
-/// ``frame_budget_ms``. Call from the main thread, once per process (a windowing limitation).
+/// ``frame_budget_ms``; with ``bake`` (the default), once the file's baked field is made (in the
+/// background), at the final quality from the field when that fits. Call from the main thread,
+/// once per process (a windowing limitation).
 #[pyfunction]
 #[pyo3(
     signature = (path=None, *, screenshot=None, yaw=Arg::Default(0.0), pitch=Arg::Default(0.0),
                  resolution=Arg::Default(128), depth_resolution=Arg::Default(48),
                  depth_resolution_importance=Arg::Default(48), frame_budget_ms=Arg::Default(100.0),
-                 frames=Arg::Default(3), drag_frames=Arg::Default(0)),
-    text_signature = "(path=None, *, screenshot=None, yaw=0.0, pitch=0.0, resolution=128, depth_resolution=48, depth_resolution_importance=48, frame_budget_ms=100.0, frames=3, drag_frames=0)"
+                 frames=Arg::Default(3), drag_frames=Arg::Default(0), bake=Arg::Default(true)),
+    text_signature = "(path=None, *, screenshot=None, yaw=0.0, pitch=0.0, resolution=128, depth_resolution=48, depth_resolution_importance=48, frame_budget_ms=100.0, frames=3, drag_frames=0, bake=True)"
 )]
 #[allow(clippy::too_many_arguments)]
 pub fn view<'py>(
@@ -40,6 +42,7 @@ pub fn view<'py>(
     frame_budget_ms: Arg<'py, f64>,
     frames: Arg<'py, i64>,
     drag_frames: Arg<'py, i64>,
+    bake: Arg<'py, bool>,
 ) -> PyResult<()> {
     let samples = MAX_SAMPLES as i64;
     let options = lp3d_viewer::ViewerOptions {
@@ -58,6 +61,7 @@ pub fn view<'py>(
         frame_budget_ms: float_arg(&frame_budget_ms, "frame_budget_ms")?,
         frames: int_arg(&frames, "frames", 1, 10_000)? as u32,
         drag_frames: int_arg(&drag_frames, "drag_frames", 0, 10_000)? as u32,
+        bake: bool_arg(&bake, "bake")?,
         help: false,
     };
     options.validate().map_err(|e| invalid("view", e))?;
@@ -84,5 +88,6 @@ pub fn view_options<'py>(py: Python<'py>, argv: Vec<String>) -> PyResult<Bound<'
     dict.set_item("frame_budget_ms", o.frame_budget_ms)?;
     dict.set_item("frames", o.frames)?;
     dict.set_item("drag_frames", o.drag_frames)?;
+    dict.set_item("bake", o.bake)?;
     Ok(dict)
 }

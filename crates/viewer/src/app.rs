@@ -5,9 +5,14 @@
 //! Rendering follows a quality ladder (`crate::quality`): while the camera or a setting changes
 //! (or a pointer button is held), each frame renders at the rung predicted to fit the frame
 //! budget; once nothing has changed for `SETTLE`, one rung per UI frame refines the image up to
-//! the chosen settings, where it stops: an unchanged view is never rendered again.
+//! the chosen settings, where it stops: an unchanged view is never rendered again. Once the file's
+//! baked field is ready (`crate::bake`, made in the background after the file opens), frames
+//! drawn while the view moves look samples up in it, at the most expensive rung it serves (the
+//! chosen quality first) that fits the budget; the settled image is always exact.
 
+mod baking;
 mod panel;
+mod record;
 mod scripted;
 
 use std::path::{Path, PathBuf};
@@ -18,10 +23,12 @@ use eframe::egui;
 use eframe::egui_wgpu;
 use lp3d_renderer::{Display, GpuContext, GpuTriplane, RenderSettings, Renderer, Triplane, DISPLAY_FORMAT};
 
+use crate::bake::{self, BakeJob, Draw};
 use crate::options::ViewerOptions;
 use crate::orbit::Orbit;
 use crate::quality::{FrameTimes, Ladder, Rung};
 use crate::screenshot::{json_number, json_string, save_screenshot, RenderImage, ViewRect};
+use record::{FrameRecord, Phase, Shown};
 
 /// How long the view must stay unchanged (with no pointer button held) before refining.
 const SETTLE: Duration = Duration::from_millis(200);
@@ -46,90 +53,15 @@ struct FrameKey {
     generation: u64,
 }
 
-/// The image on screen.
-#[derive(Debug, Clone, Copy)]
-struct Shown {
-    key: FrameKey,
-    rung: Rung,
-    /// Index in the key's ladder, and the ladder's top index.
-    index: usize,
-    top: usize,
-    render_ms: f64,
-    /// When it finished, and in which UI frame.
-    at: Instant,
-    ui_frame: u64,
-}
-
-impl Shown {
-    fn is_final(&self) -> bool {
-        self.index == self.top
-    }
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Phase {
-    /// Rendered within the frame budget while the view was changing.
-    Moving,
-    /// A step up the ladder after the view stopped.
-    Refining,
-    /// The chosen settings.
-    Final,
-}
-
-impl Phase {
-    fn name(self) -> &'static str {
-        match self {
-            Phase::Moving => "moving",
-            Phase::Refining => "refining",
-            Phase::Final => "final",
-        }
-    }
-}
-
-/// One rendered frame, for the screenshot's JSON report (and `bench/viewer_frames.py`).
-#[derive(Debug, Clone, Copy)]
-struct FrameRecord {
-    /// Milliseconds since the app started, at the end of the render.
-    t_ms: f64,
-    ui_frame: u64,
-    render_ms: f64,
-    /// Time since the previous UI frame began: what the user sees as the frame time.
-    interval_ms: f64,
-    rung: Rung,
-    index: usize,
-    rungs: usize,
-    phase: Phase,
-    /// A pointer button was down (a drag in progress).
-    dragging: bool,
-}
-
-impl FrameRecord {
-    fn json(&self) -> String {
-        format!(
-            "{{\"t_ms\": {}, \"ui_frame\": {}, \"render_ms\": {}, \"interval_ms\": {}, \"resolution\": {}, \
-             \"depth_resolution\": {}, \"depth_resolution_importance\": {}, \"rung\": {}, \"rungs\": {}, \
-             \"phase\": \"{}\", \"dragging\": {}}}",
-            json_number(self.t_ms),
-            self.ui_frame,
-            json_number(self.render_ms),
-            json_number(self.interval_ms),
-            self.rung.resolution,
-            self.rung.depth_resolution,
-            self.rung.depth_resolution_importance,
-            self.index,
-            self.rungs,
-            self.phase.name(),
-            self.dragging
-        )
-    }
-}
-
 struct Loaded {
     path: PathBuf,
-    gpu: GpuTriplane,
+    /// Shared with its bake's thread; the baked field lives on it (`GpuTriplane::baked`).
+    gpu: Arc<GpuTriplane>,
     summary: String,
     ray_range: (f32, f32),
     generation: u64,
+    /// The background bake of this file's field (None with `--no-bake`); dropping it stops it.
+    bake: Option<BakeJob>,
 }
 
 /// A display texture (an `Rgba8Unorm` storage texture registered with egui), one per rung size.
@@ -145,7 +77,8 @@ struct Target {
 #[derive(Debug, Clone, Copy)]
 struct DragScript {
     frames: u32,
-    /// 0: waiting for the first final image; 1..=frames: moving; frames + 1: released.
+    /// 0: waiting for the first final image (and the bake); 1..=frames: moving; frames + 1:
+    /// released.
     step: u32,
     start: egui::Pos2,
     delta: egui::Vec2,
@@ -155,8 +88,14 @@ struct DragScript {
 }
 
 pub struct ViewerApp {
-    renderer: Renderer,
+    /// Shared with the bake threads.
+    renderer: Arc<Renderer>,
     render_state: egui_wgpu::RenderState,
+    egui_ctx: egui::Context,
+    /// Bake each opened file's field in the background (not with `--no-bake`).
+    bake_enabled: bool,
+    /// A baked frame failed: draw exact frames only (until another file is opened).
+    baked_broken: bool,
     loaded: Option<Loaded>,
     generation: u64,
     orbit: Orbit,
@@ -167,6 +106,10 @@ pub struct ViewerApp {
     channel: u32,
     frame_budget_ms: f64,
     times: FrameTimes,
+    /// Render times of baked frames (apart: they are far cheaper than exact ones of a rung).
+    baked_times: FrameTimes,
+    /// The phase of the last rendered frame (a move starts when it was not `Moving`).
+    last_phase: Option<Phase>,
     targets: Vec<Target>,
     shown: Option<Shown>,
     /// The key whose render failed (not retried until something changes).
@@ -224,12 +167,15 @@ impl ViewerApp {
             render_state.queue.clone(),
             render_state.adapter.get_info(),
         );
-        let renderer = Renderer::new(&ctx).map_err(|e| e.to_string())?;
+        let renderer = Arc::new(Renderer::new(&ctx).map_err(|e| e.to_string())?);
         let orbit = Orbit::new(options.yaw, options.pitch);
         let now = Instant::now();
         let mut app = ViewerApp {
             renderer,
             render_state,
+            egui_ctx: cc.egui_ctx.clone(),
+            bake_enabled: options.bakes(),
+            baked_broken: false,
             loaded: None,
             generation: 0,
             orbit,
@@ -239,6 +185,8 @@ impl ViewerApp {
             channel: 3,
             frame_budget_ms: options.frame_budget_ms,
             times: FrameTimes::default(),
+            baked_times: FrameTimes::default(),
+            last_phase: None,
             targets: Vec::new(),
             shown: None,
             failed: None,
@@ -259,7 +207,7 @@ impl ViewerApp {
             outcome,
         };
         if let Some((path, tri)) = triplane {
-            app.install(path, &tri)?;
+            app.install(path, tri)?;
         }
         if let Some(path) = &options.screenshot {
             app.screenshot = Some(ScreenshotJob {
@@ -283,9 +231,9 @@ impl ViewerApp {
         Ok(app)
     }
 
-    fn install(&mut self, path: PathBuf, tri: &Triplane) -> Result<(), String> {
+    fn install(&mut self, path: PathBuf, tri: Triplane) -> Result<(), String> {
         // Name the file: the upload's checks (e.g. planes that overflow float32) only know the field.
-        let gpu = self.renderer.upload(tri).map_err(|e| format!("{}: {e}", path.display()))?;
+        let gpu = Arc::new(self.renderer.upload(&tri).map_err(|e| format!("{}: {e}", path.display()))?);
         self.generation += 1;
         let summary = format!(
             "{}×{} planes ({}), rays {:.2}–{:.2}{}",
@@ -297,13 +245,15 @@ impl ViewerApp {
             tri.source.as_deref().map(|s| format!("\n{s}")).unwrap_or_default()
         );
         self.path_input = path.display().to_string();
-        self.loaded = Some(Loaded {
-            path,
-            gpu,
-            summary,
-            ray_range: (tri.bounds.ray_start, tri.bounds.ray_end),
-            generation: self.generation,
-        });
+        let ray_range = (tri.bounds.ray_start, tri.bounds.ray_end);
+        // A file may bring its occupancy grid (uploaded with it): then the job needs no triplane.
+        let cpu = (!gpu.has_occupancy()).then_some(tri);
+        let bake = self.bake_enabled.then(|| self.start_bake(&gpu, cpu, ray_range));
+        // Replacing the old file drops its bake job, which stops it; its field goes with its
+        // GpuTriplane, so no frame of this file can use it.
+        self.loaded = Some(Loaded { path, gpu, summary, ray_range, generation: self.generation, bake });
+        self.baked_times = FrameTimes::default();
+        self.baked_broken = false;
         self.error = None;
         Ok(())
     }
@@ -311,7 +261,7 @@ impl ViewerApp {
     fn open(&mut self, path: &Path) {
         match Triplane::load(path) {
             Ok(tri) => {
-                if let Err(e) = self.install(path.to_path_buf(), &tri) {
+                if let Err(e) = self.install(path.to_path_buf(), tri) {
                     self.error = Some(e);
                 }
             }
@@ -387,16 +337,23 @@ impl ViewerApp {
         }
         let since_change = now.duration_since(self.last_change);
         self.moving = pointer_down || since_change < SETTLE;
+        if !self.moving {
+            self.rebake_if_needed();
+        }
         let ladder = Ladder::new(&self.settings);
         let shown = self.shown.filter(|s| s.key == key);
         let next = match shown {
-            None => Some(ladder.interactive(&self.times, self.frame_budget_ms)),
-            Some(s) if !self.moving && s.index < ladder.top() => Some(s.index + 1),
+            None if self.moving => Some(self.moving_frame(&key, &ladder)),
+            None => Some(Draw::Ladder(ladder.interactive(&self.times, self.frame_budget_ms))),
+            // A baked frame is about as good as the exact one of its rung: refine from the next rung.
+            Some(s) if !self.moving && (s.baked || s.index < ladder.top()) => {
+                Some(Draw::Ladder((s.index + 1).min(ladder.top())))
+            }
             Some(_) => None,
         };
         match next {
-            Some(index) if self.failed != Some(key) => {
-                self.render(ctx, key, &ladder, index, pointer_down);
+            Some(frame) if self.failed != Some(key) => {
+                self.render(ctx, key, &ladder, frame, pointer_down);
                 // Another UI frame: the panel shows this frame's numbers, refinement goes on.
                 ctx.request_repaint();
             }
@@ -405,9 +362,24 @@ impl ViewerApp {
         }
     }
 
-    fn render(&mut self, ctx: &egui::Context, key: FrameKey, ladder: &Ladder, index: usize, dragging: bool) {
+    /// How to draw `key` while the view moves: from the baked field at the largest rung it serves
+    /// that fits the budget (`bake::moving_frame`), else the exact ladder's interactive rung.
+    fn moving_frame(&self, key: &FrameKey, ladder: &Ladder) -> Draw {
+        let exact = ladder.interactive(&self.times, self.frame_budget_ms);
+        let fresh_move = self.last_phase != Some(Phase::Moving);
+        let serves =
+            |rung: &Rung| self.field_serves(&FrameKey { settings: rung.apply(&key.settings), ..*key });
+        bake::moving_frame(ladder, serves, &self.baked_times, fresh_move, self.frame_budget_ms, exact)
+    }
+
+    fn render(&mut self, ctx: &egui::Context, key: FrameKey, ladder: &Ladder, frame: Draw, dragging: bool) {
+        let (index, baked) = match frame {
+            Draw::Baked(i) => (i, true),
+            Draw::Ladder(i) => (i, false),
+        };
         let rung = ladder.rungs[index];
-        let settings = rung.apply(&key.settings);
+        let exact = rung.apply(&key.settings);
+        let settings = if baked { bake::baked_settings(&exact) } else { exact };
         let sizes: Vec<u32> = ladder.rungs.iter().map(|r| r.resolution).collect();
         let t = self.target_for(settings.resolution, &sizes);
         let Some(loaded) = self.loaded.as_ref() else { return };
@@ -425,16 +397,11 @@ impl ViewerApp {
         let render_ms = end.duration_since(start).as_secs_f64() * 1e3;
         match result {
             Ok(()) => {
-                self.times.record(rung, render_ms);
-                let shown = Shown {
-                    key,
-                    rung,
-                    index,
-                    top: ladder.top(),
-                    render_ms,
-                    at: end,
-                    ui_frame: ctx.cumulative_frame_nr(),
-                };
+                let times = if baked { &mut self.baked_times } else { &mut self.times };
+                times.record(rung, render_ms);
+                let top = ladder.top();
+                let ui_frame = ctx.cumulative_frame_nr();
+                let shown = Shown { key, rung, index, top, baked, render_ms, at: end, ui_frame };
                 let phase = if shown.is_final() {
                     Phase::Final
                 } else if self.moving {
@@ -443,12 +410,13 @@ impl ViewerApp {
                     Phase::Refining
                 };
                 self.shown = Some(shown);
+                self.last_phase = Some(phase);
                 self.failed = None;
                 self.render_error = None;
                 if self.log.len() < LOG_CAP {
                     self.log.push(FrameRecord {
                         t_ms: end.duration_since(self.started).as_secs_f64() * 1e3,
-                        ui_frame: shown.ui_frame,
+                        ui_frame,
                         render_ms,
                         interval_ms: self.interval_ms,
                         rung,
@@ -456,8 +424,16 @@ impl ViewerApp {
                         rungs: ladder.rungs.len(),
                         phase,
                         dragging,
+                        baked,
+                        bake: self.bake_state_name(),
                     });
                 }
+            }
+            // A baked frame that fails leaves exact frames (the next step draws one).
+            Err(e) if baked => {
+                self.shown = None;
+                self.baked_broken = true;
+                self.render_error = Some(format!("a baked frame failed, drawing exact frames only: {e}"));
             }
             Err(e) => {
                 self.shown = None;
@@ -488,5 +464,15 @@ impl eframe::App for ViewerApp {
         egui::Panel::left("controls").resizable(false).exact_size(260.0).show(ui, |ui| self.controls(ui));
         egui::CentralPanel::default().show(ui, |ui| self.view(ui));
         self.drive_screenshot(ui.ctx());
+    }
+}
+
+impl Drop for ViewerApp {
+    /// Stops the open file's bake and waits for its thread (at most one dispatch), so that no
+    /// GPU work outlives the window.
+    fn drop(&mut self) {
+        if let Some(job) = self.loaded.as_mut().and_then(|l| l.bake.take()) {
+            job.stop_and_wait();
+        }
     }
 }

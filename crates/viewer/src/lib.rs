@@ -3,6 +3,7 @@
 //! and the Python module can start it) plus a thin `main.rs`.
 
 mod app;
+mod bake;
 mod options;
 mod orbit;
 mod quality;
@@ -13,6 +14,7 @@ use std::sync::{Arc, Mutex};
 pub use options::{ViewerOptions, USAGE};
 pub use orbit::Orbit;
 
+use eframe::egui_wgpu::{WgpuSetup, WgpuSetupCreateNew};
 use lp3d_renderer::Triplane;
 
 /// Opens the viewer window and blocks until it is closed. In `--screenshot` mode, renders until
@@ -31,6 +33,7 @@ pub fn run(options: ViewerOptions) -> Result<(), String> {
             .with_title("lp3d-view")
             .with_inner_size([920.0, 700.0]),
         renderer: eframe::Renderer::Wgpu,
+        wgpu_options: eframe::WgpuConfiguration { wgpu_setup: device_setup(), ..Default::default() },
         ..Default::default()
     };
     let app_outcome = outcome.clone();
@@ -52,4 +55,17 @@ pub fn run(options: ViewerOptions) -> Result<(), String> {
         };
     }
     Ok(())
+}
+
+/// eframe's wgpu device, asking for what the adapter offers (as `GpuContext::headless` does), so
+/// that planes and baked fields may use buffers beyond WebGPU's default limits where the adapter
+/// allows them.
+fn device_setup() -> WgpuSetup {
+    let mut setup = WgpuSetupCreateNew::without_display_handle();
+    setup.device_descriptor = Arc::new(|adapter| wgpu::DeviceDescriptor {
+        label: Some("lp3d-view device"),
+        required_limits: adapter.limits(),
+        ..Default::default()
+    });
+    WgpuSetup::CreateNew(setup)
 }

@@ -26,11 +26,18 @@ options:
                       + depth_resolution_importance; C alone skips the importance pass) [48+48]
   --frame-budget-ms MS  while the camera moves, render at the quality predicted to take at most
                       MS per frame; when it stops, refine to the final quality [100]
+  --no-bake           do not bake: by default the file's baked field (decoded once into a grid)
+                      is made in the background after it opens, and once ready draws the frames
+                      while the camera moves at the final quality, when they fit the budget; the
+                      still image is always exact. A --screenshot run without --drag-frames does
+                      not bake (it shows no moving frame)
   --frames N          UI frames before a screenshot; it waits for the final quality too [3]
-  --drag-frames N     with --screenshot: once the final image is up, drag the view to orbit
+  --drag-frames N     with --screenshot: once the final image is up and the bake has ended
+                      (ready or failed), drag the view to orbit
                       (synthetic pointer events, a quarter of the view's width to the right and a
                       tenth down) over N UI frames, release, wait for the refined image, then
-                      save; the JSON sidecar records every frame's render time and quality [0]
+                      save; the JSON sidecar records every frame's render time and quality,
+                      whether it came from the baked field, and the bake [0]
   -h, --help          show this help";
 
 #[derive(Debug, Clone, PartialEq)]
@@ -45,6 +52,8 @@ pub struct ViewerOptions {
     pub frame_budget_ms: f64,
     pub frames: u32,
     pub drag_frames: u32,
+    /// Bake the file's field in the background for the moving frames (`--no-bake`: false).
+    pub bake: bool,
     pub help: bool,
 }
 
@@ -61,6 +70,7 @@ impl Default for ViewerOptions {
             frame_budget_ms: 100.0,
             frames: 3,
             drag_frames: 0,
+            bake: true,
             help: false,
         }
     }
@@ -86,6 +96,7 @@ impl ViewerOptions {
                 }
                 "--frames" => o.frames = integer(&value("--frames")?, "--frames")?,
                 "--drag-frames" => o.drag_frames = integer(&value("--drag-frames")?, "--drag-frames")?,
+                "--no-bake" => o.bake = false,
                 flag if flag.starts_with('-') => return Err(format!("unknown option {flag}")),
                 path => {
                     if o.path.is_some() {
@@ -146,6 +157,12 @@ impl ViewerOptions {
             check_screenshot_paths(input, shot)?;
         }
         Ok(())
+    }
+
+    /// Whether the viewer bakes each file's field: asked for, and some frame can use it (a
+    /// `--screenshot` run without a drag draws only the still, exact image).
+    pub fn bakes(&self) -> bool {
+        self.bake && (self.screenshot.is_none() || self.drag_frames > 0)
     }
 
     /// The final-quality render settings these options choose.
@@ -304,6 +321,12 @@ mod tests {
         assert!(parse(&["--drag-frames", "x"]).unwrap_err().contains("--drag-frames"));
         let o = parse(&["--drag-frames", "5", "--screenshot", "s.png", "t.npz"]).unwrap();
         assert_eq!(o.drag_frames, 5);
+        assert!(o.bake && o.bakes());
+        assert!(!parse(&["--no-bake", "--drag-frames", "5", "--screenshot", "s.png", "t.npz"])
+            .unwrap()
+            .bakes());
+        assert!(!parse(&["--screenshot", "s.png", "t.npz"]).unwrap().bakes(), "no moving frame to bake for");
+        assert!(parse(&["t.npz"]).unwrap().bakes());
     }
 
     #[test]

@@ -4,11 +4,14 @@
 use super::*;
 
 impl ViewerApp {
-    /// What is on screen, e.g. `64² · 12+12 (moving)` or `128² · 48+48 (final)`.
+    /// What is on screen, e.g. `64² · 12+12 (moving)`, `128² · 48+48 (moving, baked)` or
+    /// `128² · 48+48 (final)`.
     pub(super) fn quality_label(&self) -> String {
         match &self.shown {
             None => "nothing rendered yet".into(),
             Some(s) if s.is_final() => format!("{} (final)", s.rung.label()),
+            Some(s) if s.baked && self.moving => format!("{} (moving, baked)", s.rung.label()),
+            Some(s) if s.baked => format!("{} (baked, refining)", s.rung.label()),
             Some(s) if self.moving => format!("{} (moving)", s.rung.label()),
             Some(s) => format!("{} (refining, step {} of {})", s.rung.label(), s.index + 1, s.top + 1),
         }
@@ -103,6 +106,7 @@ impl ViewerApp {
         });
         ui.separator();
         ui.label(egui::RichText::new(format!("on screen: {}", self.quality_label())).strong());
+        ui.label(format!("from: {}", self.source_label()));
         match &self.shown {
             Some(s) => {
                 // Render time of the image on screen (GPU work included), and the rate it allows.
@@ -111,6 +115,10 @@ impl ViewerApp {
             None => {
                 ui.label("render –");
             }
+        }
+        if let Some((line, failed)) = self.bake_label() {
+            let text = egui::RichText::new(line);
+            ui.label(if failed { text.color(egui::Color32::from_rgb(255, 110, 110)) } else { text });
         }
         ui.label(egui::RichText::new("raw volume render (no super-resolution)").small());
         ui.label(egui::RichText::new(self.renderer_name()).small());

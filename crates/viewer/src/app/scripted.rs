@@ -3,6 +3,9 @@
 
 use super::*;
 
+/// How often a scripted drag waiting for the bake looks again (besides the bake's own repaints).
+const BAKE_WAIT_REPAINT: Duration = Duration::from_millis(250);
+
 impl ViewerApp {
     /// Reads the texture on screen back (for the screenshot's render image).
     pub(super) fn read_shown(&self) -> Result<RenderImage, String> {
@@ -65,7 +68,7 @@ impl ViewerApp {
     }
 
     /// The JSON members the screenshot's sidecar gets besides the view: settings, quality, the
-    /// frame log and the drag's summary.
+    /// bake, the frame log and the drag's summary.
     pub(super) fn report(&self, quality: &str) -> String {
         let s = &self.settings;
         let drag = match &self.drag {
@@ -81,21 +84,24 @@ impl ViewerApp {
         let frames: Vec<String> = self.log.iter().map(|r| format!("    {}", r.json())).collect();
         format!(
             "\"settings\": {{\"resolution\": {}, \"depth_resolution\": {}, \"depth_resolution_importance\": {}}},\n  \
-             \"quality\": {},\n  \"frame_budget_ms\": {},\n  \"adapter\": {},\n  \"drag\": {},\n  \"frames\": [\n{}\n  ]",
+             \"quality\": {},\n  \"frame_budget_ms\": {},\n  \"adapter\": {},\n  \"bake\": {},\n  \"drag\": {},\n  \"frames\": [\n{}\n  ]",
             s.resolution,
             s.depth_resolution,
             s.depth_resolution_importance,
             json_string(quality),
             json_number(self.frame_budget_ms),
             json_string(&self.renderer_name()),
+            self.bake_json(),
             drag,
             frames.join(",\n")
         )
     }
 
-    /// Advances the scripted drag (`--drag-frames`) by one UI frame.
+    /// Advances the scripted drag (`--drag-frames`) by one UI frame. It starts once the final
+    /// image is on screen and the file's bake has ended (ready or failed), so that the drag shows
+    /// what a user sees once the viewer is ready.
     pub(super) fn drive_drag(&mut self, raw: &mut egui::RawInput) {
-        let settled = self.settled_final();
+        let settled = self.settled_final() && !self.bake_running();
         let Some(rect) = self.view_rect else { return };
         let Some(d) = &mut self.drag else { return };
         let button = |pos, pressed| egui::Event::PointerButton {
@@ -148,7 +154,10 @@ impl ViewerApp {
                 return;
             };
             if !(ready && frame >= job.frames_before as u64) {
-                ctx.request_repaint();
+                // A drag waiting for the bake: its progress asks for repaints; drawing the window
+                // meanwhile would only take CPU from the bake.
+                let waiting = self.drag.is_some_and(|d| d.step == 0) && self.bake_running();
+                ctx.request_repaint_after(if waiting { BAKE_WAIT_REPAINT } else { Duration::ZERO });
                 return;
             }
             let ppp = ctx.pixels_per_point();

@@ -1,0 +1,92 @@
+//! What is on screen (`Shown`) and the log of rendered frames the screenshot's JSON report holds
+//! (`FrameRecord`, read by `tests/test_viewer.py` and `bench/viewer_frames.py`).
+
+use super::*;
+
+/// The image on screen.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Shown {
+    pub key: FrameKey,
+    pub rung: Rung,
+    /// Index in the key's ladder, and the ladder's top index (a baked frame is at the top's
+    /// resolution and samples).
+    pub index: usize,
+    pub top: usize,
+    /// Drawn from the baked field (`crate::bake`) instead of decoding every sample.
+    pub baked: bool,
+    pub render_ms: f64,
+    /// When it finished, and in which UI frame.
+    pub at: Instant,
+    pub ui_frame: u64,
+}
+
+impl Shown {
+    /// The chosen settings, exact: a baked frame at the same quality is not final.
+    pub fn is_final(&self) -> bool {
+        self.index == self.top && !self.baked
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Phase {
+    /// Rendered within the frame budget while the view was changing.
+    Moving,
+    /// A step up the ladder after the view stopped.
+    Refining,
+    /// The chosen settings.
+    Final,
+}
+
+impl Phase {
+    pub fn name(self) -> &'static str {
+        match self {
+            Phase::Moving => "moving",
+            Phase::Refining => "refining",
+            Phase::Final => "final",
+        }
+    }
+}
+
+/// One rendered frame, for the screenshot's JSON report (and `bench/viewer_frames.py`).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct FrameRecord {
+    /// Milliseconds since the app started, at the end of the render.
+    pub t_ms: f64,
+    pub ui_frame: u64,
+    pub render_ms: f64,
+    /// Time since the previous UI frame began: what the user sees as the frame time.
+    pub interval_ms: f64,
+    pub rung: Rung,
+    pub index: usize,
+    pub rungs: usize,
+    pub phase: Phase,
+    /// A pointer button was down (a drag in progress).
+    pub dragging: bool,
+    /// Drawn from the baked field.
+    pub baked: bool,
+    /// The file's bake when the frame was drawn (`BakeState::name`, or `off` / `none`).
+    pub bake: &'static str,
+}
+
+impl FrameRecord {
+    pub fn json(&self) -> String {
+        format!(
+            "{{\"t_ms\": {}, \"ui_frame\": {}, \"render_ms\": {}, \"interval_ms\": {}, \"resolution\": {}, \
+             \"depth_resolution\": {}, \"depth_resolution_importance\": {}, \"rung\": {}, \"rungs\": {}, \
+             \"phase\": \"{}\", \"dragging\": {}, \"baked\": {}, \"bake\": \"{}\"}}",
+            json_number(self.t_ms),
+            self.ui_frame,
+            json_number(self.render_ms),
+            json_number(self.interval_ms),
+            self.rung.resolution,
+            self.rung.depth_resolution,
+            self.rung.depth_resolution_importance,
+            self.index,
+            self.rungs,
+            self.phase.name(),
+            self.dragging,
+            self.baked,
+            self.bake
+        )
+    }
+}

@@ -1,0 +1,422 @@
+//! The baked field in the viewer (issue 23, `docs/baked.md`). After a file is opened, a background
+//! thread bakes its occupancy grid (CPU) and then its baked field (GPU, in dispatches of
+//! `BAKE_CHUNK` points, so the UI keeps drawing between them). Once the field is ready, frames
+//! drawn while the view moves look samples up in it at the chosen resolution and samples (or, when
+//! that does not fit the frame budget, a lower rung of the ladder with the same coarse samples),
+//! instead of decoding every sample at a much lower rung; the settled frame is always exact (it
+//! decodes every sample), the reference the baked field only approximates.
+//!
+//! The field lives with its `GpuTriplane` (`GpuTriplane::baked`), so a field can never serve
+//! another file's frames; opening another file drops this file's job, which stops its bake.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::Instant;
+
+use eframe::egui;
+use lp3d_renderer::occupancy::{Occupancy, DEFAULT_RESOLUTION};
+use lp3d_renderer::{
+    BakeSpec, Display, GpuBaked, GpuTriplane, Outputs, RenderSettings, Renderer, Skips, Triplane,
+};
+
+use crate::orbit::Orbit;
+use crate::quality::{FrameTimes, Ladder, Rung};
+
+/// Points per baked cell edge, k: `Skips::BAKED`'s (6). A lookup costs the same whatever k, and
+/// the field's error falls with the square of the sub-cell (`docs/baked.md`), so k = 6 draws a
+/// closer image than k = 4 at the same frame time, for ~60 MiB and a bake of seconds on a teacher
+/// head (bench/RESULTS.md, "Baked field"); k = 8 does not fit lavapipe's 128 MiB binding.
+pub const BAKE_SUBDIVISIONS: u32 = Skips::BAKED.baked_subdivisions;
+/// The occupancy skip's epsilon the field is baked for: `Skips::BAKED`'s (1e-4), invisible in an
+/// 8-bit image.
+pub const BAKE_EPSILON: f32 = Skips::BAKED.occupancy_epsilon;
+/// Transmittance and empty-ray thresholds of a baked frame, which also skips empty cells in the
+/// coarse pass: with the decoder gone, marching the samples is the cost. On the procedural
+/// teacher head at 128² · 48+48 (lavapipe, 2 cores) they took a baked frame from ~150 ms to ~85
+/// ms, and its PSNR against exact 192+192 moved by at most 0.03 dB (38.6 and 42.7 dB at two
+/// views): the field's own error is far larger.
+pub const BAKED_THRESHOLD: f32 = 1e-3;
+
+/// The settings of a frame drawn from the baked field: the chosen resolution and samples, with
+/// samples looked up instead of decoded.
+pub fn baked_settings(chosen: &RenderSettings) -> RenderSettings {
+    RenderSettings {
+        skips: Skips {
+            transmittance_threshold: BAKED_THRESHOLD,
+            empty_threshold: BAKED_THRESHOLD,
+            occupancy_epsilon: BAKE_EPSILON,
+            occupancy_coarse: true,
+            baked_subdivisions: BAKE_SUBDIVISIONS,
+        },
+        ..*chosen
+    }
+}
+
+/// What a field must cover for baked frames of `chosen` (`BakeSpec::covers`), for a scene whose
+/// rays run from `ray_start` to `ray_end`: also the spec the viewer bakes.
+pub fn spec_for(chosen: &RenderSettings, (ray_start, ray_end): (f32, f32)) -> BakeSpec {
+    let s = baked_settings(chosen);
+    BakeSpec {
+        subdivisions: BAKE_SUBDIVISIONS,
+        epsilon: BAKE_EPSILON,
+        max_delta: s.max_interval(ray_start, ray_end),
+    }
+}
+
+/// Whether a baked field can draw `display`: it holds density and RGB, so feature channels 3..31
+/// need exact mode.
+pub fn display_supported(display: Display) -> bool {
+    match display {
+        Display::Rgb | Display::Depth { .. } | Display::Weights => true,
+        Display::Channel(c) => c < 3,
+    }
+}
+
+/// How a frame is drawn: a rung of the quality ladder, exact or from the baked field.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Draw {
+    /// Looked up in the baked field, at this rung's resolution and samples.
+    Baked(usize),
+    /// Exact mode at this rung (the top rung: the chosen settings).
+    Ladder(usize),
+}
+
+/// The frame to draw while the view moves. From the baked field, the most expensive rung it serves
+/// (`serves`: ready, covering the rung's samples, and a display it can draw: in practice the rungs
+/// with the chosen coarse samples) whose predicted time (`baked_times`) fits `budget_ms`; a rung
+/// not measured yet (nor any baked frame) is tried. At the first frame of a move (`fresh_move`)
+/// the most expensive rung served is tried again when predicted within twice the budget, so that
+/// one slow frame (a load spike) does not rule it out for good. When no baked rung fits: the
+/// exact ladder's `exact_rung`, as without a field.
+pub fn moving_frame(
+    ladder: &Ladder,
+    serves: impl Fn(&Rung) -> bool,
+    baked_times: &FrameTimes,
+    fresh_move: bool,
+    budget_ms: f64,
+    exact_rung: usize,
+) -> Draw {
+    let served: Vec<usize> = (0..ladder.rungs.len()).rev().filter(|&i| serves(&ladder.rungs[i])).collect();
+    for (n, &i) in served.iter().enumerate() {
+        let limit = if fresh_move && n == 0 { 2.0 * budget_ms } else { budget_ms };
+        if baked_times.predict(&ladder.rungs[i]).is_none_or(|ms| ms <= limit) {
+            return Draw::Baked(i);
+        }
+    }
+    Draw::Ladder(exact_rung)
+}
+
+/// Where a bake is.
+#[derive(Debug, Clone, PartialEq)]
+pub enum BakeState {
+    /// Bounding the decoder's density over the occupancy grid's cells (CPU).
+    Occupancy,
+    /// Baking on the GPU: points done of all.
+    Baking {
+        done: usize,
+        total: usize,
+    },
+    /// The field is on the triplane (`GpuTriplane::baked`).
+    Ready,
+    Failed(String),
+}
+
+impl BakeState {
+    /// The name the screenshot's JSON report gives it.
+    pub fn name(&self) -> &'static str {
+        match self {
+            BakeState::Occupancy => "occupancy",
+            BakeState::Baking { .. } => "baking",
+            BakeState::Ready => "ready",
+            BakeState::Failed(_) => "failed",
+        }
+    }
+
+    pub fn running(&self) -> bool {
+        matches!(self, BakeState::Occupancy | BakeState::Baking { .. })
+    }
+
+    /// `baking… 43%`, for the panel (None when ready: the field's own label says it).
+    pub fn progress_label(&self) -> Option<String> {
+        match self {
+            BakeState::Occupancy => Some("baking… occupancy grid".into()),
+            BakeState::Baking { done, total } => {
+                Some(format!("baking… {:.0}%", 100.0 * *done as f64 / (*total).max(1) as f64))
+            }
+            BakeState::Ready => None,
+            BakeState::Failed(e) => Some(format!("bake failed (exact mode only): {e}")),
+        }
+    }
+}
+
+/// `baked field (k 6, 58 MiB, baked in 7.2 s)`.
+pub fn field_label(field: &GpuBaked) -> String {
+    format!(
+        "baked field (k {}, {:.0} MiB, baked in {:.1} s)",
+        field.spec.subdivisions,
+        field.device_bytes() as f64 / (1 << 20) as f64,
+        field.bake_seconds
+    )
+}
+
+/// A background bake of one file's field.
+pub struct BakeJob {
+    /// What it bakes.
+    pub spec: BakeSpec,
+    state: Arc<Mutex<BakeState>>,
+    cancel: Arc<AtomicBool>,
+    handle: Option<JoinHandle<()>>,
+    /// Seconds from the start of the job (the occupancy grid included) to the field being ready.
+    seconds: Arc<Mutex<Option<f64>>>,
+}
+
+impl BakeJob {
+    /// Starts baking `gpu`'s field for `spec` on a thread of its own. `cpu` is the triplane
+    /// `gpu` was uploaded from when its occupancy grid is still to be made; None when it has
+    /// one. Each step requests a repaint of `ctx`. Once the field is ready, one baked frame of
+    /// `warm` (settings `spec` covers) builds the baked render pipeline and touches the field off
+    /// the UI thread, so that the first baked frame on screen takes its usual time.
+    pub fn start(
+        renderer: Arc<Renderer>,
+        gpu: Arc<GpuTriplane>,
+        cpu: Option<Triplane>,
+        spec: BakeSpec,
+        warm: RenderSettings,
+        ctx: egui::Context,
+    ) -> BakeJob {
+        let state = Arc::new(Mutex::new(if cpu.is_some() {
+            BakeState::Occupancy
+        } else {
+            BakeState::Baking { done: 0, total: 1 }
+        }));
+        let cancel = Arc::new(AtomicBool::new(false));
+        let seconds = Arc::new(Mutex::new(None));
+        let (t_state, t_cancel, t_seconds) = (state.clone(), cancel.clone(), seconds.clone());
+        let handle = std::thread::Builder::new().name("lp3d-view bake".into()).spawn(move || {
+            let start = Instant::now();
+            let set = |s: BakeState| {
+                if let Ok(mut slot) = t_state.lock() {
+                    *slot = s;
+                }
+                ctx.request_repaint();
+            };
+            match bake(&renderer, &gpu, cpu, spec, &warm, &t_cancel, &set) {
+                Ok(()) => {
+                    if let Ok(mut s) = t_seconds.lock() {
+                        *s = Some(start.elapsed().as_secs_f64());
+                    }
+                    set(BakeState::Ready);
+                }
+                // Stopped: its file is no longer shown, nobody reads the state.
+                Err(_) if t_cancel.load(Ordering::Relaxed) => {}
+                Err(e) => set(BakeState::Failed(e)),
+            }
+        });
+        let (handle, state) = match handle {
+            Ok(h) => (Some(h), state),
+            Err(e) => {
+                let failed = BakeState::Failed(format!("could not start the bake thread: {e}"));
+                (None, Arc::new(Mutex::new(failed)))
+            }
+        };
+        BakeJob { spec, state, cancel, handle, seconds }
+    }
+
+    pub fn state(&self) -> BakeState {
+        self.state.lock().map(|s| s.clone()).unwrap_or_else(|_| BakeState::Failed("bake state lock".into()))
+    }
+
+    /// Seconds from the job's start to the field being ready (occupancy grid included).
+    pub fn seconds(&self) -> Option<f64> {
+        self.seconds.lock().ok().and_then(|s| *s)
+    }
+
+    /// Stops the bake and waits for its thread (at most one dispatch, or the occupancy grid).
+    pub fn stop_and_wait(mut self) {
+        self.cancel.store(true, Ordering::Relaxed);
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
+    }
+}
+
+impl Drop for BakeJob {
+    /// Stops the bake without waiting: its thread ends after the dispatch under way.
+    fn drop(&mut self) {
+        self.cancel.store(true, Ordering::Relaxed);
+    }
+}
+
+/// The job's work: the occupancy grid (when `cpu` is given), the field, a warm-up frame.
+fn bake(
+    renderer: &Renderer,
+    gpu: &GpuTriplane,
+    cpu: Option<Triplane>,
+    spec: BakeSpec,
+    warm: &RenderSettings,
+    cancel: &AtomicBool,
+    set: &dyn Fn(BakeState),
+) -> Result<(), String> {
+    if let Some(tri) = cpu {
+        let grid = Occupancy::bake(&tri, DEFAULT_RESOLUTION).map_err(|e| e.to_string())?;
+        drop(tri);
+        if cancel.load(Ordering::Relaxed) {
+            return Err("stopped".into());
+        }
+        renderer.set_occupancy(gpu, grid).map_err(|e| e.to_string())?;
+    }
+    set(BakeState::Baking { done: 0, total: 1 });
+    let mut progress = |done: usize, total: usize| {
+        set(BakeState::Baking { done, total });
+        !cancel.load(Ordering::Relaxed)
+    };
+    renderer.bake_with_progress(gpu, spec, &mut progress).map_err(|e| e.to_string())?;
+    let rgb = Outputs { features: false, rgb: true, depth: false, weights_sum: false };
+    renderer
+        .render(gpu, &[Orbit::new(0.0, 0.0).camera()], &baked_settings(warm), rgb)
+        .map_err(|e| format!("the first baked frame failed: {e}"))?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_moving_frame_is_the_largest_baked_rung_that_fits_else_the_exact_ladder() {
+        use Draw::{Baked, Ladder as Exact};
+        let chosen = RenderSettings { resolution: 128, depth_resolution: 48, ..Default::default() };
+        let ladder = Ladder::new(&chosen);
+        // 32² · 12+12, 64² · 12+12, 64² · 48+48, 128² · 48+48: a field baked for 48 coarse
+        // samples serves the last two.
+        let field = spec_for(&chosen, (2.25, 3.3));
+        let serves = |r: &Rung| field.covers(&spec_for(&r.apply(&chosen), (2.25, 3.3)));
+        let none = |_: &Rung| false;
+        let mut t = FrameTimes::default();
+        // No field (or one that does not cover the settings or the display): the exact ladder.
+        assert_eq!(moving_frame(&ladder, none, &t, true, 100.0, 1), Exact(1));
+        // A field: the top rung, tried before any measurement, kept while it fits.
+        assert_eq!(moving_frame(&ladder, serves, &t, false, 100.0, 1), Baked(3));
+        t.record(ladder.rungs[3], 60.0);
+        assert_eq!(moving_frame(&ladder, serves, &t, false, 100.0, 1), Baked(3));
+        // Over the budget (a moving average of 200 ms): the next rung the field serves, predicted
+        // at a quarter of the cost, 50 ms.
+        t.record(ladder.rungs[3], 340.0);
+        assert_eq!(moving_frame(&ladder, serves, &t, false, 100.0, 1), Baked(2));
+        // The first frame of a move tries the top again when within twice the budget.
+        assert_eq!(moving_frame(&ladder, serves, &t, true, 100.0, 1), Baked(3));
+        assert_eq!(moving_frame(&ladder, serves, &t, true, 90.0, 1), Baked(2));
+        // No baked rung fits: the exact ladder's rung.
+        assert_eq!(moving_frame(&ladder, serves, &t, false, 40.0, 0), Exact(0));
+        assert_eq!(moving_frame(&ladder, serves, &t, true, 40.0, 0), Exact(0));
+    }
+
+    #[test]
+    fn baked_frames_use_the_chosen_quality_and_a_field_that_covers_them() {
+        let chosen = RenderSettings { resolution: 128, depth_resolution: 48, ..Default::default() };
+        let s = baked_settings(&chosen);
+        assert_eq!((s.resolution, s.depth_resolution, s.depth_resolution_importance), (128, 48, 48));
+        assert_eq!(
+            (s.skips.baked_subdivisions, s.skips.occupancy_epsilon),
+            (BAKE_SUBDIVISIONS, BAKE_EPSILON)
+        );
+        s.validate().unwrap();
+        assert_eq!(chosen.skips, Skips::EXACT, "the chosen (final) settings stay exact");
+        let rays = (2.25, 3.3);
+        let spec = spec_for(&chosen, rays);
+        assert!(spec.covers(&spec_for(&chosen, rays)));
+        // More coarse samples: shorter intervals, covered; fewer: a new bake.
+        let more = RenderSettings { depth_resolution: 64, ..chosen };
+        let fewer = RenderSettings { depth_resolution: 24, ..chosen };
+        assert!(spec.covers(&spec_for(&more, rays)));
+        assert!(!spec.covers(&spec_for(&fewer, rays)));
+    }
+
+    #[test]
+    fn feature_channels_past_rgb_need_exact_mode() {
+        let shown = [
+            Display::Rgb,
+            Display::Weights,
+            Display::Depth { near: 2.0, far: 3.0 },
+            Display::Channel(0),
+            Display::Channel(2),
+        ];
+        assert!(shown.into_iter().all(display_supported));
+        assert!(!display_supported(Display::Channel(3)));
+        assert!(!display_supported(Display::Channel(31)));
+    }
+
+    /// A small triplane of pseudo-random planes and decoder, with an occupancy grid that says
+    /// every cell is occupied: every cell gets a brick, so its bake takes many dispatches.
+    fn noise_triplane() -> Triplane {
+        let mut state = 12345u32;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 17;
+            state ^= state << 5;
+            (state as f32 / u32::MAX as f32) * 2.0 - 1.0
+        };
+        let (h, w) = (16, 16);
+        let planes = (0..3 * 32 * h * w).map(|_| next()).collect();
+        let decoder = lp3d_renderer::Decoder {
+            w0: (0..64 * 32).map(|_| next() * 0.3).collect(),
+            b0: (0..64).map(|_| next() * 0.1).collect(),
+            w1: (0..33 * 64).map(|_| next() * 0.2).collect(),
+            b1: (0..33).map(|_| next() * 0.1).collect(),
+        };
+        let g = 32;
+        Triplane {
+            planes,
+            height: h,
+            width: w,
+            plane_dtype: lp3d_renderer::PlaneDtype::F32,
+            decoder,
+            bounds: lp3d_renderer::SceneBounds::default(),
+            camera: None,
+            occupancy: Some(Occupancy { resolution: g, bound: vec![100.0; g * g * g] }),
+            source: None,
+        }
+    }
+
+    #[test]
+    fn a_stopped_bake_leaves_no_field_on_its_triplane() {
+        let ctx = lp3d_renderer::GpuContext::headless().expect("a GPU adapter (lavapipe in CI)");
+        // The quick kernel only: no background compile of the fast one.
+        let renderer = Arc::new(Renderer::with_kernel(&ctx, lp3d_renderer::KernelChoice::Quick).unwrap());
+        let tri = noise_triplane();
+        let rays = (tri.bounds.ray_start, tri.bounds.ray_end);
+        let gpu = Arc::new(renderer.upload(&tri).unwrap());
+        assert!(gpu.has_occupancy(), "uploaded with its grid: the job needs no triplane");
+        let settings = RenderSettings { resolution: 8, depth_resolution: 48, ..Default::default() };
+        let spec = spec_for(&settings, rays);
+        let job = BakeJob::start(renderer, gpu.clone(), None, spec, settings, egui::Context::default());
+        // Stop it once its first dispatches are done (as opening another file does).
+        let start = Instant::now();
+        let (done, total) = loop {
+            match job.state() {
+                BakeState::Baking { done, total } if done > 0 => break (done, total),
+                BakeState::Failed(e) => panic!("the bake failed: {e}"),
+                s => assert!(start.elapsed().as_secs() < 120, "no progress: {s:?}"),
+            }
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        };
+        assert!(total >= 4 * lp3d_renderer::renderer::BAKE_CHUNK && done < total / 2, "{done} of {total}");
+        let state = job.state.clone();
+        job.stop_and_wait();
+        assert!(gpu.baked().is_none(), "a stopped bake must not leave a field");
+        assert!(state.lock().unwrap().running(), "not ready, not failed: stopped");
+    }
+
+    #[test]
+    fn progress_and_field_labels() {
+        assert_eq!(BakeState::Baking { done: 43, total: 100 }.progress_label().unwrap(), "baking… 43%");
+        assert_eq!(BakeState::Ready.progress_label(), None);
+        assert!(BakeState::Failed("out of memory".into())
+            .progress_label()
+            .unwrap()
+            .contains("out of memory"));
+        assert!(BakeState::Occupancy.running() && !BakeState::Ready.running());
+        assert_eq!(BakeState::Baking { done: 0, total: 0 }.name(), "baking");
+    }
+}
