@@ -71,6 +71,8 @@ def test_stub_signatures_match_runtime() -> None:
         "Triplane.save": _lp3d_render.Triplane.save,
         "view": _lp3d_render.view,
         "view_options": _lp3d_render.view_options,
+        "bake": _lp3d_render.bake,
+        "attach_baked": _lp3d_render.attach_baked,
     }
     assert set(stubs) == set(runtime)
     for name, obj in runtime.items():

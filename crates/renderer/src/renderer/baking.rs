@@ -45,10 +45,6 @@ fn check_saved_field(spec: &BakeSpec, cells: usize, index: &[u32], values: &[u16
     if let Some(i) = values.iter().position(|&h| (h >> 10) & 0x1f == 0x1f) {
         return Err(Error::invalid("values", format!("NaN or Inf at flat index {i}")));
     }
-    let bytes = (values.len() * 2) as u64;
-    if bytes > (1u64 << 31) {
-        return Err(Error::invalid("values", "larger than any device binding"));
-    }
     Ok(n_bricks)
 }
 
@@ -246,6 +242,18 @@ impl Renderer {
         values: &[u16],
     ) -> Result<Arc<GpuBaked>> {
         let n_bricks = check_saved_field(&spec, cells, &index, values)?;
+        let bytes = (index.len() * 4 + values.len() * 2) as u64;
+        let max_binding = self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size);
+        if bytes > max_binding {
+            return Err(Error::invalid(
+                "values",
+                format!(
+                    "the field ({} MiB) exceeds this device's buffer limit ({} MiB)",
+                    bytes >> 20,
+                    max_binding >> 20
+                ),
+            ));
+        }
         let words: Vec<u32> = values.chunks(2).map(|h| h[0] as u32 | (h[1] as u32) << 16).collect();
         let baked = Arc::new(GpuBaked {
             spec,
