@@ -110,12 +110,7 @@ pub fn bake<'py>(
     progress: Option<Bound<'py, PyAny>>,
 ) -> PyResult<BakedField> {
     guarded(|| {
-        let tri = triplane.cast::<Triplane>().map_err(|_| {
-            invalid(
-                "triplane",
-                format!("expected lp3d_render.Triplane, got {}", convert::type_name(triplane)),
-            )
-        })?;
+        let tri = Triplane::arg(triplane)?;
         let k = int_arg(&subdivisions, "subdivisions", 1, MAX_SUBDIVISIONS as i64)? as u32;
         let settings = RenderSettings {
             depth_resolution: int_arg(&depth_resolution, "depth_resolution", 4, MAX_SAMPLES as i64)? as u32,
@@ -182,12 +177,7 @@ pub fn attach_baked<'py>(
     max_delta: f64,
 ) -> PyResult<BakedField> {
     guarded(|| {
-        let tri = triplane.cast::<Triplane>().map_err(|_| {
-            invalid(
-                "triplane",
-                format!("expected lp3d_render.Triplane, got {}", convert::type_name(triplane)),
-            )
-        })?;
+        let tri = Triplane::arg(triplane)?;
         let index = index
             .cast::<numpy::PyArrayDyn<i64>>()
             .map_err(|_| invalid("index", "expected an int64 array (G, G, G)"))?;

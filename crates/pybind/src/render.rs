@@ -10,7 +10,7 @@ use lp3d_renderer::{Camera, Outputs, RenderOutput, RenderSettings, Skips};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::convert::{self, bool_arg, camera_array, f32_arg, f32_array, int_arg, names_arg, Arg};
+use crate::convert::{bool_arg, camera_array, f32_arg, f32_array, int_arg, names_arg, Arg};
 use crate::device::{gpu, guarded};
 use crate::error::{invalid, to_py};
 use crate::triplane::Triplane;
@@ -66,12 +66,7 @@ pub fn render<'py>(
     baked_subdivisions: Arg<'py, i64>,
 ) -> PyResult<Bound<'py, PyDict>> {
     guarded(|| {
-        let tri = triplane.cast::<Triplane>().map_err(|_| {
-            invalid(
-                "triplane",
-                format!("expected lp3d_render.Triplane, got {}", convert::type_name(triplane)),
-            )
-        })?;
+        let tri = Triplane::arg(triplane)?;
         let (labels, batched) = camera_array(camera)?;
         let cameras = Camera::batch_from_labels(&labels).map_err(to_py)?;
         let deterministic = bool_arg(&deterministic, "deterministic")?;

@@ -27,6 +27,16 @@ pub struct Triplane {
 }
 
 impl Triplane {
+    /// A function's `triplane` argument as a Triplane, or the ValueError naming what it got.
+    pub fn arg<'a, 'py>(obj: &'a Bound<'py, PyAny>) -> PyResult<&'a Bound<'py, Triplane>> {
+        obj.cast::<Triplane>().map_err(|_| {
+            invalid(
+                "triplane",
+                format!("expected lp3d_render.Triplane, got {}", crate::convert::type_name(obj)),
+            )
+        })
+    }
+
     fn wrap(inner: lp3d_renderer::Triplane) -> Self {
         Triplane { inner, uploaded: Mutex::new(None) }
     }
