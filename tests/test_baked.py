@@ -172,7 +172,14 @@ def test_a_saved_field_renders_as_the_baked_one_and_belongs_to_its_triplane(head
 
 
 def test_one_baked_setting_in_both_languages() -> None:
+    import re
+
     from lp3d.render.settings import BAKED
+
+    # The empty cells' raw density: the WGSL lookup's constant is the reference's.
+    source = lp3d_render.shader_sources()["baked.wgsl"]
+    (wgsl,) = re.findall(r"const BAKED_EMPTY_RAW: f32 = (-?[0-9.]+);", source)
+    assert float(wgsl) == EMPTY_RAW
 
     native = lp3d_render._lp3d_render
     assert BAKED.baked_subdivisions == native.BAKED_SUBDIVISIONS
