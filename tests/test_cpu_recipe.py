@@ -282,6 +282,37 @@ def test_total_steps_keeps_the_regression_share_of_the_schedule():
     assert "regression_steps" not in scaled_schedule(2400)  # the paper's configs have no such phase
 
 
+def test_a_ray_phase_may_start_only_among_steps_not_taken():
+    """``--ray-from S`` (``train(ray_from=S)``) starts the RGB loss on random rays at step S: on a
+    resumed run only at or after its checkpoint's step, only for the CPU recipe, never past the end."""
+    from lp3d.training.checkpoint import CheckpointError
+    from lp3d.training.distil import _with_overrides
+    from lp3d.training.resume import check_resumable, with_ray_phase
+
+    small = TRAIN_CONFIGS["small"]
+    assert small.regression_steps == small.total_steps  # small regresses for its whole schedule
+    ckpt = {"train_config": small, "teacher": "procedural", "path": "run/checkpoints/step-001400.pt"}
+    ckpt["step"] = small.total_steps
+    overrides = dict(batch=None, perceptual=None, checkpoint_every=None, dataset_identities=None)
+    longer = _with_overrides(small, ckpt, total_steps=2000, ray_from=1400, **overrides)
+    assert (longer.total_steps, longer.regression_steps) == (2000, 1400)
+    check_resumable(ckpt, longer, "procedural")
+    later = with_ray_phase(longer, 1600, 1400)
+    check_resumable(ckpt, later, "procedural")
+    with pytest.raises(ValueError, match="between the run's step 1400 and its last step 2000"):
+        _with_overrides(small, ckpt, total_steps=2000, ray_from=1000, **overrides)
+    with pytest.raises(ValueError, match="its last step 2000"):
+        with_ray_phase(longer, 2001)
+    with pytest.raises(CheckpointError, match="regression_steps"):  # a boundary in the past
+        check_resumable(ckpt, dataclasses.replace(longer, regression_steps=1000), "procedural")
+    with pytest.raises(ValueError, match="recipe, which has no ray phase"):
+        with_ray_phase(TRAIN_CONFIGS["small-paper"], 10)
+    with pytest.raises(ValueError, match="renders no rays"):
+        with_ray_phase(dataclasses.replace(small, ray_weight=0.0), 10)
+    fresh = _with_overrides(small, None, total_steps=None, ray_from=700, **overrides)
+    assert fresh.regression_steps == 700
+
+
 def test_a_resumed_run_may_lengthen_its_schedule_only():
     """``--resume RUN --total-steps N`` continues a finished run whose curve was still rising: the
     cosine is stretched to N, stage boundaries stay; shortening and any other change are refused."""

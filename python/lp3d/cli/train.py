@@ -54,6 +54,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="rescale the config's schedule (stage boundaries keep the paper's proportions) to this "
         "length; with --resume, lengthen the run's learning-rate schedule to it",
     )
+    p.add_argument(
+        "--ray-from",
+        type=int_in(0, MAX_STEPS),
+        help="CPU recipe: add the RGB loss on random rays from this step on (default: the config's; "
+        "with --resume, any step the run has not taken yet)",
+    )
     p.add_argument("--resume", default=None, help="checkpoint file or run directory to continue from")
     p.add_argument(
         "--perceptual",
@@ -135,6 +141,7 @@ def run(args: argparse.Namespace) -> int:
             eg3d_conditioning=args.eg3d_conditioning,
             batch=args.batch,
             total_steps=args.total_steps,
+            ray_from=args.ray_from,
             perceptual=args.perceptual,
             lpips_weights=args.lpips_weights,
             data_cache=args.data_cache,

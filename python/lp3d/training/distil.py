@@ -25,7 +25,7 @@ from lp3d.training import distributed
 from lp3d.training.checkpoint import CheckpointError, load_shared_checkpoint
 from lp3d.training.config import TRAIN_CONFIGS, TrainConfig, scaled_schedule
 from lp3d.training.losses import build_perceptual
-from lp3d.training.resume import extended_schedule
+from lp3d.training.resume import extended_schedule, with_ray_phase
 from lp3d.training.run_dir import latest_checkpoint
 from lp3d.training.teacher_factory import build_teacher, recordable_teacher_args, resolve_teacher_args
 from lp3d.training.trainer import Trainer
@@ -59,6 +59,7 @@ def train(
     eg3d_conditioning: str | None = None,
     batch: int | None = None,
     total_steps: int | None = None,
+    ray_from: int | None = None,
     perceptual: str | None = None,
     lpips_weights: str | None = None,
     data_cache: str | None = None,
@@ -89,6 +90,7 @@ def train(
             ckpt,
             batch=batch,
             total_steps=total_steps,
+            ray_from=ray_from,
             perceptual=perceptual,
             checkpoint_every=checkpoint_every,
             dataset_identities=dataset_identities,
@@ -166,6 +168,7 @@ def _with_overrides(
     *,
     batch: int | None,
     total_steps: int | None,
+    ray_from: int | None,
     perceptual: str | None,
     checkpoint_every: int | None,
     dataset_identities: int | None,
@@ -182,6 +185,8 @@ def _with_overrides(
         distributed.note(f"note: schedule extended to {total_steps} steps")
     elif total_steps is not None:
         cfg = dataclasses.replace(cfg, **scaled_schedule(total_steps, cfg))
+    if ray_from is not None:
+        cfg = with_ray_phase(cfg, ray_from, int(ckpt["step"]) if ckpt is not None else 0)
     if perceptual is not None:
         cfg = dataclasses.replace(cfg, perceptual=perceptual)
     if checkpoint_every is not None:
