@@ -68,9 +68,11 @@ the encoder instead:
   divided by its spread over identities (:func:`lp3d.training.losses.normalised_triplane_loss`); after them an
   RGB L1 on ``rays_per_identity`` random rays of a random multiview camera is added (teacher and
   student rendered on the same rays; :func:`lp3d.render.torch_twin.render_rays`). ``small`` and ``tiny``
-  regress for their whole schedule: with the procedural teacher's step-like decoder the ray loss
-  made things worse (the shipped run, steps 500-600 with rays: held-out PSNR 18.4 -> 18.1 dB and
-  identity specificity 3.8 -> 3.2 dB, L_tri 0.125 -> 0.143; ``python/lp3d/lift/models/README.md``).
+  regress for their whole schedule; ``--ray-from`` adds the ray phase to a run, also a resumed one.
+  With teacher v1's step-like decoder the ray loss made things worse (steps 500-600 with rays:
+  held-out PSNR 18.4 -> 18.1 dB, identity specificity 3.8 -> 3.2 dB). With v2's smooth decoder it
+  helps: the shipped ``small`` regressed for 3,000 steps and then trained 1,000 more with rays
+  (``python/lp3d/lift/models/README.md`` has the numbers).
 * **A plane basis.** The teacher's triplanes span its identities in about a hundred dimensions (the
   principal components of 512 heads and their mirrors leave 3 % of the held-out L1 at 128
   components), so the CPU encoders carry :class:`lp3d.nets.encoder.PlaneBasis`, started from those
