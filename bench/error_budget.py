@@ -15,7 +15,11 @@ evaluation (128², scored against the teacher at its native 256² planes) from:
 * ``student``: the shipped model (``python/lp3d/lift/models/small.pt``, torch backend);
 * ``mean head``: the encoder's mean triplane alone.
 
-and reports novel-view PSNR and the channel-normalised plane L1 (the CPU recipe's L_tri, channels
+With ``--by-part``, also ``student's <part>``: the ceiling's planes with one part's four channels (its
+shape channel and its three colour channels, :data:`lp3d.teachers.procedural_decoder.PARTS`) taken
+from the student: how many dB each part's error costs on its own.
+
+It reports novel-view PSNR and the channel-normalised plane L1 (the CPU recipe's L_tri, channels
 divided by their spread over these identities) for each, split by training and held-out identities.
 Equal numbers on the two splits say the student is not short of data but of fit.
 """
@@ -41,6 +45,7 @@ from lp3d.evaluation.protocol import (
     render_truth,
 )
 from lp3d.lift.inference import load_encoder
+from lp3d.teachers.procedural_decoder import N_PARTS, PARTS
 from lp3d.training import TRAIN_CONFIGS, SceneBounds, build_teacher
 
 METHODS = ("ceiling", "basis oracle", "ceiling + noise", "student", "mean head")
@@ -62,6 +67,18 @@ def project(target: torch.Tensor, offset: torch.Tensor, basis: torch.Tensor) -> 
     return offset + (basis.T @ coeffs).reshape(target.shape)
 
 
+def part_swaps(ceiling: torch.Tensor, student: torch.Tensor) -> dict[str, torch.Tensor]:
+    """``{"student's <part>": the ceiling's planes with that part's shape and colour channels taken
+    from the student}`` for every part of the procedural teacher's layout; all (1, 3, 32, T, T)."""
+    out = {}
+    for p, name in enumerate(PARTS):
+        channels = [p, N_PARTS + 3 * p, N_PARTS + 3 * p + 1, N_PARTS + 3 * p + 2]
+        planes = ceiling.clone()
+        planes[:, :, channels] = student[:, :, channels]
+        out[f"student's {name}"] = planes
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--n-identities", type=int, default=16, help="identities per split (default 16)")
@@ -74,6 +91,7 @@ def main(argv: list[str] | None = None) -> int:
         default=["training", "held-out"],
         help="which identities to score (default both; held-out alone takes half the time)",
     )
+    p.add_argument("--by-part", action="store_true", help="also swap in the student's planes part by part")
     args = p.parse_args(argv)
     if args.n_identities < 2:
         p.error("--n-identities must be >= 2 (the plane scales are spreads over identities)")
@@ -124,7 +142,8 @@ def main(argv: list[str] | None = None) -> int:
     err_rms = err_rms.reshape(stack.shape[2], -1).square().mean(dim=1).sqrt()
 
     # Pass 2: render every method's planes and score them.
-    scores: dict[str, dict[str, list[tuple[float, float]]]] = {s: {m: [] for m in METHODS} for s in splits}
+    methods = list(METHODS) + ([f"student's {name}" for name in PARTS] if args.by_part else [])
+    scores: dict[str, dict[str, list[tuple[float, float]]]] = {s: {m: [] for m in methods} for s in splits}
     for j, it in enumerate(items):
         ceiling = it["ceiling"]
         planes = {
@@ -133,6 +152,7 @@ def main(argv: list[str] | None = None) -> int:
             "ceiling + noise": ceiling + torch.randn_like(ceiling) * err_rms.reshape(1, 1, -1, 1, 1),
             "student": it["student"],
             "mean head": offset,
+            **(part_swaps(ceiling, it["student"]) if args.by_part else {}),
         }
         for m, pl in planes.items():
             high = render_truth(teacher, pl, dec, views, cfg, scene)["high"]
@@ -149,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     print("| planes | " + " | ".join(f"{s}: PSNR | {s}: L_tri" for s in splits) + " |")
     print("|---|" + "---|---|" * len(splits))
-    for m in METHODS:
+    for m in methods:
         cells = []
         for s in splits:
             ps, ls = zip(*scores[s][m], strict=True)
