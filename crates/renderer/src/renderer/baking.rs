@@ -135,18 +135,12 @@ impl Renderer {
         let per_brick = BrickLayout::points_per_brick(spec.subdivisions);
         let n_points = layout.brick_cells.len() * per_brick;
         let value_bytes = (n_points * POINT_BYTES + layout.index.len() * 4) as u64;
-        let max_binding = self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size);
-        if value_bytes > max_binding {
-            return Err(Error::invalid(
-                "baked_subdivisions",
-                format!(
-                    "the baked field ({} MiB) exceeds the device's buffer limit ({} MiB): use fewer \
-                     subdivisions or a larger occupancy_epsilon",
-                    value_bytes >> 20,
-                    max_binding >> 20
-                ),
-            ));
-        }
+        self.check_binding(
+            "baked_subdivisions",
+            "the baked field",
+            value_bytes,
+            ": use fewer subdivisions or a larger occupancy_epsilon",
+        )?;
 
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let oom = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
@@ -243,17 +237,7 @@ impl Renderer {
     ) -> Result<Arc<GpuBaked>> {
         let n_bricks = check_saved_field(&spec, cells, &index, values)?;
         let bytes = (index.len() * 4 + values.len() * 2) as u64;
-        let max_binding = self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size);
-        if bytes > max_binding {
-            return Err(Error::invalid(
-                "values",
-                format!(
-                    "the field ({} MiB) exceeds this device's buffer limit ({} MiB)",
-                    bytes >> 20,
-                    max_binding >> 20
-                ),
-            ));
-        }
+        self.check_binding("values", "the field", bytes, "")?;
         let words: Vec<u32> = values.chunks(2).map(|h| h[0] as u32 | (h[1] as u32) << 16).collect();
         let baked = Arc::new(GpuBaked {
             spec,

@@ -8,8 +8,7 @@ impl Renderer {
     /// How many cameras one dispatch renders: the batch is split so each dispatch's outputs
     /// (`fc` feature channels and `n_pix` pixels per camera) fit one storage binding.
     pub(super) fn cameras_per_dispatch(&self, fc: usize, n_pix: usize, n_cam: usize) -> Result<usize> {
-        let max_binding =
-            self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size) as usize;
+        let max_binding = self.max_binding_bytes() as usize;
         let per_cam = (fc.max(1) * n_pix * 4).max(1);
         if per_cam > max_binding {
             return Err(Error::invalid(

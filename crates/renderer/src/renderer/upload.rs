@@ -105,17 +105,7 @@ impl Renderer {
         };
         debug_assert_eq!(planes.len() % (N_CHANNELS / 2), 0);
         let bytes = (planes.len() * 4) as u64;
-        let max = self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size);
-        if bytes > max {
-            return Err(Error::invalid(
-                "planes",
-                format!(
-                    "{} MiB exceeds this device's storage buffer limit of {} MiB",
-                    bytes >> 20,
-                    max >> 20
-                ),
-            ));
-        }
+        self.check_binding("planes", "the triplane", bytes, "")?;
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let planes = self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("lp3d planes (3, H, W, 32)"),
