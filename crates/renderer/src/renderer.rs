@@ -444,28 +444,6 @@ impl Renderer {
     }
 
     /// Pops a validation scope and reports any error wgpu raised meanwhile.
-    /// The largest buffer one storage binding of this device can hold, in bytes.
-    fn max_binding_bytes(&self) -> u64 {
-        self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size)
-    }
-
-    /// An `InvalidInput` error naming `field` when `bytes` (of `what`) exceed one storage
-    /// binding; `hint` says what to change.
-    fn check_binding(&self, field: &str, what: &str, bytes: u64, hint: &str) -> Result<()> {
-        let max = self.max_binding_bytes();
-        if bytes <= max {
-            return Ok(());
-        }
-        Err(Error::invalid(
-            field,
-            format!(
-                "{what} ({} MiB) exceeds this device's storage buffer limit ({} MiB){hint}",
-                bytes >> 20,
-                max >> 20
-            ),
-        ))
-    }
-
     fn check(&self, scope: wgpu::ErrorScopeGuard, what: &str) -> Result<()> {
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(Error::Gpu(format!("{what} failed: {e}")));

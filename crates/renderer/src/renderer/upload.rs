@@ -84,6 +84,28 @@ pub fn check_decoder_range(tri: &Triplane) -> Result<()> {
 }
 
 impl Renderer {
+    /// The largest buffer one storage binding of this device can hold, in bytes.
+    pub(super) fn max_binding_bytes(&self) -> u64 {
+        self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size)
+    }
+
+    /// An `InvalidInput` error naming `field` when `bytes` (of `what`) exceed one storage
+    /// binding; `hint` says what to change.
+    pub(super) fn check_binding(&self, field: &str, what: &str, bytes: u64, hint: &str) -> Result<()> {
+        let max = self.max_binding_bytes();
+        if bytes <= max {
+            return Ok(());
+        }
+        Err(Error::invalid(
+            field,
+            format!(
+                "{what} ({} MiB) exceeds this device's storage buffer limit ({} MiB){hint}",
+                bytes >> 20,
+                max >> 20
+            ),
+        ))
+    }
+
     /// Uploads a validated triplane, with its occupancy grid if it has one. Float16 planes
     /// stay float16 on the device (packed pairs, unpacked to float32 in the kernel).
     pub fn upload(&self, tri: &Triplane) -> Result<GpuTriplane> {
