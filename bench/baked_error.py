@@ -6,8 +6,10 @@ interpolating them in another space helps.
 One teacher head, one novel view (yaw 25, pitch 5), 48+48 samples, PSNR against exact 192+192 (GPU).
 The float64 reference renderer (lp3d.render.reference.render_with) renders with samples evaluated
 five ways: decoded exactly; looked up in the field as stored (float64 values, no float16), which must
-match the GPU's baked render; density looked up and colour decoded, and the reverse; and the field
-interpolated in other spaces (density through asinh, colour as logits before the clamped sigmoid).
+match the GPU's baked render; density looked up and colour decoded, and the reverse; the field as
+lp3d-baked-field-v1 stored it (colour not premultiplied by the colour weight); and the field
+interpolated in other spaces (density through asinh, plain colour as logits before the clamped
+sigmoid).
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ import sys
 import numpy as np
 
 import lp3d_render
-from lp3d.render.baked import EMPTY_RAW, bake_reference, baked_lookup
+from lp3d.render.baked import EMPTY_RAW, bake_reference, baked_lookup, colour_weight, decode_brick_points
 from lp3d.render.camera import look_at_camera
 from lp3d.render.psnr import psnr_db
 from lp3d.render.reference import decode, render_with, sample_triplane
@@ -61,8 +63,14 @@ def main(argv: list[str] | None = None) -> int:
     def looked_up(points: np.ndarray, table: np.ndarray = values) -> tuple[np.ndarray, np.ndarray]:
         return baked_lookup(index, table, k, head.box_warp, points)
 
-    as_logits = values.copy()
-    as_logits[..., 1:] = logit(values[..., 1:])
+    def plain_lookup(points: np.ndarray, colour: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Trilinear colour, not premultiplied: the lookup of a field whose points all have the same
+        (high) density, so one colour weight, which the lookup divides out again."""
+        opaque = np.full_like(colour[..., :1], 1e4)
+        table = np.concatenate([opaque, colour * colour_weight(opaque)], axis=-1)
+        return looked_up(points)[0], baked_lookup(index, table, k, head.box_warp, points)[1]
+
+    plain = decode_brick_points(head, index, k)[1]  # the v1 field's colour
     as_asinh = values.copy()
     as_asinh[..., 0] = np.arcsinh(values[..., 0] / 10.0)
 
@@ -77,11 +85,13 @@ def main(argv: list[str] | None = None) -> int:
                 return looked_up(points)[0], decoded(points)[1]
             if name == "decoded density, field colour":
                 return decoded(points)[0], looked_up(points)[1]
-            if name == "field, colour as logits":
-                sigma, x = looked_up(points, as_logits)
+            if name == "field, plain colour (lp3d-baked-field-v1)":
+                return plain_lookup(points, plain)
+            if name == "field, plain colour as logits":
+                sigma, x = plain_lookup(points, logit(plain))
                 return sigma, np.where((sigma == EMPTY_RAW)[..., None], 0.0, from_logit(x))
-            sigma, rgb = looked_up(points, as_asinh)  # "field, density through asinh(raw / 10)"
-            return np.where(sigma == EMPTY_RAW, sigma, np.sinh(sigma) * 10.0), rgb
+            sigma = looked_up(points, as_asinh)[0]  # "field, density through asinh(raw / 10)"
+            return np.where(sigma == EMPTY_RAW, sigma, np.sinh(sigma) * 10.0), looked_up(points)[1]
 
         return evaluate
 
@@ -93,7 +103,8 @@ def main(argv: list[str] | None = None) -> int:
         "field",
         "field density, decoded colour",
         "decoded density, field colour",
-        "field, colour as logits",
+        "field, plain colour (lp3d-baked-field-v1)",
+        "field, plain colour as logits",
         "field, density through asinh(raw / 10)",
     ]
     settings = RenderSettings(resolution=r)

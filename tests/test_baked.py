@@ -12,7 +12,16 @@ import numpy as np
 import pytest
 
 import lp3d_render
-from lp3d.render.baked import EMPTY_RAW, bake_reference, baked_lookup, render_baked_reference
+from lp3d.render.baked import (
+    COLOUR_DELTA,
+    COLOUR_FLOOR,
+    EMPTY_RAW,
+    bake_reference,
+    baked_lookup,
+    colour_weight,
+    decode_brick_points,
+    render_baked_reference,
+)
 from lp3d.render.camera import look_at_camera
 from lp3d.render.settings import RenderSettings, Skips
 from lp3d.render.triplane import TriplaneData
@@ -70,12 +79,16 @@ def test_the_bricks_are_the_occupied_cells_and_their_reach(native, head, field) 
 
 
 def test_the_bake_is_the_decoder_rounded_to_float16(head, field) -> None:
-    """Every stored point is the float64 decoder's raw density and RGB at that point, within one
-    float16 rounding plus float32's decoder error (1e-4 on the raw density, a sum of 64 terms that
-    can cancel, as in the renderer's own tests; 1e-5 on RGB, after the sigmoid)."""
+    """Every stored point is the float64 decoder's raw density and premultiplied RGB at that point,
+    within one float16 rounding plus float32's decoder error (1e-4 on the raw density, a sum of 64
+    terms that can cancel, as in the renderer's own tests; 1e-5 on RGB, after the sigmoid)."""
     got = field.values
     assert got.dtype == np.float16 and got.shape == (field.bricks, K + 1, K + 1, K + 1, 4)
     want = bake_reference(head, field.index, K)
+    # The colour weight is the stored raw density's: where float32 rounded the raw density to the
+    # other neighbouring float16, the premultiplied RGB follows the GPU's (the raw is checked here too).
+    sigma_raw, rgb = decode_brick_points(head, field.index, K)
+    want[..., 1:] = rgb * colour_weight(got[..., 0])[..., None]
     err = np.abs(got.astype(np.float64) - want)
     half_ulp = np.abs(want) * 2.0**-11 + 2.0**-25  # relative; the subnormal step below 2^-14
     f32 = np.array([1e-4, 1e-5, 1e-5, 1e-5])
@@ -83,20 +96,46 @@ def test_the_bake_is_the_decoder_rounded_to_float16(head, field) -> None:
     assert np.any(want[..., 0] > 5.0) and np.any(want[..., 0] < -5.0)  # surfaces and empty space
 
 
-def test_a_baked_render_is_the_reference_lookup(head, native) -> None:
-    """The GPU's baked render against the float64 reference with the same field (its float16 values
-    read back): the same sampler, lookups and compositing, to 1e-4."""
+def _baked_and_reference(head, native, importance: int) -> tuple[dict, dict]:
+    """The GPU's baked render (three views) and the float64 reference with the same field (its float16
+    values read back), with ``importance`` samples after S coarse ones."""
     field = lp3d_render.bake(native, subdivisions=K, occupancy_epsilon=EPS, depth_resolution=S)
     cams = np.stack([look_at_camera(yaw_deg=y, pitch_deg=p) for y, p in [(0, 0), (35, -10), (-50, 20)]])
     baked = Skips(occupancy_epsilon=EPS, baked_subdivisions=K)
-    settings = RenderSettings(resolution=R, depth_resolution=S, depth_resolution_importance=N, skips=baked)
+    settings = RenderSettings(
+        resolution=R, depth_resolution=S, depth_resolution_importance=importance, skips=baked
+    )
     outputs = ["rgb", "depth", "weights_sum"]
     got = lp3d_render.render(native, cams, **settings.native_kwargs(), outputs=outputs)
     exact_settings = dataclasses.replace(settings, skips=Skips())
     want = render_baked_reference(head, field.index, field.values, K, cams, exact_settings)
+    assert float(want["weights_sum"].max()) > 0.9  # the head is in view
+    return got, want
+
+
+def test_a_baked_render_is_the_reference_lookup(head, native) -> None:
+    """Coarse samples only (at the same depths in both): the same lookups and compositing, to 1e-4."""
+    got, want = _baked_and_reference(head, native, importance=0)
     for name in ("rgb", "depth", "weights_sum"):
         np.testing.assert_allclose(got[name], want[name], atol=1e-4, rtol=0, err_msg=name)
-    assert float(want["weights_sum"].max()) > 0.9  # the head is in view
+
+
+def test_a_baked_render_with_the_importance_draw_is_the_reference(head, native) -> None:
+    """With the importance draw (from the baked densities): depth and opacity to 1e-4 everywhere, RGB
+    to 1e-4 on every ray whose draw float32 and float64 agree on (depths within 1e-5: all but a few
+    rays). On the others float32's rounding of the inverse CDF moves samples by up to ~7e-5; at a
+    surface the colour changes ~2 per unit depth, which the bound 1e-4 + 3 |depth error| allows for
+    (one ray of the 3,072 here: depth off by 5.3e-5, RGB by 1.0e-4; before the colour was
+    premultiplied, 8.2e-5)."""
+    got, want = _baked_and_reference(head, native, importance=N)
+    for name in ("depth", "weights_sum"):
+        np.testing.assert_allclose(got[name], want[name], atol=1e-4, rtol=0, err_msg=name)
+    depth_err = np.abs(got["depth"] - want["depth"])[:, None]
+    agree = depth_err <= 1e-5
+    assert agree.mean() > 0.99
+    rgb_err = np.abs(got["rgb"] - want["rgb"])
+    assert np.all(rgb_err[np.broadcast_to(agree, rgb_err.shape)] <= 1e-4), float(rgb_err.max())
+    assert np.all(rgb_err <= 1e-4 + 3.0 * depth_err), float(np.max(rgb_err - 3.0 * depth_err))
 
 
 def test_a_baked_render_is_close_to_exact_mode(native) -> None:
@@ -108,6 +147,26 @@ def test_a_baked_render_is_close_to_exact_mode(native) -> None:
     baked = lp3d_render.render(native, cam, **kw, occupancy_epsilon=EPS, baked_subdivisions=4)["rgb"]
     psnr = 10 * np.log10(4.0 / np.mean((exact - baked) ** 2))
     assert psnr > 30.0, psnr
+
+
+def test_a_transparent_corner_does_not_tint_an_opaque_one() -> None:
+    """The lookup un-premultiplies: halfway between an opaque red point and a transparent point of
+    any colour, the colour is red (to within the colour floor); between two opaque points, their
+    mean; where every corner is transparent, their mean too."""
+    k, index = 1, np.zeros((1, 1, 1), np.int64)
+    values = np.zeros((1, 2, 2, 2, 4))
+    values[0, 0, ..., 0], values[0, 1, ..., 0] = 500.0, -40.0  # opaque at x = -1, transparent at x = 1
+    red, green = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
+    values[0, 0, ..., 1:] = red * colour_weight(500.0)
+    values[0, 1, ..., 1:] = green * colour_weight(-40.0)
+    assert colour_weight(500.0) > 0.999 and colour_weight(-40.0) == COLOUR_FLOOR
+    sigma, rgb = baked_lookup(index, values, k, 2.0, np.zeros((1, 3)))
+    assert sigma[0] == pytest.approx(230.0) and np.allclose(rgb[0], red, atol=1.1 * COLOUR_FLOOR)
+    values[0, 1, ..., 0], values[0, 1, ..., 1:] = 500.0, green * colour_weight(500.0)
+    assert np.allclose(baked_lookup(index, values, k, 2.0, np.zeros((1, 3)))[1][0], [0.5, 0.5, 0.0])
+    values[..., 0] = -1e4  # every corner transparent: the plain mean
+    values[0, 0, ..., 1:], values[0, 1, ..., 1:] = red * COLOUR_FLOOR, green * COLOUR_FLOOR
+    assert np.allclose(baked_lookup(index, values, k, 2.0, np.zeros((1, 3)))[1][0], [0.5, 0.5, 0.0])
 
 
 def test_a_cell_without_a_brick_is_empty(field, head) -> None:
@@ -166,6 +225,10 @@ def test_a_saved_field_renders_as_the_baked_one_and_belongs_to_its_triplane(head
         np.savez(bad, **arrays)
         with pytest.raises(ValueError, match=words):
             load_baked(bad, second)
+    older = tmp_path / "v1.npz"
+    np.savez(older, **(good | {"format": np.array("lp3d-baked-field-v1")}))
+    with pytest.raises(ValueError, match="format: baked by an older lp3d"):
+        load_baked(older, second)
     (tmp_path / "junk.npz").write_bytes(b"not a zip")
     with pytest.raises(ValueError, match="not a baked-field .npz"):
         load_baked(tmp_path / "junk.npz", second)
@@ -180,6 +243,10 @@ def test_one_baked_setting_in_both_languages() -> None:
     source = lp3d_render.shader_sources()["baked.wgsl"]
     (wgsl,) = re.findall(r"const BAKED_EMPTY_RAW: f32 = (-?[0-9.]+);", source)
     assert float(wgsl) == EMPTY_RAW
+    (wgsl,) = re.findall(r"const BAKED_COLOUR_DELTA: f32 = ([0-9.]+);", source)
+    assert float(wgsl) == COLOUR_DELTA
+    (wgsl,) = re.findall(r"const BAKED_COLOUR_FLOOR: f32 = ([0-9.e-]+);", source)
+    assert float(wgsl) == COLOUR_FLOOR
 
     native = lp3d_render._lp3d_render
     assert BAKED.baked_subdivisions == native.BAKED_SUBDIVISIONS

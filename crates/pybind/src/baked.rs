@@ -64,7 +64,7 @@ impl BakedField {
             self.inner.index.iter().map(|&b| if b == EMPTY { -1 } else { b as i64 }).collect();
         Ok(PyArray1::from_vec(py, idx).reshape([self.inner.cells; 3])?.into_any())
     }
-    /// (bricks, k + 1, k + 1, k + 1, 4) float16: (sigma_raw, r, g, b) at each brick point, read
+    /// (bricks, k + 1, k + 1, k + 1, 4) float16: (sigma_raw, w r, w g, w b) at each brick point, read
     /// back from the GPU; point (a, b, c) of the brick of cell (ix, iy, iz) sits at plane
     /// coordinates -1 + 2 ((ix, iy, iz) k + (a, b, c)) / (G k).
     #[getter]

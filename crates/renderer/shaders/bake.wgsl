@@ -1,6 +1,6 @@
 // Stage: the bake (lp3d.render.baked.bake_reference; docs/baked.md): the bake_field entry point,
 // which decodes the triplane once at every point of every brick of the baked field.
-// needs: params, bake_cells, bake_out, sample_triplane, decode
+// needs: params, bake_cells, bake_out, sample_triplane, decode, halves_to_f32, baked_colour_weight
 // provides: f32_to_half, bake_field
 
 // float32 -> float16 bits, rounded to nearest even (numpy's float16 conversion); magnitudes
@@ -44,8 +44,10 @@ fn bake_field(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgr
     var feat = array<vec4<f32>, 8>();
     var rgb = array<vec4<f32>, 8>();
     sample_triplane(q * (0.5 * params.box_warp), &feat);
-    let sigma_raw = decode(3u, &feat, &rgb);
+    let sigma_raw = f32_to_half(decode(3u, &feat, &rgb));
+    // The weight of the raw density as stored, which is what the lookup recomputes it from.
+    let weight = baked_colour_weight(halves_to_f32(sigma_raw).x);
     let w = params.baked_values_offset + 2u * id;
-    bake_out[w] = f32_to_half(sigma_raw) | (f32_to_half(rgb[0].x) << 16u);
-    bake_out[w + 1u] = f32_to_half(rgb[0].y) | (f32_to_half(rgb[0].z) << 16u);
+    bake_out[w] = sigma_raw | (f32_to_half(rgb[0].x * weight) << 16u);
+    bake_out[w + 1u] = f32_to_half(rgb[0].y * weight) | (f32_to_half(rgb[0].z * weight) << 16u);
 }

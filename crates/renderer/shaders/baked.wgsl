@@ -2,9 +2,13 @@
 // triplane fetch and the decoder, the raw density and RGB at a point are interpolated
 // (trilinearly) from values the decoder produced once at the points of a finer grid, stored
 // only in the occupancy cells that may hold density (and their neighbours a sample interval
-// away): the decoder is skipped.
-// needs: params, baked, halves_to_f32, plane_coords
-// provides: BAKED, BAKED_EMPTY, BAKED_EMPTY_RAW, baked_point, baked_sample
+// away): the decoder is skipped. The RGB is stored premultiplied by each point's colour weight,
+// so that at a surface the corners in empty space (whose decoded colour is anything) do not
+// tint it.
+// needs: params, baked, halves_to_f32, plane_coords, softplus, DENSITY_SHIFT, one_minus_exp_neg
+// provides: BAKED, BAKED_EMPTY, BAKED_EMPTY_RAW, BAKED_COLOUR_DELTA, BAKED_COLOUR_FLOOR,
+// provides: baked_colour_weight,
+// provides: baked_point, baked_sample
 
 // true: render_rays looks samples up in the baked field (a pipeline of its own).
 override BAKED: bool = false;
@@ -15,8 +19,23 @@ const BAKED_EMPTY: u32 = 0xffffffffu;
 // cell, and its true raw density is below the occupancy threshold; softplus(-60 - 1) * delta
 // is ~1e-28.
 const BAKED_EMPTY_RAW: f32 = -60.0;
+// A point's colour weight is the opacity of an interval this long (world units; a 48-sample
+// step is ~0.022) at its density: bounded in [0, 1], so premultiplied RGB fits float16.
+const BAKED_COLOUR_DELTA: f32 = 0.02;
+// Every point's colour weight is at least this: where all eight corners are nearly transparent
+// the colour is their plain mean, not a ratio of float16 roundings; and next to a surface the
+// colour turns slowly enough within a sub-cell that float32's rounding of a sample's position
+// barely moves it (lp3d.render.baked.COLOUR_FLOOR says more).
+const BAKED_COLOUR_FLOOR: f32 = 0.03;
 
-// Point (a, b, c) of `brick`, each in 0..=k: (sigma_raw, r, g, b).
+// The colour weight of a point of raw density `sigma_raw` (the bake computes it from the raw
+// density rounded to float16, as the lookup reads it back).
+fn baked_colour_weight(sigma_raw: f32) -> f32 {
+    let opacity = one_minus_exp_neg(softplus(sigma_raw - DENSITY_SHIFT) * BAKED_COLOUR_DELTA);
+    return BAKED_COLOUR_FLOOR + opacity;
+}
+
+// Point (a, b, c) of `brick`, each in 0..=k: (sigma_raw, w r, w g, w b), w its colour weight.
 fn baked_point(brick: u32, a: u32, b: u32, c: u32, k1: u32) -> vec4<f32> {
     let w = params.baked_values_offset + 2u * (((brick * k1 + a) * k1 + b) * k1 + c);
     return vec4<f32>(halves_to_f32(baked[w]), halves_to_f32(baked[w + 1u]));
@@ -44,13 +63,17 @@ fn baked_sample(pos: vec3<f32>, dst: ptr<function, array<vec4<f32>, 8>>) -> f32 
     let i0 = vec3<u32>(i0_f);
     let k1 = k + 1u;
     var acc = vec4<f32>(0.0);
+    var weight = 0.0;
     // The 8 corners as one loop (corner c: + (c & 1, c >> 1 & 1, c >> 2)), not eight copies:
     // lavapipe inlines every call.
     for (var c = 0u; c < 8u; c++) {
         let d = vec3<u32>(c & 1u, (c >> 1u) & 1u, c >> 2u);
         let w3 = select(1.0 - f, f, d == vec3<u32>(1u));
-        acc += (w3.x * w3.y * w3.z) * baked_point(brick, i0.x + d.x, i0.y + d.y, i0.z + d.z, k1);
+        let t = w3.x * w3.y * w3.z;
+        let point = baked_point(brick, i0.x + d.x, i0.y + d.y, i0.z + d.z, k1);
+        acc += t * point;
+        weight += t * baked_colour_weight(point.x);
     }
-    (*dst)[0] = vec4<f32>(acc.yzw, 0.0);
+    (*dst)[0] = vec4<f32>(acc.yzw / weight, 0.0); // un-premultiplied
     return acc.x;
 }

@@ -9,7 +9,9 @@
 //! and larger cells repeat fewer. A cell gets a *brick*, its (k + 1)³ corner points, when the
 //! occupancy skip could decode a sample in it: when it is occupied at the skip's threshold, or
 //! within one sample interval of an occupied cell (a sample next to an occupied one is decoded
-//! too). Elsewhere the field is empty, as the skip takes it. Each point is (sigma_raw, r, g, b) as float16: 8 bytes.
+//! too). Elsewhere the field is empty, as the skip takes it. Each point is (sigma_raw, w r, w g,
+//! w b) as float16, 8 bytes: the RGB premultiplied by the point's colour weight w
+//! (`baked_colour_weight` in `baked.wgsl`), so that corners in empty space do not tint a surface.
 //! Point (a, b, c) of brick n is value `((n (k+1) + a)(k+1) + b)(k+1) + c`; its plane
 //! coordinates are `-1 + 2 (cell k + (a, b, c)) / (G k)`.
 
