@@ -13,8 +13,8 @@ import pytest
 
 import lp3d_render
 from lp3d.render.baked import (
-    COLOUR_DELTA,
     COLOUR_FLOOR,
+    COLOUR_RAMP,
     EMPTY_RAW,
     bake_reference,
     baked_lookup,
@@ -243,8 +243,8 @@ def test_one_baked_setting_in_both_languages() -> None:
     source = lp3d_render.shader_sources()["baked.wgsl"]
     (wgsl,) = re.findall(r"const BAKED_EMPTY_RAW: f32 = (-?[0-9.]+);", source)
     assert float(wgsl) == EMPTY_RAW
-    (wgsl,) = re.findall(r"const BAKED_COLOUR_DELTA: f32 = ([0-9.]+);", source)
-    assert float(wgsl) == COLOUR_DELTA
+    (wgsl,) = re.findall(r"const BAKED_COLOUR_RAMP: f32 = ([0-9.]+);", source)
+    assert float(wgsl) == COLOUR_RAMP
     (wgsl,) = re.findall(r"const BAKED_COLOUR_FLOOR: f32 = ([0-9.e-]+);", source)
     assert float(wgsl) == COLOUR_FLOOR
 

@@ -5,10 +5,9 @@
 // away): the decoder is skipped. The RGB is stored premultiplied by each point's colour weight,
 // so that at a surface the corners in empty space (whose decoded colour is anything) do not
 // tint it.
-// needs: params, baked, halves_to_f32, plane_coords, softplus, DENSITY_SHIFT, one_minus_exp_neg
-// provides: BAKED, BAKED_EMPTY, BAKED_EMPTY_RAW, BAKED_COLOUR_DELTA, BAKED_COLOUR_FLOOR,
-// provides: baked_colour_weight,
-// provides: baked_point, baked_sample
+// needs: params, baked, halves_to_f32, plane_coords
+// provides: BAKED, BAKED_EMPTY, BAKED_EMPTY_RAW, BAKED_COLOUR_FLOOR, BAKED_COLOUR_RAMP,
+// provides: baked_colour_weight, baked_point, baked_sample
 
 // true: render_rays looks samples up in the baked field (a pipeline of its own).
 override BAKED: bool = false;
@@ -19,20 +18,18 @@ const BAKED_EMPTY: u32 = 0xffffffffu;
 // cell, and its true raw density is below the occupancy threshold; softplus(-60 - 1) * delta
 // is ~1e-28.
 const BAKED_EMPTY_RAW: f32 = -60.0;
-// A point's colour weight is the opacity of an interval this long (world units; a 48-sample
-// step is ~0.022) at its density: bounded in [0, 1], so premultiplied RGB fits float16.
-const BAKED_COLOUR_DELTA: f32 = 0.02;
 // Every point's colour weight is at least this: where all eight corners are nearly transparent
 // the colour is their plain mean, not a ratio of float16 roundings; and next to a surface the
 // colour turns slowly enough within a sub-cell that float32's rounding of a sample's position
 // barely moves it (lp3d.render.baked.COLOUR_FLOOR says more).
 const BAKED_COLOUR_FLOOR: f32 = 0.03;
+// Above the floor the weight climbs linearly with the raw density, from 0 to 1 at this one (a
+// ramp, not the opacity: no exp or log for each of a sample's eight corners).
+const BAKED_COLOUR_RAMP: f32 = 50.0;
 
-// The colour weight of a point of raw density `sigma_raw` (the bake computes it from the raw
-// density rounded to float16, as the lookup reads it back).
+// The colour weight of a point of raw density `sigma_raw`.
 fn baked_colour_weight(sigma_raw: f32) -> f32 {
-    let opacity = one_minus_exp_neg(softplus(sigma_raw - DENSITY_SHIFT) * BAKED_COLOUR_DELTA);
-    return BAKED_COLOUR_FLOOR + opacity;
+    return BAKED_COLOUR_FLOOR + clamp(sigma_raw / BAKED_COLOUR_RAMP, 0.0, 1.0);
 }
 
 // Point (a, b, c) of `brick`, each in 0..=k: (sigma_raw, w r, w g, w b), w its colour weight.

@@ -77,7 +77,7 @@ pub const DEPTH_BOUNDS_PASS: EntryPoint =
     EntryPoint { name: "depth_bounds_pass", stages: &[PARAMS, SAMPLING, DEPTH_BOUNDS] };
 pub const PRESENT_PASS: EntryPoint = EntryPoint { name: "present", stages: &[PARAMS, PRESENT] };
 pub const BAKE_FIELD: EntryPoint =
-    EntryPoint { name: "bake_field", stages: &[PARAMS, TRIPLANE, DECODER, MARCH, BAKED, BAKE] };
+    EntryPoint { name: "bake_field", stages: &[PARAMS, TRIPLANE, DECODER, BAKED, BAKE] };
 
 /// Every entry point of the renderer.
 pub const ENTRY_POINTS: [EntryPoint; 4] = [RENDER_RAYS, DEPTH_BOUNDS_PASS, PRESENT_PASS, BAKE_FIELD];
