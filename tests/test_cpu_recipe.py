@@ -313,6 +313,21 @@ def test_a_ray_phase_may_start_only_among_steps_not_taken():
     assert fresh.regression_steps == 700
 
 
+def test_an_interrupted_extended_run_resumes_with_the_same_total_steps():
+    """``--resume RUN --total-steps N`` where the checkpoint's schedule already has N steps (a run
+    extended to N, then stopped): the schedule stays the checkpoint's, not a fresh run's scaled to N."""
+    from lp3d.training.distil import _with_overrides
+    from lp3d.training.resume import check_resumable, extended_schedule
+
+    extended = extended_schedule(TRAIN_CONFIGS["small"], 5000)
+    ckpt = {"train_config": extended, "teacher": "procedural", "path": "run/checkpoints/step-004400.pt"}
+    ckpt["step"] = 4400
+    overrides = dict(batch=None, perceptual=None, checkpoint_every=None, dataset_identities=None)
+    again = _with_overrides(extended, ckpt, total_steps=5000, ray_from=None, **overrides)
+    assert again == extended
+    check_resumable(ckpt, again, "procedural")
+
+
 def test_a_resumed_run_may_lengthen_its_schedule_only():
     """``--resume RUN --total-steps N`` continues a finished run whose curve was still rising: the
     cosine is stretched to N, stage boundaries stay; shortening and any other change are refused."""

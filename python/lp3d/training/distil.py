@@ -180,9 +180,12 @@ def _with_overrides(
         cfg = dataclasses.replace(cfg, batch_size=batch)
     if total_steps is not None and total_steps < 1:
         raise ValueError(f"--total-steps must be >= 1, got {total_steps}")
-    if total_steps is not None and ckpt is not None and total_steps != cfg.total_steps:
-        cfg = extended_schedule(cfg, total_steps)
-        distributed.note(f"note: schedule extended to {total_steps} steps")
+    if total_steps is not None and ckpt is not None:
+        # A resumed run's schedule is the checkpoint's, lengthened if asked; the same length again
+        # (an interrupted extended run) is no change, not a fresh run's scaled schedule.
+        if total_steps != cfg.total_steps:
+            cfg = extended_schedule(cfg, total_steps)
+            distributed.note(f"note: schedule extended to {total_steps} steps")
     elif total_steps is not None:
         cfg = dataclasses.replace(cfg, **scaled_schedule(total_steps, cfg))
     if ray_from is not None:
