@@ -11,8 +11,9 @@ coordinates ``-1 + 2 ((ix, iy, iz) k + (a, b, c)) / (G k)``. A point in a cell w
 density :data:`EMPTY_RAW` and RGB 0.
 
 Why premultiplied: at a surface, half of a sample's corners may lie in empty space, where the
-decoder's colour is anything; weighting each corner's colour by its opacity keeps it out of the
-surface's colour (+2 dB against exact 192+192 on a teacher head at k = 6, ``bench/baked_error.py``).
+decoder's colour is anything; weighting each corner's colour by a weight that grows with its density
+keeps it out of the surface's colour (+2.3 dB against exact 192+192 on a teacher head at k = 6,
+``bench/baked_error.py``).
 """
 
 from __future__ import annotations
@@ -37,8 +38,8 @@ EMPTY_RAW = -60.0
 #: how fast the colour turns within a sub-cell next to a surface: EG3D's compositing gives an interval
 #: the mean colour of its two samples, so a transparent sample beside an opaque one is seen, and its
 #: colour must not hang on float32's rounding of its position (with 1e-3, one ray of the tests moved
-#: by 3e-4). Against exact mode on a teacher head at k 6: 0.01 and 0.03 cost at most 0.04 dB, 0.1
-#: costs 0.3 dB.
+#: by 3e-4). Against exact mode on a teacher head at k 6 (with the opacity as the weight): 0.01 and
+#: 0.03 cost at most 0.04 dB, 0.1 costs 0.3 dB.
 COLOUR_FLOOR = 0.03
 #: Above the floor the weight climbs linearly with the raw density, from 0 to 1 at this raw density
 #: (``BAKED_COLOUR_RAMP``; about 0.6 opacity over a 48-sample step). A ramp rather than the opacity
