@@ -5,7 +5,7 @@ interpolating them in another space helps.
 
 One teacher head, one novel view (yaw 25, pitch 5), 48+48 samples, PSNR against exact 192+192 (GPU).
 The float64 reference renderer (lp3d.render.reference.render_with) renders with samples evaluated
-five ways: decoded exactly; looked up in the field as stored (float64 values, no float16), which must
+seven ways: decoded exactly; looked up in the field as stored (float64 values, no float16), which must
 match the GPU's baked render; density looked up and colour decoded, and the reverse; the field as
 lp3d-baked-field-v1 stored it (colour not premultiplied by the colour weight); and the field
 interpolated in other spaces (density through asinh, plain colour as logits before the clamped
