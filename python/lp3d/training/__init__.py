@@ -71,7 +71,7 @@ the encoder instead:
   regress for their whole schedule; ``--ray-from`` adds the ray phase to a run, also a resumed one.
   With teacher v1's step-like decoder the ray loss made things worse (steps 500-600 with rays:
   held-out PSNR 18.4 -> 18.1 dB, identity specificity 3.8 -> 3.2 dB). With v2's smooth decoder it
-  helps: the shipped ``small`` regressed for 3,000 steps and then trained 1,000 more with rays
+  helps: the shipped ``small`` regressed for 3,000 steps and then trained 2,000 more with rays
   (``python/lp3d/lift/models/README.md`` has the numbers).
 * **A plane basis.** The teacher's triplanes span its identities in about a hundred dimensions (the
   principal components of 512 heads and their mirrors leave 3 % of the held-out L1 at 128
