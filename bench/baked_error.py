@@ -163,8 +163,10 @@ def guided_render(
     w = march(t, sigma, rgb).weights
     transmittance = np.concatenate([np.ones_like(w[:, :1]), 1.0 - np.cumsum(w, axis=-1)], axis=-1)
     dense = sigma > raw_above
-    dense = dense | np.roll(dense, 1, axis=-1) | np.roll(dense, -1, axis=-1)
-    significant = dense & (transmittance > t_above)
+    near = dense.copy()  # the sample or a neighbour along its ray (no wrap-around at the ends)
+    near[:, 1:] |= dense[:, :-1]
+    near[:, :-1] |= dense[:, 1:]
+    significant = near & (transmittance > t_above)
     exact_sigma, exact_rgb = decoded(points(t)[significant][:, None, :])
     sigma[significant], rgb[significant] = exact_sigma[:, 0], exact_rgb[:, 0]
     out = march(t, sigma, rgb).features.reshape(r, r, 3).transpose(2, 0, 1)

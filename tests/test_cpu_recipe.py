@@ -320,8 +320,7 @@ def test_an_interrupted_extended_run_resumes_with_the_same_total_steps():
     from lp3d.training.resume import check_resumable, extended_schedule
 
     extended = extended_schedule(TRAIN_CONFIGS["small"], 5000)
-    ckpt = {"train_config": extended, "teacher": "procedural", "path": "run/checkpoints/step-004400.pt"}
-    ckpt["step"] = 4400
+    ckpt = {"train_config": extended, "teacher": "procedural", "step": 4400, "path": "run/ckpt.pt"}
     overrides = dict(batch=None, perceptual=None, checkpoint_every=None, dataset_identities=None)
     again = _with_overrides(extended, ckpt, total_steps=5000, ray_from=None, **overrides)
     assert again == extended

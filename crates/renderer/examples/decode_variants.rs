@@ -283,6 +283,8 @@ fn main() {
         variants.push(("projected f32", "projected", n_feat, false));
         variants.push(("projected f16", "projected", n_feat, true));
     }
+    let bench =
+        Bench { ctx: &ctx, out: &out_buf, read: &read_buf, bytes: out_bytes, groups: (n / 64) as u32 };
     let mut pipelines = Vec::new();
     for &(name, entry, n_feat, half) in &variants {
         let t = Instant::now();
@@ -314,14 +316,10 @@ fn main() {
             layout: &layout,
             entries: &entries,
         });
-        let bench =
-            Bench { ctx: &ctx, out: &out_buf, read: &read_buf, bytes: out_bytes, groups: (n / 64) as u32 };
         let (_, values) = bench.dispatch(&pipeline, &group, true); // compiles, and the outputs to compare
         eprintln!("{name} ({n_feat} features): first dispatch {:.1} s", t.elapsed().as_secs_f64());
         pipelines.push((pipeline, group, values.expect("outputs")));
     }
-    let bench =
-        Bench { ctx: &ctx, out: &out_buf, read: &read_buf, bytes: out_bytes, groups: (n / 64) as u32 };
 
     let mut times: Vec<Vec<f64>> = vec![Vec::new(); variants.len()];
     for _ in 0..repeats {
@@ -336,7 +334,7 @@ fn main() {
     println!("| variant | features | CPU ms per dispatch (median) | vs exact | max |Δ sigma_raw| | max |Δ features| |");
     println!("|---|---|---|---|---|---|");
     for (k, &(name, _, n_feat, _)) in variants.iter().enumerate() {
-        let base = if n_feat == 3.0 { 0 } else { 4 };
+        let base = k - k % 4; // the `exact` variant of the same feature count
         let med = median(&mut times[k]);
         let base_med = median(&mut times[base].clone());
         let (ds, df) = max_diff(&pipelines[k].2, &pipelines[base].2, n_feat as usize);
@@ -344,7 +342,8 @@ fn main() {
     }
 }
 
-/// One dispatch over all samples, timed (wall ms), and its outputs when `read`.
+/// One dispatch over all samples: its process CPU ms (lavapipe's threads included, less sensitive
+/// to other jobs than wall time), and its outputs when `read` (copied after the timed part).
 struct Bench<'a> {
     ctx: &'a GpuContext,
     out: &'a wgpu::Buffer,
@@ -361,7 +360,7 @@ impl Bench<'_> {
         read: bool,
     ) -> (f64, Option<Vec<f32>>) {
         let dev = &self.ctx.device;
-        let (t, c) = (Instant::now(), common::process_cpu_s());
+        let c = common::process_cpu_s();
         let mut enc = dev.create_command_encoder(&Default::default());
         {
             let mut pass = enc.begin_compute_pass(&Default::default());
@@ -374,8 +373,7 @@ impl Bench<'_> {
         }
         self.ctx.queue.submit([enc.finish()]);
         dev.poll(wgpu::PollType::wait_indefinitely()).expect("poll");
-        // Process CPU time (lavapipe's threads included): less sensitive to other jobs than wall time.
-        let ms = if read { t.elapsed().as_secs_f64() } else { common::process_cpu_s() - c } * 1e3;
+        let ms = (common::process_cpu_s() - c) * 1e3;
         if !read {
             return (ms, None);
         }
