@@ -90,6 +90,7 @@ def render(
     occupancy_epsilon: float = 0.0,
     occupancy_coarse: bool = False,
     baked_subdivisions: int = 0,
+    baked_guide: bool = False,
 ) -> dict[str, npt.NDArray[np.float32]]: ...
 
 class BakedField:

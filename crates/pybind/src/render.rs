@@ -30,7 +30,9 @@ use crate::triplane::Triplane;
 /// ``baked_subdivisions`` = k > 0 skips the decoder: samples are looked up in the triplane's
 /// baked field (``bake``; baked with k points per cell edge on first use), which holds
 /// density and RGB only, so ``features`` cannot be asked for (docs/baked.md); it needs
-/// ``occupancy_epsilon`` > 0.
+/// ``occupancy_epsilon`` > 0. ``baked_guide=True`` uses that field as a guide instead: samples it
+/// finds dense (or next to a dense one) on a still-visible ray are decoded exactly, the rest
+/// looked up (docs/baked.md, "The guide").
 ///
 /// Every argument is checked here, before any GPU work: a wrong type is a TypeError and a bad
 /// value a ValueError, each naming the argument and the value (`resolution=True` and
@@ -42,8 +44,8 @@ use crate::triplane::Triplane;
                  outputs=None, white_back=Arg::Default(false), *,
                  transmittance_threshold=Arg::Default(0.0), empty_threshold=Arg::Default(0.0),
                  occupancy_epsilon=Arg::Default(0.0), occupancy_coarse=Arg::Default(false),
-                 baked_subdivisions=Arg::Default(0)),
-    text_signature = "(triplane, camera, resolution=128, depth_resolution=48, depth_resolution_importance=48, deterministic=True, seed=None, outputs=None, white_back=False, *, transmittance_threshold=0.0, empty_threshold=0.0, occupancy_epsilon=0.0, occupancy_coarse=False, baked_subdivisions=0)"
+                 baked_subdivisions=Arg::Default(0), baked_guide=Arg::Default(false)),
+    text_signature = "(triplane, camera, resolution=128, depth_resolution=48, depth_resolution_importance=48, deterministic=True, seed=None, outputs=None, white_back=False, *, transmittance_threshold=0.0, empty_threshold=0.0, occupancy_epsilon=0.0, occupancy_coarse=False, baked_subdivisions=0, baked_guide=False)"
 )]
 #[allow(clippy::too_many_arguments)]
 // Long because: every argument is checked here, before any GPU work, one after another in the
@@ -64,6 +66,7 @@ pub fn render<'py>(
     occupancy_epsilon: Arg<'py, f64>,
     occupancy_coarse: Arg<'py, bool>,
     baked_subdivisions: Arg<'py, i64>,
+    baked_guide: Arg<'py, bool>,
 ) -> PyResult<Bound<'py, PyDict>> {
     guarded(|| {
         let tri = Triplane::arg(triplane)?;
@@ -106,6 +109,7 @@ pub fn render<'py>(
                     0,
                     MAX_SUBDIVISIONS as i64,
                 )? as u32,
+                baked_guide: bool_arg(&baked_guide, "baked_guide")?,
             },
         };
         settings.validate().map_err(to_py)?;

@@ -6,11 +6,18 @@
 // so that at a surface the corners in empty space (whose decoded colour is anything) do not
 // tint it.
 // needs: params, baked, halves_to_f32, plane_coords
-// provides: BAKED, BAKED_EMPTY, BAKED_EMPTY_RAW, BAKED_COLOUR_FLOOR, BAKED_COLOUR_RAMP,
-// provides: baked_colour_weight, baked_point, baked_sample
+// provides: BAKED, GUIDED, GUIDE_RAW, GUIDE_TRANSMITTANCE, BAKED_EMPTY, BAKED_EMPTY_RAW,
+// provides: BAKED_COLOUR_FLOOR, BAKED_COLOUR_RAMP, baked_colour_weight, baked_word, baked_point,
+// provides: BakedSpot, baked_spot, baked_corner, baked_sample, baked_raw, guide_decodes
 
 // true: render_rays looks samples up in the baked field (a pipeline of its own).
 override BAKED: bool = false;
+// true: render_rays decodes only the samples the baked field finds significant and looks the rest
+// up (guide_decodes; a pipeline of its own).
+override GUIDED: bool = false;
+// The guide's thresholds (guide_decodes; lp3d.render.baked has the same).
+const GUIDE_RAW: f32 = 0.0;
+const GUIDE_TRANSMITTANCE: f32 = 1e-3;
 
 // baked_index of a cell without a brick.
 const BAKED_EMPTY: u32 = 0xffffffffu;
@@ -32,45 +39,88 @@ fn baked_colour_weight(sigma_raw: f32) -> f32 {
     return BAKED_COLOUR_FLOOR + clamp(sigma_raw / BAKED_COLOUR_RAMP, 0.0, 1.0);
 }
 
-// Point (a, b, c) of `brick`, each in 0..=k: (sigma_raw, w r, w g, w b), w its colour weight.
-fn baked_point(brick: u32, a: u32, b: u32, c: u32, k1: u32) -> vec4<f32> {
-    let w = params.baked_values_offset + 2u * (((brick * k1 + a) * k1 + b) * k1 + c);
+// The first of the two words of point i (each of i's components in 0..=k) of `brick`.
+fn baked_word(brick: u32, i: vec3<u32>) -> u32 {
+    let k1 = params.baked_subdivisions + 1u;
+    return params.baked_values_offset + 2u * (((brick * k1 + i.x) * k1 + i.y) * k1 + i.z);
+}
+
+// Point i of `brick`: (sigma_raw, w r, w g, w b), w its colour weight.
+fn baked_point(brick: u32, i: vec3<u32>) -> vec4<f32> {
+    let w = baked_word(brick, i);
     return vec4<f32>(halves_to_f32(baked[w]), halves_to_f32(baked[w + 1u]));
 }
 
-// The baked raw density at world point `pos` (returned) and its RGB into dst[0].xyz (w = 0).
+// Where a point falls in the baked field: its cell's brick (BAKED_EMPTY if none), the first point
+// of the sub-cell around it and the point's place in that sub-cell (each in [0, 1]).
+struct BakedSpot {
+    brick: u32,
+    i0: vec3<u32>,
+    f: vec3<f32>,
+}
+
 // Cells are the baked field's (G per axis over plane coordinates [-1, 1], the edge cells clamped
 // so they stand for everything beyond); inside a cell, k intervals per axis.
-fn baked_sample(pos: vec3<f32>, dst: ptr<function, array<vec4<f32>, 8>>) -> f32 {
+fn baked_spot(pos: vec3<f32>) -> BakedSpot {
     let g = params.baked_cells;
-    let k = params.baked_subdivisions;
     let gf = f32(g);
     let s = (plane_coords(pos) + 1.0) * (0.5 * gf);
     let cell_f = clamp(floor(s), vec3<f32>(0.0), vec3<f32>(gf - 1.0));
     let cell = vec3<u32>(cell_f);
     let brick = baked[(cell.x * g + cell.y) * g + cell.z];
-    if (brick == BAKED_EMPTY) {
+    let kf = f32(params.baked_subdivisions);
+    let local = clamp((s - cell_f) * kf, vec3<f32>(0.0), vec3<f32>(kf));
+    let i0_f = min(floor(local), vec3<f32>(kf - 1.0));
+    return BakedSpot(brick, vec3<u32>(i0_f), local - i0_f);
+}
+
+// Corner c of a spot's sub-cell, + (c & 1, c >> 1 & 1, c >> 2): its offset and trilinear weight.
+fn baked_corner(f: vec3<f32>, c: u32) -> vec4<f32> {
+    let d = vec3<u32>(c & 1u, (c >> 1u) & 1u, c >> 2u);
+    let w3 = select(1.0 - f, f, d == vec3<u32>(1u));
+    return vec4<f32>(vec3<f32>(d), w3.x * w3.y * w3.z);
+}
+
+// The baked raw density at world point `pos` (returned) and its RGB into dst[0].xyz (w = 0).
+fn baked_sample(pos: vec3<f32>, dst: ptr<function, array<vec4<f32>, 8>>) -> f32 {
+    let spot = baked_spot(pos);
+    if (spot.brick == BAKED_EMPTY) {
         (*dst)[0] = vec4<f32>(0.0);
         return BAKED_EMPTY_RAW;
     }
-    let kf = f32(k);
-    let local = clamp((s - cell_f) * kf, vec3<f32>(0.0), vec3<f32>(kf));
-    let i0_f = min(floor(local), vec3<f32>(kf - 1.0));
-    let f = local - i0_f;
-    let i0 = vec3<u32>(i0_f);
-    let k1 = k + 1u;
     var acc = vec4<f32>(0.0);
     var weight = 0.0;
-    // The 8 corners as one loop (corner c: + (c & 1, c >> 1 & 1, c >> 2)), not eight copies:
-    // lavapipe inlines every call.
+    // The 8 corners as one loop, not eight copies: lavapipe inlines every call.
     for (var c = 0u; c < 8u; c++) {
-        let d = vec3<u32>(c & 1u, (c >> 1u) & 1u, c >> 2u);
-        let w3 = select(1.0 - f, f, d == vec3<u32>(1u));
-        let t = w3.x * w3.y * w3.z;
-        let point = baked_point(brick, i0.x + d.x, i0.y + d.y, i0.z + d.z, k1);
-        acc += t * point;
-        weight += t * baked_colour_weight(point.x);
+        let corner = baked_corner(spot.f, c);
+        let point = baked_point(spot.brick, spot.i0 + vec3<u32>(corner.xyz));
+        acc += corner.w * point;
+        weight += corner.w * baked_colour_weight(point.x);
     }
     (*dst)[0] = vec4<f32>(acc.yzw / weight, 0.0); // un-premultiplied
     return acc.x;
+}
+
+// baked_sample's raw density alone (half the loads): what the guide tests.
+fn baked_raw(pos: vec3<f32>) -> f32 {
+    let spot = baked_spot(pos);
+    if (spot.brick == BAKED_EMPTY) {
+        return BAKED_EMPTY_RAW;
+    }
+    var raw = 0.0;
+    for (var c = 0u; c < 8u; c++) {
+        let corner = baked_corner(spot.f, c);
+        raw += corner.w * halves_to_f32(baked[baked_word(spot.brick, spot.i0 + vec3<u32>(corner.xyz))]).x;
+    }
+    return raw;
+}
+
+// The guide (a render setting of its own, docs/baked.md): the baked field decides which samples
+// the decoder evaluates. A sample is decoded exactly when the field finds it or a neighbour along
+// the ray dense (raw density above GUIDE_RAW) and the ray's transmittance before it is above
+// GUIDE_TRANSMITTANCE; every other sample keeps the field's values. An interval with a dense end
+// thus has both ends decoded; the rest are faint (alpha <= 1 - exp(-softplus(GUIDE_RAW - 1) delta))
+// or behind the surface.
+fn guide_decodes(dense_near: bool, transmittance: f32) -> bool {
+    return dense_near && transmittance > GUIDE_TRANSMITTANCE;
 }

@@ -9,7 +9,7 @@
 // needs: params, out_features, out_depth, out_weights_sum, depth_bounds, MAX_SAMPLES,
 // needs: FLAG_OCCUPANCY_COARSE, FLAG_WHITE_BACK, camera_ray, importance_depths, sample_triplane,
 // needs: decode, interval_alpha, transmit, Walk, walk_start, walk_advance, walk_to_needed,
-// needs: BAKED, baked_sample
+// needs: BAKED, GUIDED, baked_sample, guide_decodes
 // provides: COARSE_CACHE, Composite, composite_sample, render_rays
 
 // One loop walks a ray twice: first its coarse samples (the density pass of sample_importance,
@@ -119,22 +119,39 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
     // sample evaluation; the outer loop runs it once per walk.
     loop {
         loop {
-            // The composite walk's cached coarse samples, in a loop of their own: lavapipe runs
-            // 8 rays in lock-step, so each ray composites its cached samples up to its next
+            // The samples that need no decoding, in a loop of their own: the composite walk's
+            // cached coarse samples and, with the baked guide, the samples it leaves to the field.
+            // lavapipe runs 8 rays in lock-step, so each ray composites these up to its next
             // sample to decode, and the 8 decode together. Early ray termination (a skip; the
             // exact mode's threshold is 0, so it never fires) ends both loops.
             loop {
                 walk_to_needed(&walk, ray, ray_index, n, &t_fine);
-                if (coarse || walk.i >= walk.total || c.transmittance < thr || walk.k_cur >= n_cached) {
+                if (walk.i >= walk.total || c.transmittance < thr) {
                     break;
                 }
                 let k = walk.k_cur;
-                if (n_feat == 32u) {
-                    cur_feat = cache_feat[k];
+                let decodes = !GUIDED || guide_decodes(walk.dense_prev || walk.dense_cur || walk.dense_next, c.transmittance);
+                // A cached sample is reused unless the guide wants it decoded and the coarse walk
+                // only looked it up (cache_feat's w: 1 decoded, 0 looked up; RGB needs xyz only).
+                if (!coarse && k < n_cached && (!GUIDED || !decodes || cache_feat[k][0].w != 0.0)) {
+                    if (n_feat == 32u) {
+                        cur_feat = cache_feat[k];
+                    } else {
+                        cur_feat[0] = cache_feat[k][0];
+                    }
+                    composite_sample(&c, walk, walk.t_cur, cache_sigma_raw[k], &cur_feat, false, n_feat, &scratch);
+                } else if (decodes) {
+                    break;
                 } else {
-                    cur_feat[0] = cache_feat[k][0];
+                    // The guide leaves this sample to the baked field.
+                    let sigma_raw = baked_sample(ray.origin + walk.t_cur * ray.dir, &cur_feat);
+                    if (coarse && k == n_cached && n_cached < COARSE_CACHE) {
+                        cache_sigma_raw[n_cached] = sigma_raw;
+                        cache_feat[n_cached][0] = cur_feat[0];
+                        n_cached++;
+                    }
+                    composite_sample(&c, walk, walk.t_cur, sigma_raw, &cur_feat, coarse, n_feat, &scratch);
                 }
-                composite_sample(&c, walk, walk.t_cur, cache_sigma_raw[k], &cur_feat, false, n_feat, &scratch);
                 walk_advance(&walk, ray, ray_index, n, &t_fine);
             }
             if (walk.i >= walk.total || c.transmittance < thr) {
@@ -150,6 +167,9 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
                 // Only the requested decoder rows: all 32 features or the 4 that hold RGB (also in
                 // the coarse walk, for the cache).
                 sigma_raw = decode(n_feat, &feat, &cur_feat);
+                if (GUIDED) {
+                    cur_feat[0].w = 1.0; // decoded (the guide's RGB has no fourth channel)
+                }
             }
             if (coarse && walk.k_cur == n_cached && n_cached < COARSE_CACHE) {
                 cache_sigma_raw[n_cached] = sigma_raw;

@@ -88,6 +88,8 @@ struct Frame {
     chunk: usize,
     /// Device bytes allocated for this frame (outputs, uniforms, cameras).
     bytes: u64,
+    /// The baked field guides the decoder (`Skips::baked_guide`).
+    guided: bool,
 }
 
 pub struct Renderer {
@@ -113,14 +115,8 @@ pub struct Renderer {
     present_pipeline: wgpu::ComputePipeline,
     /// Bound in place of occupancy bits when the skip is off.
     no_occupancy: wgpu::Buffer,
-    /// render_rays looking samples up in a baked field, built on first use.
-    baked_pipeline: OnceLock<wgpu::ComputePipeline>,
-    /// The bake kernel, built on first use, and its bindings.
-    bake_pipeline: OnceLock<wgpu::ComputePipeline>,
-    bake_layout: wgpu::BindGroupLayout,
-    bake_pipeline_layout: wgpu::PipelineLayout,
-    /// Bound in place of a baked field when the render decodes.
-    no_baked: wgpu::Buffer,
+    /// The baked field's pipelines (`renderer/baking.rs`).
+    baked: baking::BakedPipelines,
     /// Device bytes of the last frame's own buffers, readbacks included.
     last_frame_bytes: AtomicU64,
     /// Errors wgpu reports outside an error scope, kept instead of panicking.
@@ -184,7 +180,7 @@ impl Renderer {
         let bounds_pipeline = make(shaders::DEPTH_BOUNDS_ENTRY, "lp3d depth_bounds_pass", &pipeline_layout);
         let present_pipeline = make(shaders::PRESENT_ENTRY, "lp3d present", &present_pipeline_layout);
         let no_occupancy = layouts::placeholder(&device, "lp3d no occupancy");
-        let no_baked = layouts::placeholder(&device, "lp3d no baked field");
+        let baked = baking::BakedPipelines::new(&device, bake_layout, bake_pipeline_layout);
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(Error::Gpu(format!("building the render pipelines failed: {e}")));
         }
@@ -193,11 +189,7 @@ impl Renderer {
             .transpose()?;
         Ok(Renderer {
             no_occupancy,
-            baked_pipeline: OnceLock::new(),
-            bake_pipeline: OnceLock::new(),
-            bake_layout,
-            bake_pipeline_layout,
-            no_baked,
+            baked,
             last_frame_bytes: AtomicU64::new(0),
             device,
             queue: ctx.queue.clone(),

@@ -53,6 +53,11 @@ pub struct Skips {
     /// the occupancy skip keeps; RGB, depth and weights only. Needs `occupancy_epsilon` > 0 (the
     /// bake stores nothing where that skip takes the density as 0). 0 = off.
     pub baked_subdivisions: u32,
+    /// Use the baked field as a guide, not in place of the decoder: decode exactly the samples
+    /// it finds dense (or next to a dense one along the ray) while the ray is still visible, and
+    /// look up the rest (`docs/baked.md`, "The guide"). Needs `baked_subdivisions` > 0; RGB,
+    /// depth and weights only.
+    pub baked_guide: bool,
 }
 
 impl Skips {
@@ -62,6 +67,7 @@ impl Skips {
         occupancy_epsilon: 0.0,
         occupancy_coarse: false,
         baked_subdivisions: 0,
+        baked_guide: false,
     };
 
     /// The baked field as the viewer's moving frames and `lp3d orbit --baked` use it
@@ -92,6 +98,12 @@ impl Skips {
         }
         if k > 0 && self.occupancy_epsilon == 0.0 {
             return Err(Error::invalid("baked_subdivisions", "needs occupancy_epsilon > 0"));
+        }
+        if self.baked_guide && k == 0 {
+            return Err(Error::invalid(
+                "baked_guide",
+                "needs baked_subdivisions > 0 (the field it is guided by)",
+            ));
         }
         Ok(())
     }

@@ -53,8 +53,8 @@ pub const STAGES: [Stage; 12] = [
     TRIPLANE,
     DECODER,
     MARCH,
-    OCCUPANCY,
     BAKED,
+    OCCUPANCY,
     RENDER,
     DEPTH_BOUNDS,
     PRESENT,
@@ -71,7 +71,7 @@ pub struct EntryPoint {
 
 pub const RENDER_RAYS: EntryPoint = EntryPoint {
     name: "render_rays",
-    stages: &[PARAMS, CAMERA, SAMPLING, TRIPLANE, DECODER, MARCH, OCCUPANCY, BAKED, RENDER],
+    stages: &[PARAMS, CAMERA, SAMPLING, TRIPLANE, DECODER, MARCH, BAKED, OCCUPANCY, RENDER],
 };
 pub const DEPTH_BOUNDS_PASS: EntryPoint =
     EntryPoint { name: "depth_bounds_pass", stages: &[PARAMS, SAMPLING, DEPTH_BOUNDS] };

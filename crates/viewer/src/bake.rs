@@ -48,6 +48,7 @@ pub fn baked_settings(chosen: &RenderSettings) -> RenderSettings {
             occupancy_epsilon: BAKE_EPSILON,
             occupancy_coarse: true,
             baked_subdivisions: BAKE_SUBDIVISIONS,
+            baked_guide: false,
         },
         ..*chosen
     }

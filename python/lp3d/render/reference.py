@@ -232,6 +232,13 @@ class MarchResult(NamedTuple):
     weights_sum: np.ndarray
 
 
+def interval_alpha(sigma_raw_a: np.ndarray, sigma_raw_b: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """The opacity of an interval of length ``delta`` between samples of raw densities a and b:
+    ``1 - exp(-softplus((a + b) / 2 - 1) delta)``."""
+    sigma = softplus(0.5 * (sigma_raw_a + sigma_raw_b) - DENSITY_SHIFT)
+    return -np.expm1(-sigma * delta)  # exact for tiny sigma*delta, where 1 - exp(-x) rounds to 0
+
+
 def march(t: np.ndarray, sigma_raw: np.ndarray, feat: np.ndarray, *, white_back: bool = False) -> MarchResult:
     """MipRayMarcher2 over sorted depths t (..., K), raw densities (..., K), features (..., K, C) (§8).
 
@@ -246,8 +253,7 @@ def march(t: np.ndarray, sigma_raw: np.ndarray, feat: np.ndarray, *, white_back:
     delta = t[..., 1:] - t[..., :-1]
     c_mid = 0.5 * (c[..., :-1, :] + c[..., 1:, :])
     t_mid = 0.5 * (t[..., :-1] + t[..., 1:])
-    sigma = softplus(0.5 * (s[..., :-1] + s[..., 1:]) - DENSITY_SHIFT)
-    alpha = -np.expm1(-sigma * delta)  # exact for tiny sigma*delta, where 1 - exp(-x) rounds to 0
+    alpha = interval_alpha(s[..., :-1], s[..., 1:], delta)
     shifted = np.concatenate([np.ones_like(alpha[..., :1]), (1.0 - alpha) + TRANSMITTANCE_EPS], axis=-1)
     T = np.cumprod(shifted, axis=-1)[..., :-1]
     weights = alpha * T
@@ -314,12 +320,26 @@ def render_reference(
 Evaluate = Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
+#: A walk's second look at its samples (the baked guide, :func:`lp3d.render.baked.guide_walk`):
+#: ``(o, d, t, sigma_raw, feat, exact)`` -> the samples' new ``sigma_raw``, ``feat`` and ``exact``
+#: (which hold the decoder's values rather than ``evaluate``'s).
+Guide = Callable[
+    [np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    tuple[np.ndarray, np.ndarray, np.ndarray],
+]
+
+
 def render_with(
-    tri: TriplaneData, camera: np.ndarray, settings: RenderSettings, evaluate: Evaluate
+    tri: TriplaneData,
+    camera: np.ndarray,
+    settings: RenderSettings,
+    evaluate: Evaluate,
+    guide: Guide | None = None,
 ) -> dict[str, np.ndarray]:
     """:func:`render_reference`'s sampler and compositing around any field ``evaluate`` (the decoder
     in :func:`render_reference`, the baked field's lookup in :mod:`lp3d.render.baked`); ``settings``
-    resolved and the scene bounds ``tri``'s."""
+    resolved and the scene bounds ``tri``'s. ``guide``, if given, revises each walk's samples (the
+    coarse walk's before the importance draw, then the merged list's) before they are composited."""
     cams, batched = validate_camera(camera)
     B, R = cams.shape[0], settings.resolution
     S, N = settings.depth_resolution, settings.depth_resolution_importance
@@ -345,6 +365,9 @@ def render_with(
             jitter=None if jitter is None else jitter[sl],
         )
         sigma_raw, feat = evaluate(o, d, t)
+        exact = np.zeros(t.shape, bool)
+        if guide is not None:
+            sigma_raw, feat, exact = guide(o, d, t, sigma_raw, feat, exact)
         if N > 0:
             coarse = march(t, sigma_raw, feat, white_back=settings.white_back)
             t_fine = sample_importance(t, coarse.weights, N, None if u_all is None else u_all[sl])
@@ -356,6 +379,9 @@ def render_with(
             both = np.concatenate([sigma_raw, sigma_raw_fine], axis=-1)
             sigma_raw = np.take_along_axis(both, order, axis=-1)
             feat = np.take_along_axis(np.concatenate([feat, feat_fine], axis=-2), order[..., None], axis=-2)
+            exact = np.take_along_axis(np.concatenate([exact, np.zeros(t_fine.shape, bool)], -1), order, -1)
+            if guide is not None:
+                sigma_raw, feat, exact = guide(o, d, t, sigma_raw, feat, exact)
         result = march(t, sigma_raw, feat, white_back=settings.white_back)
         t_min, t_max = min(t_min, float(t.min())), max(t_max, float(t.max()))
         if features is None:

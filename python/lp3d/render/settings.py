@@ -52,6 +52,10 @@ class Skips:
     #: at k points per baked cell edge in the cells the occupancy skip keeps (density and RGB
     #: only; needs occupancy_epsilon > 0). 0 = off.
     baked_subdivisions: int = 0
+    #: Use that field as a guide instead (docs/baked.md, "The guide"): decode exactly the samples it
+    #: finds dense, or next to a dense one, while the ray is still visible; look up the rest. Needs
+    #: baked_subdivisions > 0.
+    baked_guide: bool = False
 
     @property
     def exact(self) -> bool:
@@ -69,6 +73,10 @@ class Skips:
             raise ValueError(f"baked_subdivisions must be an int in [0, {MAX_BAKED_SUBDIVISIONS}], got {k!r}")
         if k > 0 and self.occupancy_epsilon == 0.0:
             raise ValueError("baked_subdivisions needs occupancy_epsilon > 0")
+        if not isinstance(self.baked_guide, bool):
+            raise ValueError(f"baked_guide must be a bool, got {self.baked_guide!r}")
+        if self.baked_guide and k == 0:
+            raise ValueError("baked_guide needs baked_subdivisions > 0 (the field it is guided by)")
 
 
 #: The baked field as ``lp3d orbit --baked`` and the viewer's moving frames use it (docs/baked.md):

@@ -48,6 +48,37 @@ fn check_saved_field(spec: &BakeSpec, cells: usize, index: &[u32], values: &[u16
     Ok(n_bricks)
 }
 
+/// The baked field's pipelines, each built on first use, and what the bake binds.
+pub(super) struct BakedPipelines {
+    /// render_rays looking samples up in a baked field (`BAKED`).
+    lookup: OnceLock<wgpu::ComputePipeline>,
+    /// render_rays guided by a baked field (`GUIDED`), with the fast [0] and the quick [1] decoder.
+    guided: [OnceLock<wgpu::ComputePipeline>; 2],
+    /// The bake kernel and its bindings.
+    bake: OnceLock<wgpu::ComputePipeline>,
+    bake_layout: wgpu::BindGroupLayout,
+    bake_pipeline_layout: wgpu::PipelineLayout,
+    /// Bound in place of a baked field when the render decodes.
+    no_baked: wgpu::Buffer,
+}
+
+impl BakedPipelines {
+    pub(super) fn new(
+        device: &wgpu::Device,
+        bake_layout: wgpu::BindGroupLayout,
+        bake_pipeline_layout: wgpu::PipelineLayout,
+    ) -> Self {
+        Self {
+            lookup: OnceLock::new(),
+            guided: [OnceLock::new(), OnceLock::new()],
+            bake: OnceLock::new(),
+            bake_layout,
+            bake_pipeline_layout,
+            no_baked: super::layouts::placeholder(device, "lp3d no baked field"),
+        }
+    }
+}
+
 /// A baked field resident on the GPU.
 pub struct GpuBaked {
     pub spec: BakeSpec,
@@ -170,7 +201,7 @@ impl Renderer {
         });
         let group = dev.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("lp3d bake bind group"),
-            layout: &self.bake_layout,
+            layout: &self.baked.bake_layout,
             entries: &[
                 wgpu::BindGroupEntry { binding: 0, resource: params_buf.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 2, resource: tri.planes.as_entire_binding() },
@@ -302,7 +333,7 @@ impl Renderer {
     /// render_rays with the baked lookup (`BAKED`), built on first use; the rolled decoder,
     /// which this pipeline never runs, keeps its compile short.
     pub(super) fn baked_pipeline(&self) -> &wgpu::ComputePipeline {
-        self.baked_pipeline.get_or_init(|| {
+        self.baked.lookup.get_or_init(|| {
             self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some("lp3d render_rays (baked)"),
                 layout: Some(&self.pipeline_layout),
@@ -317,12 +348,39 @@ impl Renderer {
         })
     }
 
+    /// render_rays guided by the baked field (`GUIDED`), built on first use, with the decoder of
+    /// the kernel the exact renders use now (`Renderer::render_pipeline`): the guide decodes.
+    pub(super) fn guided_pipeline(&self) -> &wgpu::ComputePipeline {
+        let quick = self.quick_pipeline.as_ref().is_some_and(|q| std::ptr::eq(q, self.render_pipeline()));
+        let (slot, kernel) = if quick {
+            (&self.baked.guided[1], Kernel::Quick)
+        } else {
+            (&self.baked.guided[0], Kernel::Fast)
+        };
+        slot.get_or_init(|| {
+            self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(match kernel {
+                    Kernel::Fast => "lp3d render_rays (guided, fast kernel)",
+                    Kernel::Quick => "lp3d render_rays (guided, quick kernel)",
+                }),
+                layout: Some(&self.pipeline_layout),
+                module: &self.module,
+                entry_point: Some(shaders::RENDER_ENTRY),
+                compilation_options: wgpu::PipelineCompilationOptions {
+                    constants: &[("GUIDED", 1.0), ("ROLLED_DECODER", if quick { 1.0 } else { 0.0 })],
+                    ..Default::default()
+                },
+                cache: None,
+            })
+        })
+    }
+
     /// The bake kernel (rolled decoder: a short compile; the bake runs once per field).
     fn bake_pipeline(&self) -> &wgpu::ComputePipeline {
-        self.bake_pipeline.get_or_init(|| {
+        self.baked.bake.get_or_init(|| {
             self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some("lp3d bake_field"),
-                layout: Some(&self.bake_pipeline_layout),
+                layout: Some(&self.baked.bake_pipeline_layout),
                 module: &self.module,
                 entry_point: Some(shaders::BAKE_ENTRY),
                 compilation_options: wgpu::PipelineCompilationOptions {
@@ -336,6 +394,6 @@ impl Renderer {
 
     /// The buffer bound at the baked field's binding (9): the field's, or a placeholder.
     pub(super) fn baked_binding<'a>(&'a self, baked: Option<&'a GpuBaked>) -> &'a wgpu::Buffer {
-        baked.map_or(&self.no_baked, |b| &b.data)
+        baked.map_or(&self.baked.no_baked, |b| &b.data)
     }
 }

@@ -133,6 +133,7 @@ impl Renderer {
             fc,
             chunk,
             bytes,
+            guided: settings.skips.baked_guide,
         })
     }
 
@@ -156,7 +157,9 @@ impl Renderer {
                 pass.set_pipeline(&self.bounds_pipeline);
                 pass.dispatch_workgroups(groups_x, frame.n_cam as u32, 1);
             }
-            if frame.params.baked_subdivisions > 0 {
+            if frame.guided {
+                pass.set_pipeline(self.guided_pipeline());
+            } else if frame.params.baked_subdivisions > 0 {
                 pass.set_pipeline(self.baked_pipeline());
             } else {
                 pass.set_pipeline(self.render_pipeline());
