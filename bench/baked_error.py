@@ -22,7 +22,14 @@ from collections.abc import Callable
 import numpy as np
 
 import lp3d_render
-from lp3d.render.baked import EMPTY_RAW, bake_reference, baked_lookup, colour_weight, decode_brick_points
+from lp3d.render.baked import (
+    EMPTY_RAW,
+    bake_reference,
+    baked_lookup,
+    colour_weight,
+    decode_brick_points,
+    near_dense,
+)
 from lp3d.render.camera import look_at_camera
 from lp3d.render.psnr import psnr_db
 from lp3d.render.reference import (
@@ -162,11 +169,7 @@ def guided_render(
     sigma, rgb = looked_up(points(t))
     w = march(t, sigma, rgb).weights
     transmittance = np.concatenate([np.ones_like(w[:, :1]), 1.0 - np.cumsum(w, axis=-1)], axis=-1)
-    dense = sigma > raw_above
-    near = dense.copy()  # the sample or a neighbour along its ray (no wrap-around at the ends)
-    near[:, 1:] |= dense[:, :-1]
-    near[:, :-1] |= dense[:, 1:]
-    significant = near & (transmittance > t_above)
+    significant = near_dense(sigma, raw_above) & (transmittance > t_above)
     exact_sigma, exact_rgb = decoded(points(t)[significant][:, None, :])
     sigma[significant], rgb[significant] = exact_sigma[:, 0], exact_rgb[:, 0]
     out = march(t, sigma, rgb).features.reshape(r, r, 3).transpose(2, 0, 1)

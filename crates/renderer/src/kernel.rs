@@ -75,6 +75,15 @@ impl KernelChoice {
     }
 }
 
+/// How render_rays uses a baked field (`shaders/baked.wgsl`'s override constants `BAKED` and
+/// `GUIDED`): not at all (exact mode and its skips), in place of the decoder, or as its guide.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum FieldUse {
+    None,
+    Lookup,
+    Guide,
+}
+
 /// render_rays specialised for `kernel`.
 pub(crate) fn build_render_pipeline(
     device: &wgpu::Device,
@@ -82,22 +91,36 @@ pub(crate) fn build_render_pipeline(
     layout: &wgpu::PipelineLayout,
     kernel: Kernel,
 ) -> wgpu::ComputePipeline {
+    build_render_variant(device, module, layout, kernel, FieldUse::None)
+}
+
+/// render_rays specialised for `kernel` and a use of the baked field.
+pub(crate) fn build_render_variant(
+    device: &wgpu::Device,
+    module: &wgpu::ShaderModule,
+    layout: &wgpu::PipelineLayout,
+    kernel: Kernel,
+    field: FieldUse,
+) -> wgpu::ComputePipeline {
     let rolled = match kernel {
         Kernel::Fast => 0.0,
         Kernel::Quick => 1.0,
     };
+    let (label, flag) = match (field, kernel) {
+        (FieldUse::None, Kernel::Fast) => ("lp3d render_rays (fast kernel)", None),
+        (FieldUse::None, Kernel::Quick) => ("lp3d render_rays (quick kernel)", None),
+        (FieldUse::Lookup, _) => ("lp3d render_rays (baked)", Some("BAKED")),
+        (FieldUse::Guide, Kernel::Fast) => ("lp3d render_rays (guided, fast kernel)", Some("GUIDED")),
+        (FieldUse::Guide, Kernel::Quick) => ("lp3d render_rays (guided, quick kernel)", Some("GUIDED")),
+    };
+    let mut constants = vec![("ROLLED_DECODER", rolled)];
+    constants.extend(flag.map(|f| (f, 1.0)));
     device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-        label: Some(match kernel {
-            Kernel::Fast => "lp3d render_rays (fast kernel)",
-            Kernel::Quick => "lp3d render_rays (quick kernel)",
-        }),
+        label: Some(label),
         layout: Some(layout),
         module,
         entry_point: Some(shaders::RENDER_ENTRY),
-        compilation_options: wgpu::PipelineCompilationOptions {
-            constants: &[("ROLLED_DECODER", rolled)],
-            ..Default::default()
-        },
+        compilation_options: wgpu::PipelineCompilationOptions { constants: &constants, ..Default::default() },
         cache: None,
     })
 }

@@ -126,6 +126,16 @@ GUIDE_TRANSMITTANCE = 1e-3
 COARSE_CACHE = 64
 
 
+def near_dense(sigma_raw: np.ndarray, above: float = GUIDE_RAW) -> np.ndarray:
+    """Where a sample of sorted rays (rays, M) or a neighbour along its ray (none past the ends) has
+    a raw density above ``above``: the samples the guide decodes while the ray is visible."""
+    dense = sigma_raw > above
+    near = dense.copy()
+    near[:, 1:] |= dense[:, :-1]
+    near[:, :-1] |= dense[:, 1:]
+    return near
+
+
 def guide_walk(
     tri: TriplaneData,
     index: np.ndarray,
@@ -143,10 +153,7 @@ def guide_walk(
     picks (:data:`GUIDE_RAW`, :data:`GUIDE_TRANSMITTANCE`, judged on the transmittance of the values
     as revised so far) is decoded, unless it already is. Returns the revised values and ``exact``."""
     points = o[:, None, :] + t[..., None] * d[:, None, :]
-    dense = baked_lookup(index, values, k, tri.box_warp, points)[0] > GUIDE_RAW
-    near = dense.copy()  # the sample or a neighbour along its ray (none past the ends)
-    near[:, 1:] |= dense[:, :-1]
-    near[:, :-1] |= dense[:, 1:]
+    near = near_dense(baked_lookup(index, values, k, tri.box_warp, points)[0])
     sigma_raw, feat, exact = sigma_raw.copy(), feat.copy(), exact.copy()
     planes = tri.planes.astype(np.float64)
     transmittance = np.ones(t.shape[0])  # through the intervals before the previous sample

@@ -8,6 +8,7 @@ use std::time::Instant;
 
 use super::*;
 use crate::baked::{BakeSpec, BrickLayout, POINT_BYTES};
+use crate::kernel::{build_render_variant, FieldUse};
 
 /// Points per bake dispatch: ~0.1 s each on lavapipe, so a viewer drawing meanwhile waits at most
 /// that long for its frame.
@@ -334,17 +335,13 @@ impl Renderer {
     /// which this pipeline never runs, keeps its compile short.
     pub(super) fn baked_pipeline(&self) -> &wgpu::ComputePipeline {
         self.baked.lookup.get_or_init(|| {
-            self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some("lp3d render_rays (baked)"),
-                layout: Some(&self.pipeline_layout),
-                module: &self.module,
-                entry_point: Some(shaders::RENDER_ENTRY),
-                compilation_options: wgpu::PipelineCompilationOptions {
-                    constants: &[("BAKED", 1.0), ("ROLLED_DECODER", 1.0)],
-                    ..Default::default()
-                },
-                cache: None,
-            })
+            build_render_variant(
+                &self.device,
+                &self.module,
+                &self.pipeline_layout,
+                Kernel::Quick,
+                FieldUse::Lookup,
+            )
         })
     }
 
@@ -352,26 +349,9 @@ impl Renderer {
     /// the kernel the exact renders use now (`Renderer::render_pipeline`): the guide decodes.
     pub(super) fn guided_pipeline(&self) -> &wgpu::ComputePipeline {
         let quick = self.quick_pipeline.as_ref().is_some_and(|q| std::ptr::eq(q, self.render_pipeline()));
-        let (slot, kernel) = if quick {
-            (&self.baked.guided[1], Kernel::Quick)
-        } else {
-            (&self.baked.guided[0], Kernel::Fast)
-        };
-        slot.get_or_init(|| {
-            self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(match kernel {
-                    Kernel::Fast => "lp3d render_rays (guided, fast kernel)",
-                    Kernel::Quick => "lp3d render_rays (guided, quick kernel)",
-                }),
-                layout: Some(&self.pipeline_layout),
-                module: &self.module,
-                entry_point: Some(shaders::RENDER_ENTRY),
-                compilation_options: wgpu::PipelineCompilationOptions {
-                    constants: &[("GUIDED", 1.0), ("ROLLED_DECODER", if quick { 1.0 } else { 0.0 })],
-                    ..Default::default()
-                },
-                cache: None,
-            })
+        let kernel = if quick { Kernel::Quick } else { Kernel::Fast };
+        self.baked.guided[quick as usize].get_or_init(|| {
+            build_render_variant(&self.device, &self.module, &self.pipeline_layout, kernel, FieldUse::Guide)
         })
     }
 
