@@ -17,7 +17,10 @@ evaluation (128², scored against the teacher at its native 256² planes) from:
 
 With ``--by-part``, also ``student's <part>``: the ceiling's planes with one part's four channels (its
 shape channel and its three colour channels, :data:`lp3d.teachers.procedural_decoder.PARTS`) taken
-from the student: how many dB each part's error costs on its own.
+from the student: how many dB each part's error costs on its own. With ``--shape-colour``, also
+``student's shapes`` and ``student's colours``: the ceiling's planes with every part's shape channels,
+or every part's colour channels, taken from the student: how the student's error splits between
+where the parts are and what colour they have.
 
 It reports novel-view PSNR and the channel-normalised plane L1 (the CPU recipe's L_tri, channels
 divided by their spread over these identities) for each, split by training and held-out identities.
@@ -67,6 +70,15 @@ def project(target: torch.Tensor, offset: torch.Tensor, basis: torch.Tensor) -> 
     return offset + (basis.T @ coeffs).reshape(target.shape)
 
 
+def shape_colour_swaps(ceiling: torch.Tensor, student: torch.Tensor) -> dict[str, torch.Tensor]:
+    """The ceiling's planes with all the shape channels (0 .. N_PARTS-1), or all the colour channels
+    (N_PARTS ..), taken from the student; all (1, 3, 32, T, T)."""
+    shapes, colours = ceiling.clone(), ceiling.clone()
+    shapes[:, :, :N_PARTS] = student[:, :, :N_PARTS]
+    colours[:, :, N_PARTS:] = student[:, :, N_PARTS:]
+    return {"student's shapes": shapes, "student's colours": colours}
+
+
 def part_swaps(ceiling: torch.Tensor, student: torch.Tensor) -> dict[str, torch.Tensor]:
     """``{"student's <part>": the ceiling's planes with that part's shape and colour channels taken
     from the student}`` for every part of the procedural teacher's layout; all (1, 3, 32, T, T)."""
@@ -92,6 +104,11 @@ def main(argv: list[str] | None = None) -> int:
         help="which identities to score (default both; held-out alone takes half the time)",
     )
     p.add_argument("--by-part", action="store_true", help="also swap in the student's planes part by part")
+    p.add_argument(
+        "--shape-colour",
+        action="store_true",
+        help="also swap in the student's shape channels alone, and its colour channels alone",
+    )
     args = p.parse_args(argv)
     if args.n_identities < 2:
         p.error("--n-identities must be >= 2 (the plane scales are spreads over identities)")
@@ -143,6 +160,7 @@ def main(argv: list[str] | None = None) -> int:
 
     # Pass 2: render every method's planes and score them.
     methods = list(METHODS) + ([f"student's {name}" for name in PARTS] if args.by_part else [])
+    methods += ["student's shapes", "student's colours"] if args.shape_colour else []
     scores: dict[str, dict[str, list[tuple[float, float]]]] = {s: {m: [] for m in methods} for s in splits}
     for j, it in enumerate(items):
         ceiling = it["ceiling"]
@@ -153,6 +171,7 @@ def main(argv: list[str] | None = None) -> int:
             "student": it["student"],
             "mean head": offset,
             **(part_swaps(ceiling, it["student"]) if args.by_part else {}),
+            **(shape_colour_swaps(ceiling, it["student"]) if args.shape_colour else {}),
         }
         for m, pl in planes.items():
             high = render_truth(teacher, pl, dec, views, cfg, scene)["high"]
