@@ -124,6 +124,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     print("|---|---|---|---|---|---|")
     for field, name in FIELDS.items():
+        if not rows[(field, "hue")]:  # no identity among these has the part (glasses, for a few)
+            print(f"| {name} | 0 | – | – | – | – |")
+            continue
         cells = []
         for change in CHANGES:
             gains, touched = (np.array(v) for v in zip(*rows[(field, change)], strict=True))
