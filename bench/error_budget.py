@@ -47,12 +47,13 @@ from lp3d.evaluation.protocol import (
     reference_teachers,
     render_truth,
 )
-from lp3d.lift.inference import load_encoder
+from lp3d.lift.inference import DEFAULT_MODEL, load_encoder
 from lp3d.teachers.procedural_decoder import N_PARTS, PARTS
 from lp3d.training import TRAIN_CONFIGS, SceneBounds, build_teacher
 
 METHODS = ("ceiling", "basis oracle", "ceiling + noise", "student", "mean head")
-MODEL = Path(__file__).resolve().parents[1] / "python" / "lp3d" / "lift" / "models" / "small.pt"
+#: The shipped model's torch weights (beside its ONNX encoder).
+MODEL = DEFAULT_MODEL.with_suffix(".pt")
 
 
 def basis_planes(state: dict[str, torch.Tensor], resolution: int) -> torch.Tensor:

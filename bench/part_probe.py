@@ -29,11 +29,12 @@ import numpy as np
 import torch
 
 from lp3d.evaluation.protocol import input_camera, input_yaws, reference_teachers, render_truth
-from lp3d.lift.inference import load_encoder
+from lp3d.lift.inference import DEFAULT_MODEL, load_encoder
 from lp3d.teachers.procedural_identity import HeadParams
 from lp3d.training import TRAIN_CONFIGS, SceneBounds, build_teacher
 
-MODEL = Path(__file__).resolve().parents[1] / "python" / "lp3d" / "lift" / "models" / "small.pt"
+#: The shipped model's torch weights (beside its ONNX encoder).
+MODEL = DEFAULT_MODEL.with_suffix(".pt")
 #: The probed colours: HeadParams field -> what the table calls it.
 FIELDS = {
     "skin_rgb": "skin",
