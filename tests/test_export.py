@@ -57,6 +57,18 @@ def test_tiny_encoder_onnx_matches_torch(checkpoint, tmp_path):
     print(f"\nONNX vs torch max abs error on the tiny triplane: {err:.2e}")
 
 
+def test_colour_grid_encoder_onnx_matches_torch(tmp_path):
+    """The colour grid (``colour_pool``, issue 20) exports: its pooling of the image is traced too."""
+    from lp3d.nets.encoder import build_encoder
+
+    enc = build_encoder("tiny-colour")
+    g = torch.Generator().manual_seed(1)
+    with torch.no_grad():  # both branches start at zero output: give them weights
+        enc.basis.coefficients[-1].weight.normal_(0.0, 0.1, generator=g)
+        enc.generator.to_planes.weight.normal_(0.0, 0.1, generator=g)
+    assert check_onnx(enc, export_encoder(enc, tmp_path / "colour.onnx"), batch=2) <= 1e-4
+
+
 def test_export_cli_writes_a_checked_model_and_its_package(checkpoint, tmp_path, capsys):
     out = tmp_path / "model.onnx"
     assert export_main([str(checkpoint), "-o", str(out)]) == 0

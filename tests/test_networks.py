@@ -181,6 +181,51 @@ def test_plane_generator_starts_at_zero_and_moves_every_texel() -> None:
     assert float((moved[0] != moved[1]).float().mean()) > 0.99
 
 
+def test_colour_grid_reaches_the_codes_and_only_through_them() -> None:
+    """colour_pool: the input's mean colours, pooled to P², join the basis's and the generator's code
+    inputs; a config without it keeps the saved weights' shapes (the shipped model still loads)."""
+    plain, coloured = CONFIGS["tiny"], CONFIGS["tiny-colour"]
+    assert coloured.code_inputs == plain.code_inputs + 3 * 8**2
+    keys = {k: v.shape for k, v in build_encoder(plain).state_dict().items()}
+    enc = build_encoder(coloured).eval()
+    widened = {k for k, v in enc.state_dict().items() if keys[k] != v.shape}
+    assert widened == {"basis.coefficients.1.weight", "generator.code.1.weight"}
+    g = torch.Generator().manual_seed(4)
+    with torch.no_grad():  # untrained, both branches add zero: give their last layers weights
+        enc.basis.coefficients[-1].weight.normal_(0.0, 0.1, generator=g)
+        enc.generator.to_planes.weight.normal_(0.0, 0.1, generator=g)
+    x = _image(coloured, batch=1)
+    from lp3d.nets.plane_basis import code_input
+
+    feats = torch.randn(1, coloured.aspp_channels, 16, 16, generator=g)
+    shifted = x.clone()
+    shifted[:, 0, 112:] += 0.3  # the bottom 16 rows (a shirt) redder: the grid's bottom row
+    a = code_input(feats, coloured.basis_pool, F.adaptive_avg_pool2d(x, 8))
+    b = code_input(feats, coloured.basis_pool, F.adaptive_avg_pool2d(shifted, 8))
+    changed = (a != b).flatten().nonzero().flatten().tolist()
+    first_colour = coloured.aspp_channels * coloured.basis_pool**2
+    # The red channel's 64 inputs come first, row by row: its bottom row is inputs 56..63 of the grid.
+    assert changed == [first_colour + i for i in range(56, 64)]
+    with torch.no_grad():
+        for layer in (enc.basis.coefficients[1], enc.generator.code[1]):  # a grid the code listens to
+            layer.weight[:, first_colour:].normal_(0.0, 1.0, generator=g)
+        base, red = enc(x), enc(shifted)
+        for layer in (enc.basis.coefficients[1], enc.generator.code[1]):
+            layer.weight[:, first_colour:] = 0.0
+        # With the grid's weights zeroed the change reaches the planes through the deep features only.
+        blind = enc(shifted) - enc(x)
+    assert (red - base - blind).abs().mean() > 0.1 * blind.abs().mean()
+
+
+def test_colour_pool_is_checked() -> None:
+    with pytest.raises(ValueError, match=r"colour_pool \(48\) must divide the image_size"):
+        dataclasses.replace(CONFIGS["tiny"], colour_pool=48)
+    with pytest.raises(ValueError, match="colour_pool must be an int >= 0"):
+        dataclasses.replace(CONFIGS["tiny"], colour_pool=-1)
+    with pytest.raises(ValueError, match="colour_pool feeds the basis and the generator"):
+        dataclasses.replace(CONFIGS["tiny"], colour_pool=8, basis_components=0, generator_channels=())
+
+
 @pytest.mark.parametrize("widths", [(64,), (64, 32, 32, 32, 32, 32, 32, 32)])
 def test_plane_generator_widths_are_checked(widths) -> None:
     with pytest.raises(ValueError, match="generator_channels"):

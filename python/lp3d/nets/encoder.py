@@ -47,6 +47,7 @@ import math
 from collections.abc import Iterator
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor, nn
 
 from lp3d.nets.encoder_blocks import ASPP, BasicBlock, ResNet34Features
@@ -191,10 +192,12 @@ class LP3DEncoder(nn.Module):
         f = self.e_low(a)
         f_high = self.e_high(x if self.config.high_source == "image" else layer1)
         planes = self.head(f, f_high)
+        p = self.config.colour_pool
+        colours = F.adaptive_avg_pool2d(image, p) if p else None
         if self.basis is not None:
-            planes = planes + self.basis(a)
+            planes = planes + self.basis(a, colours)
         if self.generator is not None:
-            planes = planes + self.generator(a)
+            planes = planes + self.generator(a, colours)
         t = self.config.triplane_resolution
         return planes.reshape(b, 3, self.config.plane_channels, t, t)
 

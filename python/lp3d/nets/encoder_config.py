@@ -93,6 +93,11 @@ class EncoderConfig:
     # head's output (see lp3d.nets.plane_generator for why).
     generator_channels: tuple[int, ...] = ()
     generator_code: int = 256
+    # The input's mean colours on a ``colour_pool``² grid, fed to the basis's and the generator's
+    # codes beside the pooled features (CPU configurations; 0 turns it off). Why: the deep features
+    # keep a part's luminance but lose its hue (bench/part_probe.py: the shipped small model follows
+    # a shirt's hue with gain 0.13), and a grid of mean colours holds each part's hue linearly.
+    colour_pool: int = 0
 
     def __post_init__(self) -> None:
         self.validate()
@@ -123,6 +128,11 @@ class EncoderConfig:
         return self.high_input_resolution // self.feature_resolution
 
     @property
+    def code_inputs(self) -> int:
+        """Inputs of the basis's and the generator's code MLPs: the pooled features, then the colour grid."""
+        return self.aspp_channels * self.basis_pool**2 + 3 * self.colour_pool**2
+
+    @property
     def out_channels(self) -> int:
         return 3 * self.plane_channels
 
@@ -142,9 +152,9 @@ class EncoderConfig:
                 continue
             if f.name == "generator_channels" and value == ():  # no plane generator
                 continue
-            if f.name == "basis_components":  # 0: no plane basis
+            if f.name in ("basis_components", "colour_pool"):  # 0: no plane basis / no colour grid
                 if not isinstance(value, int) or isinstance(value, bool) or value < 0:
-                    raise ValueError(f"EncoderConfig.basis_components must be an int >= 0, got {value!r}")
+                    raise ValueError(f"EncoderConfig.{f.name} must be an int >= 0, got {value!r}")
                 continue
             if isinstance(value, tuple):
                 if not value:
@@ -165,6 +175,15 @@ class EncoderConfig:
             raise ValueError(
                 f"EncoderConfig.basis_pool ({self.basis_pool}) must divide the ASPP's resolution "
                 f"({self.image_size // 8})"
+            )
+        if self.colour_pool and not uses_pool:
+            raise ValueError(
+                "EncoderConfig.colour_pool feeds the basis and the generator: it needs one of them"
+            )
+        if self.colour_pool and self.image_size % self.colour_pool:
+            raise ValueError(
+                f"EncoderConfig.colour_pool ({self.colour_pool}) must divide the image_size "
+                f"({self.image_size})"
             )
         n = len(self.generator_channels)
         if n and (
@@ -360,3 +379,7 @@ CONFIGS: dict[str, EncoderConfig] = {
 }
 # ``small`` before issue 20 (a plane basis and no generator): the ablation of bench/RESULTS.md.
 CONFIGS["small-basis"] = replace(CONFIGS["small"], name="small-basis", generator_channels=())
+# ``small`` and ``tiny`` with the input's mean colours on an 8² grid beside the pooled features (each
+# cell 16² pixels: the shirt fills the bottom row or two): the colour-grid experiment of issue 20.
+CONFIGS["small-colour"] = replace(CONFIGS["small"], name="small-colour", colour_pool=8)
+CONFIGS["tiny-colour"] = replace(CONFIGS["tiny"], name="tiny-colour", colour_pool=8)

@@ -13,11 +13,20 @@ from torch import Tensor, nn
 from lp3d.nets.encoder_config import EncoderConfig
 
 
+def code_input(features: Tensor, pool: int, colours: Tensor | None) -> Tensor:
+    """(B, ``EncoderConfig.code_inputs``): the features average-pooled to ``pool``², flattened, then the
+    colour grid (B, 3, P, P) flattened, if given. The basis and the generator read the same vector."""
+    x = F.adaptive_avg_pool2d(features, pool).flatten(1)
+    return x if colours is None else torch.cat([x, colours.flatten(1)], dim=1)
+
+
 class PlaneBasis(nn.Module):
-    """``forward(aspp features (B, C_a, R, R)) -> planes (B, 3·32, T, T)``: Σ_k c_k · component_k.
+    """``forward(aspp features (B, C_a, R, R), colours (B, 3, P, P) | None) -> planes (B, 3·32, T, T)``:
+    Σ_k c_k · component_k.
 
     The coefficients c (B, K) come from an MLP on the features average-pooled to ``basis_pool``²
-    (keeping a coarse layout); ``components`` (K, 3·32, R_b, R_b) is learnt, and bilinearly
+    (keeping a coarse layout), followed by the input's colour grid when the config has one
+    (:func:`code_input`); ``components`` (K, 3·32, R_b, R_b) is learnt, and bilinearly
     upsampled to T. The last layer starts at zero, so an untrained branch adds nothing.
     """
 
@@ -27,15 +36,15 @@ class PlaneBasis(nn.Module):
         self.pool = cfg.basis_pool
         self.triplane_resolution = cfg.triplane_resolution
         self.coefficients = nn.Sequential(
-            nn.Flatten(),
-            nn.Linear(cfg.aspp_channels * cfg.basis_pool**2, cfg.basis_hidden),
+            nn.Flatten(),  # a no-op on the flat code input, kept so saved weights keep their names
+            nn.Linear(cfg.code_inputs, cfg.basis_hidden),
             nn.LeakyReLU(0.01),
             nn.Linear(cfg.basis_hidden, k),
         )
         self.components = nn.Parameter(torch.zeros(k, 3 * cfg.plane_channels, r, r))
 
-    def forward(self, features: Tensor) -> Tensor:
-        c = self.coefficients(F.adaptive_avg_pool2d(features, self.pool))
+    def forward(self, features: Tensor, colours: Tensor | None = None) -> Tensor:
+        c = self.coefficients(code_input(features, self.pool, colours))
         # A matrix product, not an einsum: onnxruntime's Einsum took 6.3 ms here, its MatMul 0.4 ms
         # (2 threads; the same numbers), a tenth of the shipped encoder's time.
         planes = (c @ self.components.flatten(1)).view(c.shape[0], *self.components.shape[1:])

@@ -7,7 +7,7 @@ front-facing plane. The teacher's planes are a nonlinear function of a few dozen
 which is what a generator (a code decoded by upsampling convolutions, as in DCGAN/StyleGAN) expresses:
 each texel of each plane is computed, and edges can move with the code.
 
-Imports lp3d.nets.encoder_config.
+Imports lp3d.nets.encoder_config and lp3d.nets.plane_basis.
 """
 
 from __future__ import annotations
@@ -16,15 +16,17 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from lp3d.nets.encoder_config import EncoderConfig
+from lp3d.nets.plane_basis import code_input
 
 
 class PlaneGenerator(nn.Module):
-    """``forward(aspp features (B, C_a, R, R)) -> planes (B, 3·32, T, T)``.
+    """``forward(aspp features (B, C_a, R, R), colours (B, 3, P, P) | None) -> planes (B, 3·32, T, T)``.
 
     The code (B, ``generator_code``) comes from an MLP on the features average-pooled to
-    ``basis_pool``²; a linear layer lays it out as ``generator_channels[0]`` maps of side
-    T / 2^(n-1); each further width is one stage of bilinear ×2 and a 3×3 convolution; a 1×1
-    convolution gives the 3·32 plane channels. That last layer starts at zero, so an untrained
+    ``basis_pool``² and the input's colour grid, if any (:func:`lp3d.nets.plane_basis.code_input`);
+    a linear layer lays it out as ``generator_channels[0]`` maps of side T / 2^(n-1); each further
+    width is one stage of bilinear ×2 and a 3×3 convolution; a 1×1 convolution gives the 3·32 plane
+    channels. That last layer starts at zero, so an untrained
     generator adds nothing.
     """
 
@@ -34,8 +36,8 @@ class PlaneGenerator(nn.Module):
         self.pool = cfg.basis_pool
         self.start = cfg.triplane_resolution >> (len(widths) - 1)
         self.code = nn.Sequential(
-            nn.Flatten(),
-            nn.Linear(cfg.aspp_channels * cfg.basis_pool**2, cfg.generator_code),
+            nn.Flatten(),  # a no-op on the flat code input, kept so saved weights keep their names
+            nn.Linear(cfg.code_inputs, cfg.generator_code),
             nn.LeakyReLU(0.2),
             nn.Linear(cfg.generator_code, widths[0] * self.start**2),
             nn.LeakyReLU(0.2),
@@ -45,8 +47,8 @@ class PlaneGenerator(nn.Module):
         )
         self.to_planes = nn.Conv2d(widths[-1], cfg.out_channels, 1)
 
-    def forward(self, features: Tensor) -> Tensor:
-        x = self.code(F.adaptive_avg_pool2d(features, self.pool))
+    def forward(self, features: Tensor, colours: Tensor | None = None) -> Tensor:
+        x = self.code(code_input(features, self.pool, colours))
         x = x.reshape(x.shape[0], -1, self.start, self.start)
         for conv in self.stages:
             x = F.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False)

@@ -402,6 +402,11 @@ TRAIN_CONFIGS: dict[str, TrainConfig] = {
 TRAIN_CONFIGS["small-basis"] = dataclasses.replace(
     TRAIN_CONFIGS["small"], name="small-basis", encoder=ENCODER_CONFIGS["small-basis"]
 )
+# ``small`` and ``tiny`` with the input's colour grid in the basis's and generator's codes (issue 20).
+for _name in ("small", "tiny"):
+    TRAIN_CONFIGS[f"{_name}-colour"] = dataclasses.replace(
+        TRAIN_CONFIGS[_name], name=f"{_name}-colour", encoder=ENCODER_CONFIGS[f"{_name}-colour"]
+    )
 
 
 def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
