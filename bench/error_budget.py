@@ -30,6 +30,7 @@ Equal numbers on the two splits say the student is not short of data but of fit.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -118,7 +119,8 @@ def main(argv: list[str] | None = None) -> int:
     enc = load_encoder(args.model, "torch")
     ckpt = torch.load(args.model, map_location="cpu", weights_only=True)
     offset = ckpt["plane_offset"].float().unsqueeze(0)
-    cfg = TRAIN_CONFIGS[ckpt["config"]["name"]]
+    raw = ckpt["config"]  # a model package's encoder config (a dict), a run checkpoint's as JSON
+    cfg = TRAIN_CONFIGS[(json.loads(raw) if isinstance(raw, str) else raw)["name"]]
     t_res = cfg.triplane_resolution
     basis = basis_planes(ckpt["encoder"], t_res)
     teacher = build_teacher("procedural", triplane_resolution=t_res)

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import sys
 import time
 from pathlib import Path
@@ -76,7 +77,8 @@ def main(argv: list[str] | None = None) -> int:
 
     enc = load_encoder(args.model, "torch")
     ckpt = torch.load(args.model, map_location="cpu", weights_only=True)
-    cfg = TRAIN_CONFIGS[ckpt["config"]["name"]]
+    raw = ckpt["config"]  # a model package's encoder config (a dict), a run checkpoint's as JSON
+    cfg = TRAIN_CONFIGS[(json.loads(raw) if isinstance(raw, str) else raw)["name"]]
     teacher = build_teacher("procedural", triplane_resolution=cfg.triplane_resolution)
     truth_teacher, ceiling_teacher = reference_teachers(teacher, cfg)
     assert ceiling_teacher is not None

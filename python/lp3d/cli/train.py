@@ -62,6 +62,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--resume", default=None, help="checkpoint file or run directory to continue from")
     p.add_argument(
+        "--init-from",
+        default=None,
+        metavar="WEIGHTS",
+        help="a new run's encoder starts from these weights (a model package .pt or a run checkpoint); "
+        "what the configuration adds starts at zero (docs/training.md, 'Starting from trained weights')",
+    )
+    p.add_argument(
         "--perceptual",
         choices=PERCEPTUAL_KINDS,
         help="perceptual loss (default: the config's; lpips needs backbone weights on disk)",
@@ -150,6 +157,7 @@ def run(args: argparse.Namespace) -> int:
             device=args.device,
             dist_timeout_minutes=args.dist_timeout,
             progress=not args.no_progress,
+            init_from=args.init_from,
         )
     except (ValueError, RuntimeError, FileNotFoundError) as e:  # NonFiniteError is a ValueError
         _error(e)

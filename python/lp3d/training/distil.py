@@ -68,6 +68,7 @@ def train(
     device: str = "auto",
     dist_timeout_minutes: float = 60.0,
     progress: bool = True,
+    init_from: str | Path | None = None,
 ) -> TrainResult:
     """Train the encoder of ``config`` (a name of :data:`TRAIN_CONFIGS`, a :class:`TrainConfig`, or
     None: ``tiny``, or the checkpoint's on ``resume``) into ``out`` (default ``runs/<config>``; on
@@ -118,6 +119,7 @@ def train(
             progress=progress,
             data_cache=data_cache,
             teacher_args=targs,
+            init_from=init_from,
         )
         distributed.note(
             f"training {cfg.name!r} on {run_device} with the {teacher_name} teacher, batch "

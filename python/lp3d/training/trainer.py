@@ -61,6 +61,7 @@ from lp3d.training.teacher_factory import (
     teacher_superres_state,
 )
 from lp3d.training.tensorboard_log import TensorBoardLog
+from lp3d.training.warm_start import WarmStart, warm_start
 
 
 class Trainer:
@@ -85,6 +86,8 @@ class Trainer:
             (default :func:`lp3d.training.synthetic_data.default_cache_root`).
         teacher_args: how the teacher was built (:data:`TEACHER_ARGS`), recorded in the checkpoints so
             ``--resume`` and ``lp3d.evaluation.evaluate`` can rebuild it (default: the resumed checkpoint's).
+        init_from: a new run's encoder starts from these weights (a model package or a run checkpoint;
+            :mod:`lp3d.training.warm_start`), recorded in ``warm_start.json``.
     """
 
     def __init__(
@@ -101,6 +104,7 @@ class Trainer:
         progress: bool = True,
         data_cache: str | os.PathLike[str] | None = None,
         teacher_args: dict[str, str | None] | None = None,
+        init_from: str | os.PathLike[str] | None = None,
     ) -> None:
         self.config = cfg = config
         self.out_dir = Path(out_dir)
@@ -128,6 +132,10 @@ class Trainer:
         if ckpt is not None:
             check_resumable(ckpt, cfg, teacher_name)
 
+        if init_from is not None and ckpt is not None:
+            raise ValueError("--init-from starts a new run; a resumed run continues its own weights")
+        self.init_from = init_from
+        self.warm_started: WarmStart | None = None
         self.data_cache = data_cache
         self._perceptual, self._category = perceptual, category
         self._tb: TensorBoardLog | None = None
@@ -151,6 +159,9 @@ class Trainer:
         self._open_data()
         if ckpt is None:
             self._start_student()
+            if self.init_from is not None:
+                self.warm_started = warm_start(self.student, self.init_from)
+                distributed.note(self.warm_started.describe())
         self._build_optimisers()
         if ckpt is not None:
             self._restore(ckpt)
@@ -295,6 +306,8 @@ class Trainer:
             "batch_per_process": self.local_batch,
         }
         atomic_write_text(self.out_dir / "world.json", json.dumps(world, indent=2) + "\n")
+        if fresh and self.warm_started is not None:  # where the weights came from, for the record
+            atomic_write_text(self.out_dir / "warm_start.json", self.warm_started.to_json() + "\n")
         start_log(self.out_dir, self.step)
         if cfg.recipe == "cpu" and fresh:
             self.log_heldout()  # the learning curve starts at the untrained student
