@@ -353,3 +353,29 @@ def test_a_resumed_run_may_lengthen_its_schedule_only():
     ):
         with pytest.raises(CheckpointError, match="differs from the requested"):
             check_resumable(ckpt, other, "procedural")
+
+
+def test_lr_scale_multiplies_a_new_runs_student_rates_only():
+    """``--lr-scale F`` (a warm-started fine-tune): every student rate times F, the discriminator's
+    and the schedule's shape kept; a resumed run keeps its checkpoint's rates; F must be in (0, 10]."""
+    from lp3d.training.checkpoint import CheckpointError
+    from lp3d.training.distil import STUDENT_RATES, _with_overrides
+
+    small = TRAIN_CONFIGS["small"]
+    overrides = dict(batch=None, total_steps=None, ray_from=None, perceptual=None, checkpoint_every=None)
+    slow = _with_overrides(small, None, dataset_identities=None, lr_scale=0.15, **overrides)
+    for name in STUDENT_RATES:
+        assert getattr(slow, name) == pytest.approx(0.15 * getattr(small, name))
+    assert slow.lr_encoder == pytest.approx(4.5e-5)  # small's 3e-4
+    assert dataclasses.replace(slow, **{k: getattr(small, k) for k in STUDENT_RATES}) == small
+    ckpt = {
+        "train_config": small,
+        "teacher": "procedural",
+        "path": "run/checkpoints/step-000100.pt",
+        "step": 100,
+    }
+    with pytest.raises(CheckpointError, match="a resumed run keeps its checkpoint's"):
+        _with_overrides(small, ckpt, dataset_identities=None, lr_scale=0.5, **overrides)
+    for bad in (0.0, -1.0, float("nan"), 11.0):
+        with pytest.raises(ValueError, match="--lr-scale must be in"):
+            _with_overrides(small, None, dataset_identities=None, lr_scale=bad, **overrides)

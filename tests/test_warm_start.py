@@ -103,3 +103,10 @@ def test_sources_that_do_not_fit_are_refused_naming_why(teacher, tmp_path) -> No
             warm_start(new, path)
     after = new.encoder.state_dict()
     assert all(torch.equal(before[k], after[k]) for k in before)  # nothing half-copied
+
+
+def test_init_from_is_for_new_runs_only(tmp_path) -> None:
+    from lp3d.training import train
+
+    with pytest.raises(ValueError, match="--init-from starts a new run"):
+        train("tiny", out=tmp_path / "run", resume=tmp_path / "old", init_from=tmp_path / "w.pt")

@@ -85,6 +85,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="identities in the CPU recipe's synthetic dataset (overrides the config)",
     )
     p.add_argument(
+        "--lr-scale",
+        type=float,
+        help="multiply the student's learning rates (a new run; e.g. 0.2 to fine-tune after --init-from)",
+    )
+    p.add_argument(
         "--checkpoint-every",
         type=int_in(1, MAX_STEPS),
         help="write a checkpoint every N steps (default: the config's; may change on --resume)",
@@ -153,6 +158,7 @@ def run(args: argparse.Namespace) -> int:
             lpips_weights=args.lpips_weights,
             data_cache=args.data_cache,
             dataset_identities=args.dataset_identities,
+            lr_scale=args.lr_scale,
             checkpoint_every=args.checkpoint_every,
             device=args.device,
             dist_timeout_minutes=args.dist_timeout,

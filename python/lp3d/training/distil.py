@@ -64,6 +64,7 @@ def train(
     lpips_weights: str | None = None,
     data_cache: str | None = None,
     dataset_identities: int | None = None,
+    lr_scale: float | None = None,
     checkpoint_every: int | None = None,
     device: str = "auto",
     dist_timeout_minutes: float = 60.0,
@@ -83,6 +84,8 @@ def train(
             raise ValueError(
                 f"dist_timeout_minutes must be a positive number of minutes, got {dist_timeout_minutes}"
             )
+        if init_from is not None and resume is not None:
+            raise ValueError("--init-from starts a new run; a resumed run continues its own weights")
         run_device = distributed.setup(device, timeout_minutes=dist_timeout_minutes).device
         ckpt = load_shared_checkpoint(str(resume)) if resume is not None else None
         cfg, teacher_name, out_dir = _run_of(config, teacher, out, ckpt, resume)
@@ -95,6 +98,7 @@ def train(
             perceptual=perceptual,
             checkpoint_every=checkpoint_every,
             dataset_identities=dataset_identities,
+            lr_scale=lr_scale,
         )
         loss = build_perceptual(cfg.perceptual, lpips_net=cfg.lpips_net, lpips_weights=lpips_weights)
         if loss is not None:
@@ -164,6 +168,10 @@ def _run_of(
     return cfg, teacher or "procedural", Path(out) if out else Path("runs") / cfg.name
 
 
+#: The student's learning rates, which ``--lr-scale`` multiplies (a warm start fine-tunes at a fraction).
+STUDENT_RATES = ("lr_encoder", "lr_transformer", "lr_basis", "lr_decoder", "lr_superres")
+
+
 def _with_overrides(
     cfg: TrainConfig,
     ckpt: dict[str, Any] | None,
@@ -174,6 +182,7 @@ def _with_overrides(
     perceptual: str | None,
     checkpoint_every: int | None,
     dataset_identities: int | None,
+    lr_scale: float | None = None,
 ) -> TrainConfig:
     """``cfg`` with the arguments that override it; a resumed run may not change its dataset."""
     if batch is not None:
@@ -205,6 +214,12 @@ def _with_overrides(
                 f"{cfg.dataset_identities}; a resumed run keeps its dataset"
             )
         cfg = dataclasses.replace(cfg, dataset_identities=dataset_identities)
+    if lr_scale is not None:
+        if ckpt is not None:
+            raise CheckpointError("--lr-scale sets a new run's rates; a resumed run keeps its checkpoint's")
+        if not (math.isfinite(lr_scale) and 0.0 < lr_scale <= 10.0):
+            raise ValueError(f"--lr-scale must be in (0, 10], got {lr_scale}")
+        cfg = dataclasses.replace(cfg, **{k: getattr(cfg, k) * lr_scale for k in STUDENT_RATES})
     return cfg
 
 
