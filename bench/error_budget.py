@@ -96,7 +96,13 @@ def part_swaps(ceiling: torch.Tensor, student: torch.Tensor) -> dict[str, torch.
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--n-identities", type=int, default=16, help="identities per split (default 16)")
-    p.add_argument("--model", type=Path, default=MODEL, help="torch weights of the encoder")
+    p.add_argument(
+        "--model",
+        type=Path,
+        default=MODEL,
+        help="torch weights of the encoder: a model package .pt (default: the shipped one) or a run "
+        "checkpoint",
+    )
     p.add_argument("--seed", type=int, default=0, help="noise seed")
     p.add_argument(
         "--splits",

@@ -64,7 +64,13 @@ def changed(params: HeadParams, field: str, delta: np.ndarray) -> HeadParams:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--n-identities", type=int, default=32, help="held-out identities (default 32)")
-    p.add_argument("--model", type=Path, default=MODEL, help="torch weights of the encoder")
+    p.add_argument(
+        "--model",
+        type=Path,
+        default=MODEL,
+        help="torch weights of the encoder: a model package .pt (default: the shipped one) or a run "
+        "checkpoint",
+    )
     p.add_argument(
         "--split",
         choices=("held-out", "training"),
