@@ -61,13 +61,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "with --resume, any step the run has not taken yet)",
     )
     p.add_argument("--resume", default=None, help="checkpoint file or run directory to continue from")
-    p.add_argument(
-        "--init-from",
-        default=None,
-        metavar="WEIGHTS",
-        help="a new run's encoder starts from these weights (a model package .pt or a run checkpoint); "
-        "what the configuration adds starts at zero (docs/training.md, 'Starting from trained weights')",
-    )
+    _add_warm_start_arguments(p)
     p.add_argument(
         "--perceptual",
         choices=PERCEPTUAL_KINDS,
@@ -83,11 +77,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--dataset-identities",
         type=int_in(1, MAX_IDENTITIES),
         help="identities in the CPU recipe's synthetic dataset (overrides the config)",
-    )
-    p.add_argument(
-        "--lr-scale",
-        type=float,
-        help="multiply the student's learning rates (a new run; e.g. 0.2 to fine-tune after --init-from)",
     )
     p.add_argument(
         "--checkpoint-every",
@@ -109,6 +98,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "it must cover rank 0 synthesising a missing dataset)",
     )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _add_warm_start_arguments(p: argparse.ArgumentParser) -> None:
+    """``--init-from`` and ``--lr-scale``: a new run that fine-tunes trained weights."""
+    p.add_argument(
+        "--init-from",
+        default=None,
+        metavar="WEIGHTS",
+        help="a new run's encoder starts from these weights (a model package .pt or a run checkpoint); "
+        "what the configuration adds starts at zero (docs/training.md, 'Starting from trained weights')",
+    )
+    p.add_argument(
+        "--lr-scale",
+        type=float,
+        help="multiply the student's learning rates (a new run; e.g. 0.2 to fine-tune after --init-from)",
+    )
 
 
 def _add_teacher_arguments(p: argparse.ArgumentParser) -> None:

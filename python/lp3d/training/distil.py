@@ -80,12 +80,7 @@ def train(
     (``--help`` says what each means). Under torchrun every process calls this; one process without
     torchrun trains alone."""
     try:
-        if not (math.isfinite(dist_timeout_minutes) and dist_timeout_minutes > 0):
-            raise ValueError(
-                f"dist_timeout_minutes must be a positive number of minutes, got {dist_timeout_minutes}"
-            )
-        if init_from is not None and resume is not None:
-            raise ValueError("--init-from starts a new run; a resumed run continues its own weights")
+        _check_arguments(dist_timeout_minutes, resume, init_from)
         run_device = distributed.setup(device, timeout_minutes=dist_timeout_minutes).device
         ckpt = load_shared_checkpoint(str(resume)) if resume is not None else None
         cfg, teacher_name, out_dir = _run_of(config, teacher, out, ckpt, resume)
@@ -139,6 +134,16 @@ def train(
         return TrainResult(out=out_dir, step=trainer.step, checkpoint=last, interrupted=trainer.interrupted)
     finally:
         distributed.shutdown()  # leaves torchrun's process group (a no-op for one process)
+
+
+def _check_arguments(dist_timeout_minutes: float, resume: object, init_from: object) -> None:
+    """The checks of :func:`train`'s arguments that need nothing built."""
+    if not (math.isfinite(dist_timeout_minutes) and dist_timeout_minutes > 0):
+        raise ValueError(
+            f"dist_timeout_minutes must be a positive number of minutes, got {dist_timeout_minutes}"
+        )
+    if init_from is not None and resume is not None:
+        raise ValueError("--init-from starts a new run; a resumed run continues its own weights")
 
 
 def _run_of(

@@ -61,7 +61,7 @@ from lp3d.training.teacher_factory import (
     teacher_superres_state,
 )
 from lp3d.training.tensorboard_log import TensorBoardLog
-from lp3d.training.warm_start import WarmStart, warm_start
+from lp3d.training.warm_start import warm_start
 
 
 class Trainer:
@@ -86,8 +86,7 @@ class Trainer:
             (default :func:`lp3d.training.synthetic_data.default_cache_root`).
         teacher_args: how the teacher was built (:data:`TEACHER_ARGS`), recorded in the checkpoints so
             ``--resume`` and ``lp3d.evaluation.evaluate`` can rebuild it (default: the resumed checkpoint's).
-        init_from: a new run's encoder starts from these weights (a model package or a run checkpoint;
-            :mod:`lp3d.training.warm_start`), recorded in ``warm_start.json``.
+        init_from: a new run's starting weights (:mod:`lp3d.training.warm_start`; ``warm_start.json``).
     """
 
     def __init__(
@@ -132,10 +131,6 @@ class Trainer:
         if ckpt is not None:
             check_resumable(ckpt, cfg, teacher_name)
 
-        if init_from is not None and ckpt is not None:
-            raise ValueError("--init-from starts a new run; a resumed run continues its own weights")
-        self.init_from = init_from
-        self.warm_started: WarmStart | None = None
         self.data_cache = data_cache
         self._perceptual, self._category = perceptual, category
         self._tb: TensorBoardLog | None = None
@@ -147,21 +142,21 @@ class Trainer:
         try:
             if self.is_main:
                 remove_stale_temporaries(self.out_dir)
-            self._build(ckpt)
+            self._build(ckpt, init_from)
         except BaseException:
             if self._lock is not None:
                 self._lock.release()
             raise
 
-    def _build(self, ckpt: dict[str, Any] | None) -> None:
-        """Models, data, optimisers and run directory (``ckpt``: the checkpoint to continue from)."""
+    def _build(self, ckpt: dict[str, Any] | None, init_from: str | os.PathLike[str] | None) -> None:
+        """Models, data, optimisers and run directory, continuing ``ckpt`` or starting from ``init_from``."""
         self._build_models()
         self._open_data()
         if ckpt is None:
             self._start_student()
-            if self.init_from is not None:
-                self.warm_started = warm_start(self.student, self.init_from)
-                distributed.note(self.warm_started.describe())
+        self.warm_started = None if init_from is None else warm_start(self.student, init_from)
+        if self.warm_started is not None:
+            distributed.note(self.warm_started.describe())
         self._build_optimisers()
         if ckpt is not None:
             self._restore(ckpt)
