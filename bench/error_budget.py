@@ -50,11 +50,29 @@ from lp3d.evaluation.protocol import (
 )
 from lp3d.lift.inference import DEFAULT_MODEL, load_encoder
 from lp3d.teachers.procedural_decoder import N_PARTS, PARTS
-from lp3d.training import TRAIN_CONFIGS, SceneBounds, build_teacher
+from lp3d.training import TRAIN_CONFIGS, SceneBounds, TrainConfig, build_teacher
 
 METHODS = ("ceiling", "basis oracle", "ceiling + noise", "student", "mean head")
 #: The shipped model's torch weights (beside its ONNX encoder).
 MODEL = DEFAULT_MODEL.with_suffix(".pt")
+
+
+def add_model_argument(p: argparse.ArgumentParser) -> None:
+    """``--model``: the encoder these diagnostics read (also bench/part_probe.py's)."""
+    p.add_argument(
+        "--model",
+        type=Path,
+        default=MODEL,
+        help="torch weights of the encoder: a model package .pt (default: the shipped one) or a run "
+        "checkpoint",
+    )
+
+
+def train_config_of(ckpt: dict) -> TrainConfig:
+    """The training configuration named by a model package (its encoder config, a dict) or a run
+    checkpoint (its training config, as JSON)."""
+    raw = ckpt["config"]
+    return TRAIN_CONFIGS[(json.loads(raw) if isinstance(raw, str) else raw)["name"]]
 
 
 def basis_planes(state: dict[str, torch.Tensor], resolution: int) -> torch.Tensor:
@@ -96,13 +114,7 @@ def part_swaps(ceiling: torch.Tensor, student: torch.Tensor) -> dict[str, torch.
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--n-identities", type=int, default=16, help="identities per split (default 16)")
-    p.add_argument(
-        "--model",
-        type=Path,
-        default=MODEL,
-        help="torch weights of the encoder: a model package .pt (default: the shipped one) or a run "
-        "checkpoint",
-    )
+    add_model_argument(p)
     p.add_argument("--seed", type=int, default=0, help="noise seed")
     p.add_argument(
         "--splits",
@@ -125,8 +137,7 @@ def main(argv: list[str] | None = None) -> int:
     enc = load_encoder(args.model, "torch")
     ckpt = torch.load(args.model, map_location="cpu", weights_only=True)
     offset = ckpt["plane_offset"].float().unsqueeze(0)
-    raw = ckpt["config"]  # a model package's encoder config (a dict), a run checkpoint's as JSON
-    cfg = TRAIN_CONFIGS[(json.loads(raw) if isinstance(raw, str) else raw)["name"]]
+    cfg = train_config_of(ckpt)
     t_res = cfg.triplane_resolution
     basis = basis_planes(ckpt["encoder"], t_res)
     teacher = build_teacher("procedural", triplane_resolution=t_res)

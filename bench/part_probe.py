@@ -21,21 +21,18 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import torch
 
+from error_budget import add_model_argument, train_config_of  # a sibling script (bench/ is on sys.path)
 from lp3d.evaluation.protocol import input_camera, input_yaws, reference_teachers, render_truth
-from lp3d.lift.inference import DEFAULT_MODEL, load_encoder
+from lp3d.lift.inference import load_encoder
 from lp3d.teachers.procedural_identity import HeadParams
-from lp3d.training import TRAIN_CONFIGS, SceneBounds, build_teacher
+from lp3d.training import SceneBounds, build_teacher
 
-#: The shipped model's torch weights (beside its ONNX encoder).
-MODEL = DEFAULT_MODEL.with_suffix(".pt")
 #: The probed colours: HeadParams field -> what the table calls it.
 FIELDS = {
     "skin_rgb": "skin",
@@ -64,13 +61,7 @@ def changed(params: HeadParams, field: str, delta: np.ndarray) -> HeadParams:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--n-identities", type=int, default=32, help="held-out identities (default 32)")
-    p.add_argument(
-        "--model",
-        type=Path,
-        default=MODEL,
-        help="torch weights of the encoder: a model package .pt (default: the shipped one) or a run "
-        "checkpoint",
-    )
+    add_model_argument(p)
     p.add_argument(
         "--split",
         choices=("held-out", "training"),
@@ -83,8 +74,7 @@ def main(argv: list[str] | None = None) -> int:
 
     enc = load_encoder(args.model, "torch")
     ckpt = torch.load(args.model, map_location="cpu", weights_only=True)
-    raw = ckpt["config"]  # a model package's encoder config (a dict), a run checkpoint's as JSON
-    cfg = TRAIN_CONFIGS[(json.loads(raw) if isinstance(raw, str) else raw)["name"]]
+    cfg = train_config_of(ckpt)
     teacher = build_teacher("procedural", triplane_resolution=cfg.triplane_resolution)
     truth_teacher, ceiling_teacher = reference_teachers(teacher, cfg)
     assert ceiling_teacher is not None
