@@ -39,6 +39,19 @@ def _package(student: Student, path) -> None:
     torch.save({"encoder": student.encoder.state_dict(), "plane_offset": student.plane_offset.detach()}, path)
 
 
+class _Sneaky:
+    """An object whose unpickling would run code (it records that it did)."""
+
+    ran = False
+
+    def __reduce__(self):
+        return (_Sneaky._run, ())
+
+    @staticmethod
+    def _run() -> None:
+        _Sneaky.ran = True
+
+
 def _image(seed: int = 5) -> torch.Tensor:
     return torch.rand(2, 3, 128, 128, generator=torch.Generator().manual_seed(seed)) * 2 - 1
 
@@ -98,9 +111,12 @@ def test_sources_that_do_not_fit_are_refused_naming_why(teacher, tmp_path) -> No
 
     torch.save({"encoder": build_encoder(small).state_dict()}, tmp_path / "narrow.pt")
     cases[tmp_path / "narrow.pt"] = r"backbone.stem.weight has shape \(8, 5, 7, 7\)"
+    torch.save({"encoder": _Sneaky()}, tmp_path / "code.pt")  # unpickling would run code: refused
+    cases[tmp_path / "code.pt"] = "not readable as torch weights"
     for path, match in cases.items():
         with pytest.raises(WarmStartError, match=match):
             warm_start(new, path)
+    assert not _Sneaky.ran
     after = new.encoder.state_dict()
     assert all(torch.equal(before[k], after[k]) for k in before)  # nothing half-copied
 

@@ -23,6 +23,7 @@ Imports lp3d.training.student.
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import os
 from dataclasses import dataclass
@@ -76,12 +77,14 @@ class WarmStart:
         return f"encoder started from {self.source}: {self.copied} tensors copied{grown}"
 
 
-def _source_tensors(path: Path) -> tuple[dict[str, Tensor], Tensor | None]:
-    """(encoder state without prefix, plane offset or None) of a model package or a run checkpoint."""
+def _source_tensors(path: Path) -> tuple[dict[str, Tensor], Tensor | None, str]:
+    """(encoder state without prefix, plane offset or None, SHA-256 of the file) of a model package or
+    a run checkpoint, read once."""
     if not path.is_file():
         raise WarmStartError(f"--init-from {path}: no such file")
     try:
-        raw: Any = torch.load(path, map_location="cpu", weights_only=True)
+        data = path.read_bytes()
+        raw: Any = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
     except Exception as e:  # a truncated file, not a torch file, a pickle needing code
         raise WarmStartError(f"--init-from {path}: not readable as torch weights ({e})") from None
     if not isinstance(raw, dict):
@@ -102,7 +105,7 @@ def _source_tensors(path: Path) -> tuple[dict[str, Tensor], Tensor | None]:
         raise WarmStartError(f"--init-from {path}: the encoder's weights are not tensors ({bad[:3]})")
     if offset is not None and not isinstance(offset, Tensor):
         raise WarmStartError(f"--init-from {path}: 'plane_offset' is not a tensor")
-    return encoder, offset
+    return encoder, offset, hashlib.sha256(data).hexdigest()
 
 
 def _leading_block(name: str, new: Tensor, old: Tensor) -> tuple[slice, ...] | None:
@@ -122,7 +125,7 @@ def warm_start(student: Student, path: str | os.PathLike[str]) -> WarmStart:
     new configuration is larger (module docstring). Raises :class:`WarmStartError` naming the first
     tensor that does not fit, before changing anything."""
     source = Path(path)
-    encoder, offset = _source_tensors(source)
+    encoder, offset, digest = _source_tensors(source)
     target = student.encoder.state_dict()
     missing = sorted(set(target) - set(encoder))
     extra = sorted(set(encoder) - set(target))
@@ -161,5 +164,4 @@ def warm_start(student: Student, path: str | os.PathLike[str]) -> WarmStart:
     student.encoder.load_state_dict(target)
     if offset is not None and student.plane_offset is not None:
         student.plane_offset.copy_(offset)
-    digest = hashlib.sha256(source.read_bytes()).hexdigest()
     return WarmStart(source=source.resolve(), sha256=digest, copied=len(plans), grown=tuple(grown))
