@@ -36,7 +36,15 @@ def _student(teacher, name: str, *, basis: int | None = None, seed: int = 0) -> 
 
 def _package(student: Student, path) -> None:
     """The layout of a shipped model package's weights (lp3d/lift/models/small.pt)."""
-    torch.save({"encoder": student.encoder.state_dict(), "plane_offset": student.plane_offset.detach()}, path)
+    enc = student.encoder
+    torch.save(
+        {
+            "config": enc.config.to_dict(),
+            "encoder": enc.state_dict(),
+            "plane_offset": student.plane_offset.detach(),
+        },
+        path,
+    )
 
 
 class _Sneaky:
@@ -85,7 +93,9 @@ def test_a_grown_network_starts_where_the_old_one_ended(teacher, tmp_path) -> No
 
 def test_a_run_checkpoint_is_a_source_too(teacher, tmp_path) -> None:
     old = _student(teacher, "tiny")
-    torch.save({"student": old.state_dict(), "step": 3}, tmp_path / "step-000003.pt")
+    torch.save(
+        {"config": old.config.to_json(), "student": old.state_dict(), "step": 3}, tmp_path / "step-000003.pt"
+    )
     new = _student(teacher, "tiny", seed=9)
     warm_start(new, tmp_path / "step-000003.pt")
     with torch.no_grad():
@@ -97,11 +107,11 @@ def test_sources_that_do_not_fit_are_refused_naming_why(teacher, tmp_path) -> No
     before = {k: v.clone() for k, v in new.encoder.state_dict().items()}
     _package(_student(teacher, "tiny-colour"), tmp_path / "bigger.pt")  # larger than the run: no
     cases = {
-        tmp_path / "missing.pt": "no such file",
+        tmp_path / "missing.pt": "no such checkpoint file",
         tmp_path / "bigger.pt": r"basis.coefficients.1.weight has shape \(256, 1216\).*may grow",
-        tmp_path / "list.pt": "expected a dict of weights",
-        tmp_path / "other.pt": "neither a model package",
-        tmp_path / "text.pt": "not readable as torch weights",
+        tmp_path / "list.pt": "a checkpoint must hold a dict",
+        tmp_path / "other.pt": "checkpoint layout not understood",
+        tmp_path / "text.pt": "cannot be read as a plain state-dict checkpoint",
     }
     torch.save([1, 2], tmp_path / "list.pt")
     torch.save({"weights": {}}, tmp_path / "other.pt")
@@ -109,10 +119,12 @@ def test_sources_that_do_not_fit_are_refused_naming_why(teacher, tmp_path) -> No
     small = dataclasses.replace(ENCODER_CONFIGS["tiny"], backbone_widths=(8, 16, 32, 64))
     from lp3d.nets.encoder import build_encoder
 
-    torch.save({"encoder": build_encoder(small).state_dict()}, tmp_path / "narrow.pt")
+    torch.save(
+        {"config": small.to_dict(), "encoder": build_encoder(small).state_dict()}, tmp_path / "narrow.pt"
+    )
     cases[tmp_path / "narrow.pt"] = r"backbone.stem.weight has shape \(8, 5, 7, 7\)"
     torch.save({"encoder": _Sneaky()}, tmp_path / "code.pt")  # unpickling would run code: refused
-    cases[tmp_path / "code.pt"] = "not readable as torch weights"
+    cases[tmp_path / "code.pt"] = "cannot be read as a plain state-dict checkpoint"
     for path, match in cases.items():
         with pytest.raises(WarmStartError, match=match):
             warm_start(new, path)

@@ -9,6 +9,7 @@ May import :mod:`lp3d.lift.model_package`, :mod:`lp3d.lift.loaded`, :mod:`lp3d.n
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -349,13 +350,26 @@ def _plane_offset(offset: Any, config: Any, p: Path) -> Any:
     return offset
 
 
-def _load_torch(path: Path, *, superres: bool = False) -> LoadedEncoder:
-    try:
-        import torch
-    except ImportError as e:
-        raise ModelPackageError(f"the torch backend needs PyTorch: {e}") from None
+@dataclass(frozen=True)
+class EncoderWeights:
+    """What a model package or a training checkpoint holds of the encoder, checked
+    (:func:`read_encoder_weights`)."""
 
-    p, ckpt = _checkpoint_of(path)
+    path: Path  # the file read (a run folder's newest readable checkpoint)
+    checkpoint: Mapping[str, Any]
+    config: Any  # EncoderConfig
+    train_config: dict[str, Any]  # a training checkpoint's config, {} for a package
+    student: dict[str, Any] | None  # a training checkpoint's student state
+    state: dict[str, Any]  # the encoder's state dict, names without a prefix
+    offset: Any  # the (3, 32, T, T) mean triplane added to the encoder's output, or None
+
+
+def read_encoder_weights(path: Path) -> EncoderWeights:
+    """The encoder's configuration, weights and plane offset of a model package ``.pt`` or a
+    ``python -m lp3d.train`` checkpoint (or run folder), read with ``weights_only=True``; raises
+    :class:`ModelPackageError` naming what is missing or malformed. Used to load a model and to start
+    a training run from one (``--init-from``)."""
+    p, ckpt = _checkpoint_of(Path(path))
     keys = sorted(_shown(k, 40) for k in ckpt)[:12]  # any key: str() fails on a 5,000-digit int
     layout_hint = (
         f"{p}: checkpoint layout not understood (keys {', '.join(keys)}); expected "
@@ -363,7 +377,6 @@ def _load_torch(path: Path, *, superres: bool = False) -> LoadedEncoder:
         "'bounds': {box_warp, ray_start, ray_end}} or a python -m lp3d.train checkpoint"
     )
     config, train_cfg = _encoder_config(ckpt, p, layout_hint)
-    # The encoder's weights, and the decoder's where the checkpoint has them.
     student = _state_dict(ckpt["student"], "'student'", p) if "student" in ckpt else None
     if isinstance(ckpt.get("encoder"), Mapping):
         state = _state_dict(ckpt["encoder"], "'encoder'", p)
@@ -375,6 +388,18 @@ def _load_torch(path: Path, *, superres: bool = False) -> LoadedEncoder:
     offset = student.get("plane_offset") if student is not None else ckpt.get("plane_offset")
     if offset is not None:
         offset = _plane_offset(offset, config, p)
+    return EncoderWeights(p, ckpt, config, train_cfg, student, state, offset)
+
+
+def _load_torch(path: Path, *, superres: bool = False) -> LoadedEncoder:
+    try:
+        import torch
+    except ImportError as e:
+        raise ModelPackageError(f"the torch backend needs PyTorch: {e}") from None
+
+    w = read_encoder_weights(path)
+    p, ckpt, config, student, state, offset = w.path, w.checkpoint, w.config, w.student, w.state, w.offset
+    train_cfg = w.train_config
     decoder, bounds, side, sidecar = _decoder_and_bounds(ckpt, student, p)
     package = _torch_package(config, p, side, decoder, bounds, sidecar)  # cheap checks first
     encoder = _torch_encoder(config, state, p)

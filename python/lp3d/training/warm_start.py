@@ -6,8 +6,8 @@ judged only after a retrain of hours; started from the shipped weights, with wha
 at zero, the new network begins exactly where the old one ended and a short run shows what the
 change adds. The same short run from the old configuration is the fair comparison.
 
-The source is a model package (``lp3d/lift/models/small.pt``: ``encoder`` and ``plane_offset``) or a
-run checkpoint (``student``), read with ``torch.load(weights_only=True)`` (no pickle execution).
+The source is a model package (``lp3d/lift/models/small.pt``) or a run checkpoint, read and checked by
+:func:`lp3d.lift.torch_backend.read_encoder_weights` (``weights_only=True``: no pickle execution).
 Each tensor of the student's encoder is
 
 * copied when the source has it with the same shape;
@@ -17,22 +17,21 @@ Each tensor of the student's encoder is
   rows are zero, so they add nothing yet);
 * an error naming the tensor otherwise (a source from another network).
 
-Imports lp3d.training.student.
+Imports lp3d.lift.torch_backend and lp3d.training.student.
 """
 
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import torch
 from torch import Tensor
 
+from lp3d.lift.torch_backend import ModelPackageError, read_encoder_weights
 from lp3d.training.student import Student
 
 #: The tensors a configuration may grow, and along which dimension: the code layers' inputs (the
@@ -78,34 +77,14 @@ class WarmStart:
 
 
 def _source_tensors(path: Path) -> tuple[dict[str, Tensor], Tensor | None, str]:
-    """(encoder state without prefix, plane offset or None, SHA-256 of the file) of a model package or
-    a run checkpoint, read once."""
-    if not path.is_file():
-        raise WarmStartError(f"--init-from {path}: no such file")
+    """(encoder state, plane offset or None, SHA-256 of the file) of a model package or a run
+    checkpoint, read and checked as ``lp3d encode --backend torch`` reads it."""
     try:
-        data = path.read_bytes()
-        raw: Any = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
-    except Exception as e:  # a truncated file, not a torch file, a pickle needing code
-        raise WarmStartError(f"--init-from {path}: not readable as torch weights ({e})") from None
-    if not isinstance(raw, dict):
-        raise WarmStartError(f"--init-from {path}: expected a dict of weights, got {type(raw).__name__}")
-    if isinstance(raw.get("student"), dict):  # a run checkpoint
-        student = raw["student"]
-        encoder = {k[len("encoder.") :]: v for k, v in student.items() if k.startswith("encoder.")}
-        offset = student.get("plane_offset")
-    elif isinstance(raw.get("encoder"), dict):  # a model package
-        encoder, offset = raw["encoder"], raw.get("plane_offset")
-    else:
-        raise WarmStartError(
-            f"--init-from {path}: neither a model package (an 'encoder' entry) nor a run checkpoint "
-            "(a 'student' entry)"
-        )
-    bad = [k for k, v in encoder.items() if not isinstance(v, Tensor)]
-    if bad or not encoder:
-        raise WarmStartError(f"--init-from {path}: the encoder's weights are not tensors ({bad[:3]})")
-    if offset is not None and not isinstance(offset, Tensor):
-        raise WarmStartError(f"--init-from {path}: 'plane_offset' is not a tensor")
-    return encoder, offset, hashlib.sha256(data).hexdigest()
+        weights = read_encoder_weights(path)
+    except ModelPackageError as e:
+        raise WarmStartError(f"--init-from: {e}") from None
+    digest = hashlib.sha256(weights.path.read_bytes()).hexdigest()  # for warm_start.json
+    return weights.state, weights.offset, digest
 
 
 def _leading_block(name: str, new: Tensor, old: Tensor) -> tuple[slice, ...] | None:
