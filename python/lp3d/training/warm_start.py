@@ -76,15 +76,15 @@ class WarmStart:
         return f"encoder started from {self.source}: {self.copied} tensors copied{grown}"
 
 
-def _source_tensors(path: Path) -> tuple[dict[str, Tensor], Tensor | None, str]:
-    """(encoder state, plane offset or None, SHA-256 of the file) of a model package or a run
+def _source_tensors(path: Path) -> tuple[dict[str, Tensor], Tensor | None, Path, str]:
+    """(encoder state, plane offset or None, the file read, its SHA-256) of a model package or a run
     checkpoint, read and checked as ``lp3d encode --backend torch`` reads it."""
     try:
         weights = read_encoder_weights(path)
     except ModelPackageError as e:
         raise WarmStartError(f"--init-from: {e}") from None
     digest = hashlib.sha256(weights.path.read_bytes()).hexdigest()  # for warm_start.json
-    return weights.state, weights.offset, digest
+    return weights.state, weights.offset, weights.path, digest
 
 
 def _leading_block(name: str, new: Tensor, old: Tensor) -> tuple[slice, ...] | None:
@@ -104,7 +104,7 @@ def warm_start(student: Student, path: str | os.PathLike[str]) -> WarmStart:
     new configuration is larger (module docstring). Raises :class:`WarmStartError` naming the first
     tensor that does not fit, before changing anything."""
     source = Path(path)
-    encoder, offset, digest = _source_tensors(source)
+    encoder, offset, source, digest = _source_tensors(source)  # a run folder: its newest checkpoint
     target = student.encoder.state_dict()
     missing = sorted(set(target) - set(encoder))
     extra = sorted(set(encoder) - set(target))
