@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 
 import numpy as np
 import onnx
@@ -18,10 +19,12 @@ from lp3d.export.package import (
     round_to_float16,
     store_float16,
 )
+from lp3d.export.weights import training_inputs
 from lp3d.lift.inference import load_encoder
 from lp3d.lift.model_package import load_model_package
 from lp3d.training import TRAIN_CONFIGS, Trainer, build_teacher, load_checkpoint, student_from_checkpoint
 from lp3d.training.losses import build_perceptual
+from lp3d.training.run_teacher import RunTeacher
 
 
 @pytest.fixture(scope="module")
@@ -129,6 +132,26 @@ def test_plane_basis_reduction_is_exact_within_the_rank_of_its_images(checkpoint
     assert reduce_plane_basis(copy.deepcopy(student), images, 2) > 1e-3
     with pytest.raises(ValueError, match="components must be in"):
         reduce_plane_basis(copy.deepcopy(student), images, 33)
+
+
+def test_training_inputs_of_a_run_trained_elsewhere_are_its_first_identities(tmp_path):
+    """--basis-components on a machine without the run's dataset synthesises only the first n
+    identities, and they are the dataset's own first inputs (each a pure function of its seed)."""
+    cfg = dataclasses.replace(TRAIN_CONFIGS["tiny"], dataset_identities=5)
+    teacher = build_teacher("procedural", triplane_resolution=cfg.triplane_resolution)
+    full = RunTeacher.of(
+        teacher, "procedural", cfg, torch.device("cpu"), data_cache=tmp_path / "a", progress=False
+    )
+    whole = full.open_dataset()
+    assert len(whole) == 5
+    images = training_inputs(cfg, "procedural", str(tmp_path / "b"), n=2)
+    assert images.shape == (2, 3, cfg.image_size, cfg.image_size)
+    np.testing.assert_array_equal(images.numpy(), whole.ref_image[:2].astype(np.float32))
+    assert len(list((tmp_path / "b").iterdir())) == 1  # cached, the prefix alone
+    # With the run's dataset cached, it is read, not synthesised again.
+    again = training_inputs(cfg, "procedural", str(tmp_path / "a"), n=2)
+    np.testing.assert_array_equal(again.numpy(), images.numpy())
+    assert len(list((tmp_path / "a").iterdir())) == 1
 
 
 def test_float16_storage_halves_the_file_and_matches_the_rounded_model(checkpoint, tmp_path):

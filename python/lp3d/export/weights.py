@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -163,7 +164,11 @@ def check_rounding(reference: Student, rounded: Student, *, batch: int = 2, seed
 
 
 def training_inputs(cfg: Any, teacher_name: str, data_cache: str | None, n: int = 256) -> Tensor:
-    """The first ``n`` encoder inputs of the run's cached synthetic dataset (CPU recipe)."""
+    """The first ``n`` encoder inputs of the run's cached synthetic dataset (CPU recipe). Where that
+    dataset is not cached here (a run trained on another machine), only its first ``n`` identities
+    are synthesised (and cached): each identity is a pure function of its seed, so they are the
+    same inputs."""
+    from lp3d.training.run_teacher import RunTeacher
     from lp3d.training.synthetic_data import SyntheticDataset, default_cache_root
     from lp3d.training.teacher_factory import build_teacher, dataset_key
 
@@ -174,9 +179,13 @@ def training_inputs(cfg: Any, teacher_name: str, data_cache: str | None, n: int 
     root = Path(data_cache) if data_cache else default_cache_root()
     try:
         data = SyntheticDataset.load(root / key.digest(), key)
-    except ValueError as e:
-        raise ValueError(
-            f"--basis-components needs the run's cached dataset ({e}); run python -m lp3d.train on this "
-            "machine first, or pass --data-cache"
-        ) from None
+    except ValueError:
+        prefix = dataclasses.replace(key, n_identities=min(n, key.n_identities))
+        print(
+            f"the run's dataset is not cached in {root}: synthesising its first {prefix.n_identities} "
+            "identities",
+            file=sys.stderr,
+        )
+        run_teacher = RunTeacher.of(teacher, teacher_name, cfg, torch.device("cpu"), data_cache=root)
+        data = run_teacher.open_dataset(prefix)
     return torch.from_numpy(data.ref_image[:n].astype(np.float32))
