@@ -49,6 +49,7 @@ from lp3d.evaluation.protocol import (
     render_truth,
 )
 from lp3d.lift.inference import DEFAULT_MODEL, load_encoder
+from lp3d.lift.torch_backend import read_encoder_weights
 from lp3d.teachers.procedural_decoder import N_PARTS, PARTS
 from lp3d.training import TRAIN_CONFIGS, SceneBounds, TrainConfig, build_teacher
 
@@ -135,11 +136,15 @@ def main(argv: list[str] | None = None) -> int:
 
     torch.manual_seed(args.seed)
     enc = load_encoder(args.model, "torch")
-    ckpt = torch.load(args.model, map_location="cpu", weights_only=True)
-    offset = ckpt["plane_offset"].float().unsqueeze(0)
-    cfg = train_config_of(ckpt)
+    # The reader the torch backend uses: packages and run checkpoints, whose encoder state and plane
+    # offset sit in different places.
+    weights = read_encoder_weights(Path(args.model))
+    if weights.offset is None:
+        p.error(f"{args.model}: no plane offset (the error budget is for CPU-recipe models)")
+    offset = weights.offset.float().reshape(1, *weights.offset.shape[-4:])
+    cfg = train_config_of(weights.checkpoint)
     t_res = cfg.triplane_resolution
-    basis = basis_planes(ckpt["encoder"], t_res)
+    basis = basis_planes(weights.state, t_res)
     teacher = build_teacher("procedural", triplane_resolution=t_res)
     truth_teacher, ceiling_teacher = reference_teachers(teacher, cfg)
     assert ceiling_teacher is not None

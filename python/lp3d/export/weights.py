@@ -181,11 +181,14 @@ def training_inputs(cfg: Any, teacher_name: str, data_cache: str | None, n: int 
         data = SyntheticDataset.load(root / key.digest(), key)
     except ValueError:
         prefix = dataclasses.replace(key, n_identities=min(n, key.n_identities))
-        print(
-            f"the run's dataset is not cached in {root}: synthesising its first {prefix.n_identities} "
-            "identities",
-            file=sys.stderr,
-        )
-        run_teacher = RunTeacher.of(teacher, teacher_name, cfg, torch.device("cpu"), data_cache=root)
-        data = run_teacher.open_dataset(prefix)
+        try:
+            data = SyntheticDataset.load(root / prefix.digest(), prefix)
+        except ValueError:
+            print(
+                f"the run's dataset is not cached in {root}: synthesising its first "
+                f"{prefix.n_identities} identities",
+                file=sys.stderr,
+            )
+            run_teacher = RunTeacher.of(teacher, teacher_name, cfg, torch.device("cpu"), data_cache=root)
+            data = run_teacher.open_dataset(prefix)
     return torch.from_numpy(data.ref_image[:n].astype(np.float32))
