@@ -913,7 +913,7 @@ def test_demo_with_the_shipped_model(capsys, tmp_path) -> None:
     """``lp3d demo`` as the README runs it (default model), at a small size."""
     code, out, err = run(capsys, "demo", "--out", tmp_path / "demo", *DEMO_SMALL)
     assert code == 0, err
-    assert "small.onnx" in out and "config 'small'" in out
+    assert "small.onnx" in out and "config 'small-colour'" in out
     written = listing(tmp_path / "demo")
     assert {"teacher_portrait.npz", "astronaut.npz", "side_by_side.png", "orbit.gif"} <= written
     # The shipped model's 64² head as a web page (lp3d share): within the issue's 3 MB.
