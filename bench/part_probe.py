@@ -30,6 +30,7 @@ import torch
 from error_budget import add_model_argument, train_config_of  # a sibling script (bench/ is on sys.path)
 from lp3d.evaluation.protocol import input_camera, input_yaws, reference_teachers, render_truth
 from lp3d.lift.inference import load_encoder
+from lp3d.lift.torch_backend import read_encoder_weights
 from lp3d.teachers.procedural_identity import HeadParams
 from lp3d.training import SceneBounds, build_teacher
 
@@ -73,8 +74,7 @@ def main(argv: list[str] | None = None) -> int:
         p.error("--n-identities must be >= 2")
 
     enc = load_encoder(args.model, "torch")
-    ckpt = torch.load(args.model, map_location="cpu", weights_only=True)
-    cfg = train_config_of(ckpt)
+    cfg = train_config_of(read_encoder_weights(args.model).checkpoint)  # the backend's checked reader
     teacher = build_teacher("procedural", triplane_resolution=cfg.triplane_resolution)
     truth_teacher, ceiling_teacher = reference_teachers(teacher, cfg)
     assert ceiling_teacher is not None

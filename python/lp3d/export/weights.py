@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -180,15 +179,8 @@ def training_inputs(cfg: Any, teacher_name: str, data_cache: str | None, n: int 
     try:
         data = SyntheticDataset.load(root / key.digest(), key)
     except ValueError:
+        # Loaded when cached, else synthesised (with a progress bar): the first n identities alone.
         prefix = dataclasses.replace(key, n_identities=min(n, key.n_identities))
-        try:
-            data = SyntheticDataset.load(root / prefix.digest(), prefix)
-        except ValueError:
-            print(
-                f"the run's dataset is not cached in {root}: synthesising its first "
-                f"{prefix.n_identities} identities",
-                file=sys.stderr,
-            )
-            run_teacher = RunTeacher.of(teacher, teacher_name, cfg, torch.device("cpu"), data_cache=root)
-            data = run_teacher.open_dataset(prefix)
+        run_teacher = RunTeacher.of(teacher, teacher_name, cfg, torch.device("cpu"), data_cache=root)
+        data = run_teacher.open_dataset(prefix)
     return torch.from_numpy(data.ref_image[:n].astype(np.float32))
