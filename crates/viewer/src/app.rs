@@ -345,9 +345,10 @@ impl ViewerApp {
         let next = match shown {
             None if self.moving => Some(self.moving_frame(&key, &ladder)),
             None => Some(Draw::Ladder(ladder.interactive(&self.times, self.frame_budget_ms))),
-            // A baked frame is about as good as the exact one of its rung: refine from the next rung.
+            // A baked frame is about as good as the exact one of its rung: refine from the next
+            // exact rung.
             Some(s) if !self.moving && (s.baked || s.index < ladder.top()) => {
-                Some(Draw::Ladder((s.index + 1).min(ladder.top())))
+                Some(Draw::Ladder(ladder.next_exact(s.index)))
             }
             Some(_) => None,
         };

@@ -2,6 +2,9 @@
 //! predicted time fits the frame budget; once it stops, it climbs the ladder one rung per UI frame
 //! up to the chosen settings. Rungs change only the resolution and sample counts, which reach the
 //! kernel through its `Params` uniform and the dispatch size, so no rung builds a new pipeline.
+//! One rung, the chosen resolution with half the samples, is drawn only from the baked field
+//! (`crate::bake`): there the field's own error is larger than what halving the samples adds, so
+//! a drag keeps the full resolution instead of dropping to a quarter of the rays.
 
 use lp3d_renderer::RenderSettings;
 
@@ -28,6 +31,19 @@ impl Rung {
         rays * (self.depth_resolution + self.depth_resolution_importance) as f64
     }
 
+    /// The rung with the resolution divided by `res_div` and the samples by `samples_div`, within
+    /// the renderer's limits (an importance pass needs 4 coarse samples and 2 fine ones; 8 rays per
+    /// side at least).
+    fn divided(&self, (res_div, samples_div): (u32, u32)) -> Rung {
+        let fine = self.depth_resolution_importance;
+        let min_coarse = if fine > 0 { 4 } else { 2 }.min(self.depth_resolution);
+        Rung {
+            resolution: self.resolution.div_ceil(res_div).max(8.min(self.resolution)),
+            depth_resolution: (self.depth_resolution / samples_div).max(min_coarse),
+            depth_resolution_importance: if fine == 0 { 0 } else { (fine / samples_div).max(2.min(fine)) },
+        }
+    }
+
     /// The chosen settings with this rung's resolution and sample counts.
     pub fn apply(&self, chosen: &RenderSettings) -> RenderSettings {
         RenderSettings {
@@ -48,51 +64,70 @@ impl Rung {
     }
 }
 
-/// (resolution divisor, sample-count divisor) of each rung, cheapest first. Each rung costs about
-/// 4× the one below, so climbing from any rung to the top adds at most a third of the final
+/// (resolution divisor, sample-count divisor) of each exact rung, cheapest first. Each rung costs
+/// about 4× the one below, so climbing from any rung to the top adds at most a third of the final
 /// frame's time.
 const STEPS: [(u32, u32); 4] = [(4, 4), (2, 4), (2, 1), (1, 1)];
+
+/// The baked-only rung, between the last two exact ones: the chosen resolution, half the samples.
+/// A baked 128² · 24+24 frame is 3-4 dB further from exact 192+192 than a baked 48+48 one (41-45
+/// against 44-50 dB; bench/RESULTS.md, "Baked field") at about half its time, and far closer than
+/// 64² · 48+48 shown at 128². Exact frames skip it: climbing through it would delay the final
+/// frame by half its time.
+const BAKED_STEP: (u32, u32) = (1, 2);
 
 /// The rungs for one choice of settings, cheapest first; the last is the chosen quality.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Ladder {
     pub rungs: Vec<Rung>,
+    /// The index of the rung only baked frames use (`BAKED_STEP`), when it differs from its
+    /// neighbours.
+    pub baked_only: Option<usize>,
 }
 
 impl Ladder {
     pub fn new(chosen: &RenderSettings) -> Ladder {
         let top = Rung::of(chosen);
-        let fine = top.depth_resolution_importance;
-        // The renderer's limits: an importance pass needs 4 coarse samples and 2 fine ones.
-        let min_coarse = if fine > 0 { 4 } else { 2 }.min(top.depth_resolution);
-        let mut rungs: Vec<Rung> = Vec::with_capacity(STEPS.len());
-        for (res_div, samples_div) in STEPS {
-            let rung = Rung {
-                resolution: top.resolution.div_ceil(res_div).max(8.min(top.resolution)),
-                depth_resolution: (top.depth_resolution / samples_div).max(min_coarse),
-                depth_resolution_importance: if fine == 0 {
-                    0
-                } else {
-                    (fine / samples_div).max(2.min(fine))
-                },
-            };
+        let mut rungs: Vec<Rung> = Vec::with_capacity(STEPS.len() + 1);
+        for step in STEPS {
+            let rung = top.divided(step);
             if rungs.last() != Some(&rung) {
                 rungs.push(rung);
             }
         }
         debug_assert_eq!(rungs.last(), Some(&top));
-        Ladder { rungs }
+        let half = top.divided(BAKED_STEP);
+        let below = rungs.len().checked_sub(2).map(|i| rungs[i]);
+        let baked_only =
+            if half != top && Some(half) != below && half.cost() > below.map_or(0.0, |r| r.cost()) {
+                rungs.insert(rungs.len() - 1, half);
+                Some(rungs.len() - 2)
+            } else {
+                None
+            };
+        Ladder { rungs, baked_only }
     }
 
     pub fn top(&self) -> usize {
         self.rungs.len() - 1
     }
 
-    /// The rung to render while the camera moves: the most expensive whose predicted time fits
-    /// `budget_ms`; the cheapest when none does or nothing has been measured yet.
+    /// Whether exact frames use rung `i` (all but the baked-only rung).
+    pub fn exact(&self, i: usize) -> bool {
+        self.baked_only != Some(i)
+    }
+
+    /// The rung an exact frame refines to after rung `i`: the next exact one (the top at most).
+    pub fn next_exact(&self, i: usize) -> usize {
+        (i + 1..self.top()).find(|&j| self.exact(j)).unwrap_or(self.top())
+    }
+
+    /// The exact rung to render while the camera moves: the most expensive whose predicted time
+    /// fits `budget_ms`; the cheapest when none does or nothing has been measured yet.
     pub fn interactive(&self, times: &FrameTimes, budget_ms: f64) -> usize {
         (0..self.rungs.len())
             .rev()
+            .filter(|&i| self.exact(i))
             .find(|&i| times.predict(&self.rungs[i]).is_some_and(|ms| ms <= budget_ms))
             .unwrap_or(0)
     }
@@ -159,20 +194,26 @@ mod tests {
         l.rungs.iter().map(Rung::label).collect()
     }
 
+    /// The labels of the rungs exact frames use.
+    fn exact_labels(l: &Ladder) -> Vec<String> {
+        (0..l.rungs.len()).filter(|&i| l.exact(i)).map(|i| l.rungs[i].label()).collect()
+    }
+
     #[test]
-    fn ladder_steps_by_four_and_ends_at_the_chosen_settings() {
+    fn exact_rungs_step_by_four_and_end_at_the_chosen_settings() {
         let l = Ladder::new(&settings(128, 48, 48));
-        assert_eq!(labels(&l), ["32² · 12+12", "64² · 12+12", "64² · 48+48", "128² · 48+48"]);
-        for w in l.rungs.windows(2) {
+        assert_eq!(exact_labels(&l), ["32² · 12+12", "64² · 12+12", "64² · 48+48", "128² · 48+48"]);
+        let exact: Vec<Rung> = (0..l.rungs.len()).filter(|&i| l.exact(i)).map(|i| l.rungs[i]).collect();
+        for w in exact.windows(2) {
             assert_eq!(w[1].cost() / w[0].cost(), 4.0);
         }
         // The renderer's minimum sample counts, no importance pass, odd sizes, duplicates merged.
         assert_eq!(
-            labels(&Ladder::new(&settings(48, 12, 12))),
+            exact_labels(&Ladder::new(&settings(48, 12, 12))),
             ["12² · 4+3", "24² · 4+3", "24² · 12+12", "48² · 12+12"]
         );
         assert_eq!(
-            labels(&Ladder::new(&settings(100, 64, 0))),
+            exact_labels(&Ladder::new(&settings(100, 64, 0))),
             ["25² · 16", "50² · 16", "50² · 64", "100² · 64"]
         );
         assert_eq!(labels(&Ladder::new(&settings(16, 4, 2))), ["8² · 4+2", "16² · 4+2"]);
@@ -184,15 +225,37 @@ mod tests {
     }
 
     #[test]
-    fn interactive_rung_is_the_largest_predicted_to_fit_the_budget() {
+    fn the_baked_only_rung_keeps_the_resolution_with_half_the_samples() {
+        let l = Ladder::new(&settings(128, 48, 48));
+        assert_eq!(labels(&l), ["32² · 12+12", "64² · 12+12", "64² · 48+48", "128² · 24+24", "128² · 48+48"]);
+        assert_eq!(l.baked_only, Some(3));
+        assert_eq!(l.rungs[3].cost() / l.rungs[2].cost(), 2.0);
+        assert_eq!(labels(&Ladder::new(&settings(100, 64, 0)))[3], "100² · 32");
+        // Exact frames climb past it; a baked frame at it refines to the top.
+        assert_eq!([0, 1, 2, 3, 4].map(|i| l.next_exact(i)), [1, 2, 4, 4, 4]);
+        // None where halving the samples changes nothing (the renderer's minimums).
+        let small = Ladder::new(&settings(16, 4, 2));
+        assert_eq!(small.baked_only, None);
+        assert_eq!(small.next_exact(0), 1);
+        for l in [Ladder::new(&settings(48, 12, 12)), Ladder::new(&settings(33, 5, 0))] {
+            let i = l.baked_only.expect("a baked-only rung");
+            assert_eq!((i, l.rungs[i].resolution), (l.top() - 1, l.rungs[l.top()].resolution));
+            l.rungs[i].apply(&settings(48, 12, 12)).validate().unwrap();
+        }
+    }
+
+    #[test]
+    fn interactive_rung_is_the_largest_exact_one_predicted_to_fit_the_budget() {
         let l = Ladder::new(&settings(128, 48, 48));
         let mut t = FrameTimes::default();
         assert_eq!(l.interactive(&t, 100.0), 0, "nothing measured: start at the cheapest");
         // 1.2 s at the top predicts 75 ms for 64² · 12+12 (a sixteenth of the cost).
-        t.record(l.rungs[3], 1200.0);
+        t.record(l.rungs[4], 1200.0);
         assert_eq!(t.predict(&l.rungs[1]), Some(75.0));
         assert_eq!(l.interactive(&t, 100.0), 1);
-        assert_eq!(l.interactive(&t, 2000.0), 3);
+        assert_eq!(l.interactive(&t, 2000.0), 4);
+        // 128² · 24+24 (predicted 600 ms) fits 700 ms but is for baked frames: 64² · 48+48.
+        assert_eq!(l.interactive(&t, 700.0), 2);
         assert_eq!(l.interactive(&t, 1.0), 0, "nothing fits: the cheapest");
         // A measurement overrides the prediction (and is averaged with later ones).
         t.record(l.rungs[1], 180.0);

@@ -17,7 +17,7 @@ impl ViewerApp {
             self.renderer.clone(),
             gpu.clone(),
             cpu,
-            bake::spec_for(&self.settings, ray_range),
+            bake::bake_spec(&self.settings, ray_range),
             self.settings,
             self.egui_ctx.clone(),
         )
@@ -29,7 +29,7 @@ impl ViewerApp {
     pub(super) fn rebake_if_needed(&mut self) {
         let Some(l) = &self.loaded else { return };
         let Some(job) = &l.bake else { return };
-        let need = bake::spec_for(&self.settings, l.ray_range);
+        let need = bake::bake_spec(&self.settings, l.ray_range);
         let covered = l.gpu.baked().is_some_and(|f| f.spec.covers(&need));
         if covered || job.spec == need || job.state().running() {
             return;
