@@ -69,8 +69,8 @@ pub fn spec_for(settings: &RenderSettings, (ray_start, ray_end): (f32, f32)) -> 
 /// The spec the viewer bakes for `chosen`: one that serves every rung of its ladder with the
 /// chosen coarse samples or half of them (the baked-only rung), i.e. `spec_for` the rung with the
 /// fewest. Half the samples mean intervals twice as long, so the occupancy skip keeps more cells:
-/// on a teacher head about 9% more bricks and memory than for the chosen samples alone (24,198
-/// against 22,204 bricks, 63 against 58 MiB at k 6).
+/// on the viewer bench's teacher head at 128² · 48+48, 26,022 bricks and 68 MiB instead of 22,204
+/// and 58 MiB (k 6; bench/RESULTS.md, "A baked-only rung").
 pub fn bake_spec(chosen: &RenderSettings, rays: (f32, f32)) -> BakeSpec {
     let ladder = Ladder::new(chosen);
     let rung = ladder.baked_only.map_or(Rung::of(chosen), |i| ladder.rungs[i]);
