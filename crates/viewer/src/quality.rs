@@ -122,6 +122,13 @@ impl Ladder {
         (i + 1..self.top()).find(|&j| self.exact(j)).unwrap_or(self.top())
     }
 
+    /// Rung `i`'s place among the exact rungs, counted from 1, and their number (the panel's
+    /// `refining, step 3 of 4`).
+    pub fn exact_step(&self, i: usize) -> (usize, usize) {
+        let exact_below = |n: usize| (0..n).filter(|&j| self.exact(j)).count();
+        (exact_below(i + 1), exact_below(self.rungs.len()))
+    }
+
     /// The exact rung to render while the camera moves: the most expensive whose predicted time
     /// fits `budget_ms`; the cheapest when none does or nothing has been measured yet.
     pub fn interactive(&self, times: &FrameTimes, budget_ms: f64) -> usize {
@@ -233,6 +240,7 @@ mod tests {
         assert_eq!(labels(&Ladder::new(&settings(100, 64, 0)))[3], "100² · 32");
         // Exact frames climb past it; a baked frame at it refines to the top.
         assert_eq!([0, 1, 2, 3, 4].map(|i| l.next_exact(i)), [1, 2, 4, 4, 4]);
+        assert_eq!([0, 2, 4].map(|i| l.exact_step(i)), [(1, 4), (3, 4), (4, 4)]);
         // None where halving the samples changes nothing (the renderer's minimums).
         let small = Ladder::new(&settings(16, 4, 2));
         assert_eq!(small.baked_only, None);

@@ -13,7 +13,10 @@ impl ViewerApp {
             Some(s) if s.baked && self.moving => format!("{} (moving, baked)", s.rung.label()),
             Some(s) if s.baked => format!("{} (baked, refining)", s.rung.label()),
             Some(s) if self.moving => format!("{} (moving)", s.rung.label()),
-            Some(s) => format!("{} (refining, step {} of {})", s.rung.label(), s.index + 1, s.top + 1),
+            Some(s) => {
+                let (step, steps) = Ladder::new(&s.key.settings).exact_step(s.index);
+                format!("{} (refining, step {step} of {steps})", s.rung.label())
+            }
         }
     }
 
