@@ -104,6 +104,9 @@ class Synthesis:
     identities: int
     total_steps: int
     per_identity: Times = field(default_factory=dict)
+    #: The torch twin's input render of the same batches, s/identity, when the run renders its
+    #: inputs otherwise (lp3d_render on a CPU run: ``RunTeacher.input_renderer``); None when it is the twin.
+    twin_render: float | None = None
 
     @property
     def seconds_per_identity(self) -> float:
@@ -328,19 +331,29 @@ def dataset_synthesis(tr: Trainer, repeats: int) -> Synthesis:
     cfg = tr.config
     b = cfg.batch_size
     render = tr.run_teacher.input_renderer()
+    twin = tr.run_teacher.input_renderer("torch")
     runs: list[Times] = []
+    twin_runs: list[Times] = []
     for i in range(repeats + 1):  # the first is the warm-up
         seeds = [cfg.train_seeds[0] + i * b + k for k in range(b)]
         cams = torch.from_numpy(sample_cameras(cfg.reference_cameras, b, tr.data_rng).labels).float()
         t: Times = {}
         with clock(t, "teacher.sample_batch"):
             planes = tr.run_teacher.planes(tr.teacher.sample_batch(seeds))
-        with clock(t, f"input render at {cfg.image_size}² (render_teacher)"):
+        with clock(t, f"input render at {cfg.image_size}²"):
             render(planes, cams)
         runs.append({k: v / b for k, v in t.items()})
-    return Synthesis(
+        if render is not twin:
+            t = {}
+            with clock(t, "twin"):
+                twin(planes, cams)
+            twin_runs.append({k: v / b for k, v in t.items()})
+    synth = Synthesis(
         cfg.name, TRAIN_CONFIGS[cfg.name].dataset_identities, cfg.total_steps, _medians(runs[1:])
     )
+    if twin_runs:
+        synth.twin_render = _medians(twin_runs[1:])["twin"]
+    return synth
 
 
 # --------------------------------------------------------------------------------------------------
@@ -454,16 +467,22 @@ def render_report(phases: list[Phase], synth: list[Synthesis], header: list[str]
             "One-off dataset synthesis of the CPU recipe (per identity, one batch timed; built once, then "
             "cached and reused by later runs):",
             "",
-            "| config | teacher.sample_batch s/identity | input render s/identity | s/identity | identities "
-            "| one-off s | steps per run | amortised s/step | training steps it equals (ray phase) |",
-            "|---|---|---|---|---|---|---|---|---|",
+            "| config | teacher.sample_batch s/identity | input render s/identity | torch twin's input "
+            "render s/identity (same batches) | s/identity | identities | one-off s | steps per run "
+            "| amortised s/step | training steps it equals (ray phase) |",
+            "|---|---|---|---|---|---|---|---|---|---|",
         ]
         for sy in synth:
             ray = next(p for p in phases if p.config == sy.config and p.phase == "ray")
             parts = list(sy.per_identity.values())
             one_off = sy.seconds_per_identity * sy.identities
+            twin = (
+                "the same"
+                if sy.twin_render is None
+                else f"{sy.twin_render:.3f} ({sy.twin_render / parts[1]:.2f}×)"
+            )
             lines.append(
-                f"| {sy.config} | {parts[0]:.3f} | {parts[1]:.3f} | {sy.seconds_per_identity:.3f} | "
+                f"| {sy.config} | {parts[0]:.3f} | {parts[1]:.3f} | {twin} | {sy.seconds_per_identity:.3f} | "
                 f"{sy.identities} | {one_off:.0f} | {sy.total_steps} | {sy.amortised_per_step:.2f} | "
                 f"{one_off / ray.total:.0f} |"
             )

@@ -20,6 +20,7 @@ from lp3d.teachers import ProceduralTeacher
 from lp3d.train import main as train_main
 from lp3d.training import TRAIN_CONFIGS, SceneBounds, TrainConfig, Trainer, render_views
 from lp3d.training.losses import normalised_triplane_loss
+from lp3d.training.run_teacher import RunTeacher
 from lp3d.training.synthetic_data import DatasetKey, StaleDatasetError, SyntheticDataset, teacher_fingerprint
 
 #: Steps and dataset size of the learning test, and the specificity it must reach.
@@ -144,6 +145,34 @@ def test_corrupt_or_stale_cache_is_rebuilt_never_reused(tmp_path, capsys, damage
     assert render.calls == 2  # rebuilt
     assert "cached dataset rejected, rebuilding it" in capsys.readouterr().err
     np.testing.assert_array_equal(again.planes, good.planes)
+
+
+def test_dataset_inputs_rendered_by_lp3d_render_match_the_torch_twin():
+    """On a CPU run the dataset's input images come from lp3d_render (about twice as fast on
+    lavapipe); they are the torch twin's render, which the evaluation uses, to float rounding: the
+    bulk within 1e-4, a few silhouette pixels (where the importance draw rounds differently) up to a
+    few 1e-3."""
+    cfg = TRAIN_CONFIGS["tiny"]
+    teacher = ProceduralTeacher(resolution=cfg.triplane_resolution)
+    run = RunTeacher.of(teacher, "procedural", cfg, torch.device("cpu"), progress=False)
+    seeds = [3, 1_000_005]
+    planes = torch.from_numpy(np.stack([teacher.sample(s).planes for s in seeds]).astype(np.float32))
+    cameras = torch.from_numpy(
+        np.stack([look_at_camera(yaw_deg=-25, pitch_deg=5), look_at_camera(yaw_deg=30, pitch_deg=12)])
+    )
+    twin = run.input_renderer("torch")(planes, cameras).numpy()
+    wgsl = run.input_renderer("wgsl")(planes, cameras).numpy()
+    assert wgsl.shape == twin.shape == (2, 3, cfg.image_size, cfg.image_size)
+    diff = np.abs(wgsl - twin)
+    assert diff.mean() < 1e-5 and (diff > 1e-4).mean() < 1e-2 and diff.max() < 1e-2, (
+        diff.mean(),
+        (diff > 1e-4).mean(),
+        diff.max(),
+    )
+    # A CPU run picks lp3d_render; a bad backend name is refused.
+    np.testing.assert_array_equal(run.input_renderer()(planes, cameras).numpy(), wgsl)
+    with pytest.raises(ValueError, match="backend must be"):
+        run.input_renderer("cuda")
 
 
 def test_a_changed_teacher_gets_a_new_dataset(tmp_path):

@@ -10,6 +10,7 @@ May import the modules of :mod:`lp3d.training` before it (``config``, ``student`
 from __future__ import annotations
 
 import os
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -17,6 +18,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from lp3d.errors import UserError
 from lp3d.render.triplane import TriplaneData
 from lp3d.teachers import Teacher
 from lp3d.training.config import TrainConfig
@@ -88,14 +90,67 @@ class RunTeacher:
         assert total is not None
         return self.target_planes(total / n)[0]
 
-    def input_renderer(self) -> Callable[[Tensor, Tensor], Tensor]:
-        """The teacher's render of the encoder's input, exactly as the evaluation makes it."""
+    def input_renderer(self, backend: str = "auto") -> Callable[[Tensor, Tensor], Tensor]:
+        """The teacher's render of the encoder's input, as the evaluation makes it: ``(planes (B, 3,
+        32, T, T), cameras (B, 25)) -> images (B, 3, S, S)`` on the CPU.
+
+        ``backend``: ``"torch"``, the torch twin on the run's device (what the evaluation uses);
+        ``"wgsl"``, ``lp3d_render`` (a direct volume render only: no teacher super-resolution);
+        ``"auto"``, ``lp3d_render`` for a teacher without super-resolution on a CPU run, else the
+        torch twin. The two are the same EG3D render to float rounding (teacher v2 heads at 128² ·
+        16+16: mean difference 2e-6, 99.8% of values within 1e-4, the largest 3e-3 at a few
+        silhouette pixels where the importance draw rounds differently; tests/test_cpu_recipe.py),
+        and on lavapipe ``lp3d_render`` is about twice as fast, which halves a CPU dataset's
+        synthesis (bench/RESULTS.md, "Training profile")."""
+        if backend not in ("auto", "torch", "wgsl"):
+            raise ValueError(f"backend must be 'auto', 'torch' or 'wgsl', got {backend!r}")
+        direct = getattr(self.teacher, "superresolve", None) is None
+        if backend == "wgsl" and not direct:
+            raise ValueError("backend 'wgsl' renders directly; this teacher's input image is super-resolved")
+        if backend == "wgsl":
+            return self._wgsl_input_renderer()
+        if backend == "auto" and direct and self.device.type == "cpu":
+            try:
+                return self._wgsl_input_renderer()
+            except (UserError, RuntimeError) as e:  # not installed, or no GPU adapter (not even lavapipe)
+                print(
+                    f"note: rendering the inputs with the torch twin, lp3d_render is unusable: {e}",
+                    file=sys.stderr,
+                )
 
         def render(planes: Tensor, cameras: Tensor) -> Tensor:
             planes, cameras = planes.to(self.device), cameras.to(self.device, torch.float32)
             _, _, image = self.render(planes, cameras, raw=False)
             assert image is not None
             return image.float().cpu()
+
+        return render
+
+    def _wgsl_input_renderer(self) -> Callable[[Tensor, Tensor], Tensor]:
+        """:meth:`input_renderer` by ``lp3d_render``: each identity's planes with the run's decoder
+        and scene bounds, rendered at the configuration's image size and samples."""
+        from lp3d.render import native
+
+        lp3d_render = native.renderer()
+        lp3d_render.adapter_info()  # RuntimeError now, not mid-dataset, when there is no adapter
+        decoder = [d.detach().cpu().numpy().astype(np.float32) for d in self.decoder]
+        settings = self.config.render_settings(self.config.image_size)
+        bounds = {
+            "box_warp": self.scene.box_warp,
+            "ray_start": self.scene.ray_start,
+            "ray_end": self.scene.ray_end,
+        }
+
+        def render(planes: Tensor, cameras: Tensor) -> Tensor:
+            planes_np = planes.detach().cpu().numpy().astype(np.float32)
+            cameras_np = cameras.detach().cpu().numpy().astype(np.float32)
+            images = [
+                native.render(lp3d_render.Triplane(p, *decoder, **bounds), cam, settings, outputs=["rgb"])[
+                    "rgb"
+                ]
+                for p, cam in zip(planes_np, cameras_np, strict=True)
+            ]
+            return torch.from_numpy(np.stack(images))
 
         return render
 
