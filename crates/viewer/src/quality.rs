@@ -96,15 +96,15 @@ impl Ladder {
             }
         }
         debug_assert_eq!(rungs.last(), Some(&top));
+        // Between the last two exact rungs, where it costs strictly between them (at the
+        // renderer's minimum samples halving changes nothing), so rung 0 is always exact.
         let half = top.divided(BAKED_STEP);
-        let below = rungs.len().checked_sub(2).map(|i| rungs[i]);
+        let n = rungs.len();
         let baked_only =
-            if half != top && Some(half) != below && half.cost() > below.map_or(0.0, |r| r.cost()) {
-                rungs.insert(rungs.len() - 1, half);
-                Some(rungs.len() - 2)
-            } else {
-                None
-            };
+            (n >= 2 && half.cost() > rungs[n - 2].cost() && half.cost() < top.cost()).then(|| {
+                rungs.insert(n - 1, half);
+                n - 1
+            });
         Ladder { rungs, baked_only }
     }
 
