@@ -107,7 +107,8 @@ def main(argv: list[str] | None = None) -> int:
                 figure.append(img[-1])
         if seed == SEEDS[0]:
             figure.append(ref[-1])
-    print(f"x86_64, {os.cpu_count()} CPUs, {platform.python_version()}; heads {', '.join(map(str, SEEDS))}")
+    heads = ", ".join(map(str, SEEDS))
+    print(f"{platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}; heads {heads}")
     print()
     print("| frame (shown at 128²) | " + " | ".join(f"head {s}" for s in SEEDS) + " |")
     print("|---|" + "---|" * len(SEEDS))

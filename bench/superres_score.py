@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 from lp3d.superres_fit.checkpoint import load_fit
-from lp3d.superres_fit.fit import _load_model, _open_pairs
+from lp3d.superres_fit.fit import load_model, open_pairs
 from lp3d.superres_fit.train import score
 
 
@@ -28,7 +28,7 @@ def main(argv: list[str] | None = None) -> int:
         "--model", type=Path, default=None, help="model package whose pairs score them (default: shipped)"
     )
     args = p.parse_args(argv)
-    encoder, info = _load_model(args.model, None)
+    encoder, info = load_model(args.model, None)
     print(f"pairs of {info['path']} ({info['config_name']})")
     print()
     print(
@@ -39,7 +39,7 @@ def main(argv: list[str] | None = None) -> int:
     for path in args.fits:
         fit = load_fit(path)
         with contextlib.redirect_stdout(sys.stderr):  # its "pairs: ..." line, off the table
-            _, heldout, _ = _open_pairs(fit.config, encoder, None, False)
+            _, heldout, _ = open_pairs(fit.config, encoder, None, False)
         r, _ = score(fit.superres, heldout)
         print(
             f"| {path} | {fit.model.get('config_name')} | {r['pairs']} | {r['superres_psnr']:.2f} / "

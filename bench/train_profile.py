@@ -330,8 +330,9 @@ def dataset_synthesis(tr: Trainer, repeats: int) -> Synthesis:
     """Per-identity cost of building the cached dataset: teacher planes and the input render."""
     cfg = tr.config
     b = cfg.batch_size
-    render = tr.run_teacher.input_renderer()
-    twin = tr.run_teacher.input_renderer("torch")
+    backend = tr.run_teacher.input_backend()
+    render = tr.run_teacher.input_renderer(backend)
+    twin = tr.run_teacher.input_renderer("torch") if backend != "torch" else None
     runs: list[Times] = []
     twin_runs: list[Times] = []
     for i in range(repeats + 1):  # the first is the warm-up
@@ -343,7 +344,7 @@ def dataset_synthesis(tr: Trainer, repeats: int) -> Synthesis:
         with clock(t, f"input render at {cfg.image_size}²"):
             render(planes, cams)
         runs.append({k: v / b for k, v in t.items()})
-        if render is not twin:
+        if twin is not None:
             t = {}
             with clock(t, "twin"):
                 twin(planes, cams)

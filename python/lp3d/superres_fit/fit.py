@@ -90,7 +90,9 @@ __all__ = [
     "default_pair_cache",
     "fit_superres",
     "load_fit",
+    "load_model",
     "model_fingerprint",
+    "open_pairs",
 ]
 
 
@@ -118,11 +120,11 @@ def fit_superres(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     ckpt_path = out / CHECKPOINT_NAME
-    encoder, info = _load_model(model, backend)
+    encoder, info = load_model(model, backend)
     sr = new_superres(cfg)
     opt = torch.optim.Adam(sr.parameters(), lr=cfg.lr, betas=(0.9, 0.99))
     start, report = _resume(ckpt_path, cfg, info, sr, opt)
-    train, heldout, t_pairs = _open_pairs(cfg, encoder, cache, progress)
+    train, heldout, t_pairs = open_pairs(cfg, encoder, cache, progress)
     pair_info = {"train": str(train.path), "heldout": str(heldout.path)}
 
     def save(step: int, report: dict[str, Any] | None) -> None:
@@ -151,7 +153,7 @@ def fit_superres(
     return FitResult(sr.eval(), ckpt_path, report)
 
 
-def _load_model(model: str | os.PathLike[str] | None, backend: str | None) -> tuple[Any, dict[str, Any]]:
+def load_model(model: str | os.PathLike[str] | None, backend: str | None) -> tuple[Any, dict[str, Any]]:
     """The encoder of ``model`` (default: the shipped model) and what the checkpoint records of it."""
     from lp3d.lift.inference import DEFAULT_MODEL, load_encoder
     from lp3d.lift.model_package import decoder_digest
@@ -198,7 +200,7 @@ def _resume(
     return start, report
 
 
-def _open_pairs(
+def open_pairs(
     cfg: FitConfig, encoder: Any, cache: str | os.PathLike[str] | None, progress: bool
 ) -> tuple[PairSet, PairSet, float]:
     """The training and held-out pairs (cached or rendered now) and the seconds that took."""

@@ -9,6 +9,7 @@ May import the modules of :mod:`lp3d.training` before it (``config``, ``student`
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import sys
 from collections.abc import Callable
@@ -90,33 +91,46 @@ class RunTeacher:
         assert total is not None
         return self.target_planes(total / n)[0]
 
+    def input_backend(self) -> str:
+        """What ``input_renderer("auto")`` renders with: ``"wgsl"`` (``lp3d_render``) for a teacher
+        without super-resolution on a CPU run when ``lp3d_render`` has an adapter, else ``"torch"``
+        (saying why when ``lp3d_render`` is unusable)."""
+        if getattr(self.teacher, "superresolve", None) is not None or self.device.type != "cpu":
+            return "torch"
+        from lp3d.render import native
+
+        try:
+            native.renderer().adapter_info()  # RuntimeError when there is no adapter, not even lavapipe
+        except (UserError, RuntimeError) as e:
+            print(
+                f"note: rendering the inputs with the torch twin, lp3d_render is unusable: {e}",
+                file=sys.stderr,
+            )
+            return "torch"
+        return "wgsl"
+
     def input_renderer(self, backend: str = "auto") -> Callable[[Tensor, Tensor], Tensor]:
         """The teacher's render of the encoder's input, as the evaluation makes it: ``(planes (B, 3,
         32, T, T), cameras (B, 25)) -> images (B, 3, S, S)`` on the CPU.
 
         ``backend``: ``"torch"``, the torch twin on the run's device (what the evaluation uses);
         ``"wgsl"``, ``lp3d_render`` (a direct volume render only: no teacher super-resolution);
-        ``"auto"``, ``lp3d_render`` for a teacher without super-resolution on a CPU run, else the
-        torch twin. The two are the same EG3D render to float rounding (teacher v2 heads at 128² ·
-        16+16: mean difference 2e-6, 99.8% of values within 1e-4, the largest 3e-3 at a few
-        silhouette pixels where the importance draw rounds differently; tests/test_cpu_recipe.py),
-        and on lavapipe ``lp3d_render`` is 1.7-1.9× as fast, which takes ~40% off a CPU dataset's
-        synthesis (bench/RESULTS.md, "The dataset's input images rendered by lp3d_render")."""
+        ``"auto"``, :meth:`input_backend`'s choice. The two are the same EG3D render to float
+        rounding (teacher v2 heads at 128² · 16+16: mean difference 2e-6, 99.8% of values within
+        1e-4, the largest 3e-3 at a few silhouette pixels where the importance draw rounds
+        differently; tests/test_cpu_recipe.py), and on lavapipe ``lp3d_render`` is 1.7-1.9× as fast,
+        which takes ~40% off a CPU dataset's synthesis (bench/RESULTS.md, "The dataset's input images
+        rendered by lp3d_render")."""
         if backend not in ("auto", "torch", "wgsl"):
             raise ValueError(f"backend must be 'auto', 'torch' or 'wgsl', got {backend!r}")
-        direct = getattr(self.teacher, "superresolve", None) is None
-        if backend == "wgsl" and not direct:
-            raise ValueError("backend 'wgsl' renders directly; this teacher's input image is super-resolved")
+        if backend == "auto":
+            backend = self.input_backend()
         if backend == "wgsl":
-            return self._wgsl_input_renderer()
-        if backend == "auto" and direct and self.device.type == "cpu":
-            try:
-                return self._wgsl_input_renderer()
-            except (UserError, RuntimeError) as e:  # not installed, or no GPU adapter (not even lavapipe)
-                print(
-                    f"note: rendering the inputs with the torch twin, lp3d_render is unusable: {e}",
-                    file=sys.stderr,
+            if getattr(self.teacher, "superresolve", None) is not None:
+                raise ValueError(
+                    "backend 'wgsl' renders directly; this teacher's input image is super-resolved"
                 )
+            return self._wgsl_input_renderer()
 
         def render(planes: Tensor, cameras: Tensor) -> Tensor:
             planes, cameras = planes.to(self.device), cameras.to(self.device, torch.float32)
@@ -132,14 +146,9 @@ class RunTeacher:
         from lp3d.render import native
 
         lp3d_render = native.renderer()
-        lp3d_render.adapter_info()  # RuntimeError now, not mid-dataset, when there is no adapter
         decoder = [d.detach().cpu().numpy().astype(np.float32) for d in self.decoder]
         settings = self.config.render_settings(self.config.image_size)
-        bounds = {
-            "box_warp": self.scene.box_warp,
-            "ray_start": self.scene.ray_start,
-            "ray_end": self.scene.ray_end,
-        }
+        bounds = dataclasses.asdict(self.scene)
 
         def render(planes: Tensor, cameras: Tensor) -> Tensor:
             planes_np = planes.detach().cpu().numpy().astype(np.float32)
