@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import stat
 import struct
@@ -407,6 +408,49 @@ def test_orbit_baked_bakes_once_and_stays_close_to_exact(capsys, sphere, tmp_pat
     a, b = (iio.imread(p, index=None).astype(float) for p in (exact, baked))
     assert a.shape == b.shape and a.shape[1:] == (32, 32, 3)  # a GIF keeps one of equal frames
     assert np.abs(a - b).mean() < 4.0  # gray levels of 255
+
+
+def test_orbit_baked_auto_bakes_only_when_it_pays_and_stays_within_the_bound(
+    capsys, sphere, tmp_path
+) -> None:
+    """``--baked auto``: a raw orbit of enough frames bakes, checks its first frame against the exact
+    one and keeps the field when within ``--baked-bound``; a short orbit or an unreachable bound
+    renders exactly (each says why); the frames match the chosen mode's. The default stays exact."""
+    import imageio.v3 as iio
+
+    from lp3d.render.settings import bake_pays_after
+
+    n = bake_pays_after(12, 12)  # SMALL's samples: a bake pays later than at 48+48
+    assert n == 48 and bake_pays_after(48, 48) == 12 and bake_pays_after(64, 0) == 18
+    paths = {name: tmp_path / f"{name}.gif" for name in ("auto", "on", "exact", "strict", "short")}
+
+    def orbit(name: str, *flags: object, frames: int = n) -> str:
+        code, out, err = run(
+            capsys, "orbit", sphere, "-o", paths[name], "--frames", frames, "--raw", *flags, *SMALL
+        )
+        assert code == 0, err
+        return out
+
+    out = orbit("auto", "--baked", "auto")
+    found = re.search(r"baked frames: the first is ([0-9.]+) dB from the exact one \(bound 40 dB\)", out)
+    assert found and "baked the field in" in out, out
+    score = float(found[1])
+    assert 40.0 <= score < 100.0
+    out = orbit("on", "--baked")
+    assert "baked the field in" in out and "bound" not in out
+    out = orbit("exact")  # the default: exact frames, no bake
+    assert "baked the field" not in out and "baked frames" not in out
+    bound = f"{score + 1:.0f}"  # just above what the field reaches: exact frames, and why
+    out = orbit("strict", "--baked", "auto", "--baked-bound", bound)
+    assert f"exact frames: the first baked frame is {score:.1f} dB" in out and f"({bound} dB" in out
+    out = orbit("short", "--baked", "auto", frames=n - 1)
+    assert f"exact frames: {n - 1} are fewer than a bake pays for ({n}" in out
+    assert "baked the field in" not in out
+    frames = {name: iio.imread(p, index=None) for name, p in paths.items()}
+    assert np.array_equal(frames["auto"], frames["on"]) and np.array_equal(frames["strict"], frames["exact"])
+    assert not np.array_equal(frames["auto"], frames["exact"])
+    code, _, err = run(capsys, "orbit", sphere, "-o", paths["on"], "--baked-bound", "5", *SMALL)
+    assert code == 2 and "--baked-bound" in err
 
 
 def test_orbit_bad_inputs(capsys, sphere, bad_npz, tmp_path) -> None:

@@ -29,7 +29,7 @@ from lp3d.cli.common import (
     superres_model_arg,
 )
 from lp3d.render.camera import orbit_angles
-from lp3d.render.settings import BAKED, Skips
+from lp3d.render.settings import BAKED, BAKED_BOUND_DB, Skips, bake_pays_after
 
 HELP = "render a turntable video (.gif or .mp4)"
 DESCRIPTION = (
@@ -57,10 +57,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     superres_model_arg(p)
     p.add_argument(
         "--baked",
-        action="store_true",
+        nargs="?",
+        const="on",
+        default="off",
+        choices=("auto", "on", "off"),
         help="decode the field once and render every frame by lookups (docs/baked.md): several times "
         "faster after a bake of a few seconds, but adds error (about 43-49 dB PSNR against exact "
-        "192+192 where exact 48+48 has 54-60; bench/RESULTS.md); RGB only, so with --raw",
+        "192+192 where exact 48+48 has 54-60; bench/RESULTS.md). RGB only, so with --raw. '--baked' "
+        "alone: always; 'auto': when the orbit has enough frames for the bake to pay and its first "
+        "frame baked is within --baked-bound of the exact one; 'off' (default): exact frames, which "
+        "keep exact 48+48's error",
+    )
+    p.add_argument(
+        "--baked-bound",
+        type=float_in(10.0, 120.0),
+        default=BAKED_BOUND_DB,
+        metavar="DB",
+        help=f"--baked auto's least PSNR of the first baked frame against the exact one "
+        f"(default: {BAKED_BOUND_DB:g} dB)",
     )
 
 
@@ -103,6 +117,35 @@ def bake_for(args: argparse.Namespace, rtri: object, sr: object) -> Skips:
     return BAKED
 
 
+def auto_baked(args: argparse.Namespace, rtri: object, sr: object, cams: np.ndarray, size: int) -> Skips:
+    """``--baked auto``: the baked field's skips when it can serve the orbit (no super-resolution),
+    the orbit is long enough for the bake to pay (:func:`~lp3d.render.settings.bake_pays_after`) and
+    its first frame is within ``--baked-bound`` dB of the exact one; else exact (the default skips).
+    Says which, and why."""
+    from lp3d.render.psnr import psnr_db
+
+    if sr is not None:
+        return Skips()  # the usual case (the SR reads all 32 features): nothing to say
+    pays_after = bake_pays_after(*args.samples)
+    if len(cams) < pays_after:
+        say(f"exact frames: {len(cams)} are fewer than a bake pays for ({pays_after}; --baked bakes anyway)")
+        return Skips()
+    args.skips = Skips()
+    exact = final_images(rtri, cams[:1], args, sr, size, path=args.triplane)[1]["rgb"]
+    args.skips = bake_for(args, rtri, sr)
+    baked = final_images(rtri, cams[:1], args, sr, size, path=args.triplane)[1]["rgb"]
+    skips, args.skips = args.skips, Skips()
+    score = psnr_db(baked, exact)
+    if score >= args.baked_bound:
+        say(f"baked frames: the first is {score:.1f} dB from the exact one (bound {args.baked_bound:g} dB)")
+        return skips
+    say(
+        f"exact frames: the first baked frame is {score:.1f} dB from the exact one, below the bound "
+        f"({args.baked_bound:g} dB; --baked-bound to change it)"
+    )
+    return Skips()
+
+
 def run(args: argparse.Namespace) -> int:
     out_path = check_output(args.output, VIDEO_SUFFIXES)
     if not (-90.0 < args.pitch - args.pitch_range and args.pitch + args.pitch_range < 90.0):
@@ -116,8 +159,10 @@ def run(args: argparse.Namespace) -> int:
     angles = orbit_angles(args.frames, args.yaw_range, args.pitch_range)
     cams = np.stack([make_camera(args, yaw=y, pitch=args.pitch + p) for y, p in angles])
     say(f"orbit: {len(cams)} frames of {describe_size(sr, size)}; {how}")
-    if args.baked:
+    if args.baked == "on":
         args.skips = bake_for(args, rtri, sr)
+    elif args.baked == "auto":
+        args.skips = auto_baked(args, rtri, sr, cams, size)
 
     start = time.perf_counter()
     with Staged() as staged:

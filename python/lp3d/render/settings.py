@@ -82,6 +82,21 @@ class Skips:
 #: The baked field as ``lp3d orbit --baked`` and the viewer's moving frames use it (docs/baked.md):
 #: Rust's ``Skips::BAKED`` (tests/test_baked.py ties them).
 BAKED = Skips(occupancy_epsilon=1e-4, baked_subdivisions=6)
+#: How many exact 48 + 48 frames a bake of :data:`BAKED` costs, rounded up: 8–12 on teacher heads and
+#: encoder outputs at 128² (bench/RESULTS.md, "Baked field"). Fewer frames than this render faster
+#: exactly; with fewer samples per ray, exact frames are cheaper and the bake pays later.
+BAKE_PAYS_AFTER_FRAMES = 12
+#: The least PSNR (dB) of a baked frame against the exact one at which ``lp3d orbit`` uses the field
+#: unasked: the baked field's own error is 43–49 dB against exact 192+192 (bench/RESULTS.md), far
+#: below what a video shows (its 8-bit frames cap any comparison near 59 dB).
+BAKED_BOUND_DB = 40.0
+
+
+def bake_pays_after(depth_resolution: int, depth_resolution_importance: int) -> int:
+    """Frames an orbit needs before a bake of :data:`BAKED` pays, at these samples per ray:
+    :data:`BAKE_PAYS_AFTER_FRAMES` at 48 + 48, scaled up as the exact frame's samples shrink."""
+    samples = max(1, depth_resolution + depth_resolution_importance)
+    return max(BAKE_PAYS_AFTER_FRAMES, math.ceil(BAKE_PAYS_AFTER_FRAMES * 96 / samples))
 
 
 @dataclass(frozen=True)
