@@ -10,7 +10,9 @@ match the GPU's baked render; density looked up and colour decoded, and the reve
 lp3d-baked-field-v1 stored it (colour not premultiplied by the colour weight); and the field
 interpolated in other spaces (density through asinh, plain colour as logits before the clamped
 sigmoid). Then an estimate of a baked *guide*: every sample looked up, and those the field finds
-significant (dense, not yet hidden) decoded exactly, with how many that takes per ray.
+significant (dense, not yet hidden) decoded exactly, with how many that takes per ray; and the same
+with the samples chosen by the field's own error instead (the bricks whose lookups at their sub-cell
+centres differ most from the decoder).
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from lp3d.render.baked import (
     EMPTY_RAW,
     bake_reference,
     baked_lookup,
+    brick_points,
     colour_weight,
     decode_brick_points,
     near_dense,
@@ -40,6 +43,7 @@ from lp3d.render.reference import (
     sample_importance,
     sample_stratified,
     sample_triplane,
+    softplus,
 )
 from lp3d.render.settings import SIGMOID_MARGIN, RenderSettings
 from lp3d.render.triplane import TriplaneData
@@ -134,29 +138,80 @@ def main(argv: list[str] | None = None) -> int:
     print("| decoded where | samples decoded per ray, mean / max (of 96) | PSNR vs exact 192+192 |")
     print("|---|---|---|")
     for raw_above, t_above in ((0.0, 1e-3), (5.0, 1e-3), (10.0, 1e-3)):
-        rgb, n = guided_render(head, cam, r, looked_up, decoded, raw_above, t_above)
+        rgb, n = guided_render(head, cam, r, looked_up, decoded, dense_and_visible(raw_above, t_above))
         where = f"raw density > {raw_above:g} (or a neighbour's), transmittance > {t_above:g}"
         print(f"| {where} | {n.mean():.1f} / {n.max()} | {psnr_db(rgb, ref):.2f} |", flush=True)
+
+    errors = brick_errors(index, k, head.box_warp, looked_up, decoded)
+    print(f"\nChosen by the field's own error instead: each brick's largest error at its {k}³ sub-cell")
+    print(f"centres (opacity over a {ERROR_STEP:g} step, or RGB times opacity), samples in bricks above τ")
+    print("decoded while visible (transmittance > 0.001):\n")
+    print("| τ | bricks above τ | samples decoded per ray, mean / max (of 96) | PSNR vs exact 192+192 |")
+    print("|---|---|---|---|")
+    for tau in (0.1, 0.03, 0.01, 0.001):
+        chosen = errors > tau
+        rgb, n = guided_render(head, cam, r, looked_up, decoded, in_bricks(index, chosen, head.box_warp))
+        print(f"| {tau:g} | {chosen.mean():.0%} | {n.mean():.1f} / {n.max()} | {psnr_db(rgb, ref):.2f} |")
     return 0
+
+
+#: The step over which bench/baked_error.py turns a density error into an opacity error (a coarse
+#: step of 48 samples over the ray's span).
+ERROR_STEP = 0.02
+
+
+def brick_errors(
+    index: np.ndarray, k: int, box_warp: float, looked_up: Evaluate, decoded: Evaluate
+) -> np.ndarray:
+    """Each brick's largest error at the centres of its k³ sub-cells (bricks,): the larger of the
+    opacity difference over :data:`ERROR_STEP` and the RGB difference times the opacity."""
+    g = index.shape[0]
+    centres = (brick_points(index, k)[:, :k, :k, :k] + 1.0 / (g * k)) * (0.5 * box_warp)
+    centres = centres.reshape(centres.shape[0], -1, 3)
+    out = np.empty(centres.shape[0])
+    for lo in range(0, len(out), 2000):  # bounded memory: ~2000 k³ points at a time
+        points = centres[lo : lo + 2000].reshape(1, -1, 3)
+        (s_true, c_true), (s_field, c_field) = decoded(points), looked_up(points)
+        a_true = -np.expm1(-softplus(s_true - 1.0) * ERROR_STEP)
+        a_field = -np.expm1(-softplus(s_field - 1.0) * ERROR_STEP)
+        colour = np.abs(c_true - c_field).max(-1) * np.maximum(a_true, a_field)
+        err = np.maximum(np.abs(a_true - a_field), colour)
+        out[lo : lo + 2000] = err.reshape(-1, k**3).max(-1)
+    return out
 
 
 Evaluate = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
+Select = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+
+
+def dense_and_visible(raw_above: float, t_above: float) -> Select:
+    """The guide's choice: raw density above ``raw_above`` at the sample or a neighbour along its
+    ray, transmittance before it above ``t_above``."""
+    return lambda points, sigma, transmittance: near_dense(sigma, raw_above) & (transmittance > t_above)
+
+
+def in_bricks(index: np.ndarray, chosen: np.ndarray, box_warp: float, t_above: float = 1e-3) -> Select:
+    """Samples in the ``chosen`` bricks (bricks,) while the transmittance before them is above
+    ``t_above``."""
+    g = index.shape[0]
+
+    def select(points: np.ndarray, sigma: np.ndarray, transmittance: np.ndarray) -> np.ndarray:
+        cell = np.clip(np.floor((points * (2.0 / box_warp) + 1.0) * (0.5 * g)), 0, g - 1).astype(np.int64)
+        brick = index[cell[..., 0], cell[..., 1], cell[..., 2]]
+        return (brick >= 0) & chosen[np.maximum(brick, 0)] & (transmittance > t_above)
+
+    return select
+
+
 def guided_render(
-    head: TriplaneData,
-    cam: np.ndarray,
-    r: int,
-    looked_up: Evaluate,
-    decoded: Evaluate,
-    raw_above: float,
-    t_above: float,
+    head: TriplaneData, cam: np.ndarray, r: int, looked_up: Evaluate, decoded: Evaluate, select: Select
 ) -> tuple[np.ndarray, np.ndarray]:
     """48+48 with every sample looked up in the field (the coarse pass, the importance draw and a
-    first composite), then the samples the field finds significant decoded exactly: raw density
-    above ``raw_above`` at the sample or a neighbour, transmittance before it above ``t_above``. An
-    estimate of a guided kernel (which would judge the transmittance on the mixed values as it
-    walks); returns the RGB image and the decoded samples per ray."""
+    first composite), then the samples ``select(points, raw density, transmittance before them)``
+    picks decoded exactly. An estimate of a guided kernel (which would judge the transmittance on
+    the mixed values as it walks); returns the RGB image and the decoded samples per ray."""
     o, d = (a.reshape(-1, 3) for a in rays_from_cameras(np.asarray(cam)[None], r))
 
     def points(t: np.ndarray) -> np.ndarray:
@@ -169,7 +224,7 @@ def guided_render(
     sigma, rgb = looked_up(points(t))
     w = march(t, sigma, rgb).weights
     transmittance = np.concatenate([np.ones_like(w[:, :1]), 1.0 - np.cumsum(w, axis=-1)], axis=-1)
-    significant = near_dense(sigma, raw_above) & (transmittance > t_above)
+    significant = select(points(t), sigma, transmittance)
     exact_sigma, exact_rgb = decoded(points(t)[significant][:, None, :])
     sigma[significant], rgb[significant] = exact_sigma[:, 0], exact_rgb[:, 0]
     out = march(t, sigma, rgb).features.reshape(r, r, 3).transpose(2, 0, 1)
