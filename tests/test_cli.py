@@ -451,6 +451,15 @@ def test_orbit_baked_auto_bakes_only_when_it_pays_and_stays_within_the_bound(
     assert not np.array_equal(frames["auto"], frames["exact"])
     code, _, err = run(capsys, "orbit", sphere, "-o", paths["on"], "--baked-bound", "5", *SMALL)
     assert code == 2 and "--baked-bound" in err
+    # With super-resolution (not --raw) the field cannot serve the frames: exact, and why.
+    from argparse import Namespace
+
+    from lp3d.cli.orbit import auto_baked
+    from lp3d.render.settings import Skips
+
+    args = Namespace(samples=(48, 48), baked_bound=40.0)
+    assert auto_baked(args, None, object(), np.zeros((36, 25)), 256) == Skips()
+    assert "exact frames: the super-resolution network reads all 32 features" in capsys.readouterr().out
 
 
 def test_orbit_bad_inputs(capsys, sphere, bad_npz, tmp_path) -> None:

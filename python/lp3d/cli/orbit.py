@@ -125,7 +125,8 @@ def auto_baked(args: argparse.Namespace, rtri: object, sr: object, cams: np.ndar
     from lp3d.render.psnr import psnr_db
 
     if sr is not None:
-        return Skips()  # the usual case (the SR reads all 32 features): nothing to say
+        say("exact frames: the super-resolution network reads all 32 features, the baked field RGB (--raw)")
+        return Skips()
     pays_after = bake_pays_after(*args.samples)
     if len(cams) < pays_after:
         say(f"exact frames: {len(cams)} are fewer than a bake pays for ({pays_after}; --baked bakes anyway)")
