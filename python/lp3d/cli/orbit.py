@@ -131,15 +131,17 @@ def auto_baked(args: argparse.Namespace, rtri: object, sr: object, cams: np.ndar
     if len(cams) < pays_after:
         say(f"exact frames: {len(cams)} are fewer than a bake pays for ({pays_after}; --baked bakes anyway)")
         return Skips()
-    args.skips = Skips()
-    exact = final_images(rtri, cams[:1], args, sr, size, path=args.triplane)[1]["rgb"]
-    args.skips = bake_for(args, rtri, sr)
-    baked = final_images(rtri, cams[:1], args, sr, size, path=args.triplane)[1]["rgb"]
-    skips, args.skips = args.skips, Skips()
-    score = psnr_db(baked, exact)
+
+    def first_frame(skips: Skips) -> np.ndarray:
+        args.skips = skips
+        return final_images(rtri, cams[:1], args, sr, size, path=args.triplane)[1]["rgb"]
+
+    exact = first_frame(Skips())
+    baked = bake_for(args, rtri, sr)
+    score = psnr_db(first_frame(baked), exact)
     if score >= args.baked_bound:
         say(f"baked frames: the first is {score:.1f} dB from the exact one (bound {args.baked_bound:g} dB)")
-        return skips
+        return baked
     say(
         f"exact frames: the first baked frame is {score:.1f} dB from the exact one, below the bound "
         f"({args.baked_bound:g} dB; --baked-bound to change it)"

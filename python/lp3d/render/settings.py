@@ -86,9 +86,9 @@ BAKED = Skips(occupancy_epsilon=1e-4, baked_subdivisions=6)
 #: encoder outputs at 128² (bench/RESULTS.md, "Baked field"). Fewer frames than this render faster
 #: exactly; with fewer samples per ray, exact frames are cheaper and the bake pays later.
 BAKE_PAYS_AFTER_FRAMES = 12
-#: The least PSNR (dB) of a baked frame against the exact one at which ``lp3d orbit`` uses the field
-#: unasked: the baked field's own error is 43–49 dB against exact 192+192 (bench/RESULTS.md), far
-#: below what a video shows (its 8-bit frames cap any comparison near 59 dB).
+#: The least PSNR (dB) of a baked frame against the exact one at which ``lp3d orbit --baked auto``
+#: keeps the field: its own error is 43–49 dB against exact 192+192 (bench/RESULTS.md), about one
+#: grey level of an 8-bit frame.
 BAKED_BOUND_DB = 40.0
 
 
