@@ -37,13 +37,13 @@ from lp3d.render.camera import look_at_camera
 from lp3d.render.psnr import psnr_db
 from lp3d.render.reference import (
     decode,
+    interval_alpha,
     march,
     rays_from_cameras,
     render_with,
     sample_importance,
     sample_stratified,
     sample_triplane,
-    softplus,
 )
 from lp3d.render.settings import SIGMOID_MARGIN, RenderSettings
 from lp3d.render.triplane import TriplaneData
@@ -172,8 +172,8 @@ def brick_errors(
     for lo in range(0, len(out), 2000):  # bounded memory: ~2000 k³ points at a time
         points = centres[lo : lo + 2000].reshape(1, -1, 3)
         (s_true, c_true), (s_field, c_field) = decoded(points), looked_up(points)
-        a_true = -np.expm1(-softplus(s_true - 1.0) * ERROR_STEP)
-        a_field = -np.expm1(-softplus(s_field - 1.0) * ERROR_STEP)
+        a_true = interval_alpha(s_true, s_true, ERROR_STEP)  # the opacity of a step at this density
+        a_field = interval_alpha(s_field, s_field, ERROR_STEP)
         colour = np.abs(c_true - c_field).max(-1) * np.maximum(a_true, a_field)
         err = np.maximum(np.abs(a_true - a_field), colour)
         out[lo : lo + 2000] = err.reshape(-1, k**3).max(-1)
