@@ -638,6 +638,29 @@ def test_encode_refine_fits_the_head_to_its_photo(capsys, model, photos, tmp_pat
     assert code == 2 and "--refine" in err
 
 
+def test_encode_flip_average_is_the_mean_of_the_photo_and_its_mirror(capsys, model, photos, tmp_path) -> None:
+    """``--flip-average``: the written planes are ``LoadedEncoder.encode(crop, flip_average=True)`` of
+    the crop it saved, which differs from the plain encoding (the random encoder is not symmetric)."""
+    from lp3d.lift.inference import load_encoder
+    from lp3d.photo import to_encoder_input
+
+    plain, flipped = tmp_path / "plain.npz", tmp_path / "flipped.npz"
+    common = ("--model", model["onnx"], "--no-detect")
+    code, _, err = run(capsys, "encode", photos["face_crop"], "-o", plain, *common)
+    assert code == 0, err
+    code, stdout, err = run(
+        capsys, "encode", photos["face_crop"], "-o", flipped, *common, "--flip-average", "--save-crop"
+    )
+    assert code == 0, err
+    assert "flip-averaged" in stdout
+    tri = load_triplane(flipped)
+    assert "flip-averaged" in (tri.source or "")
+    crop = np.asarray(Image.open(tmp_path / "flipped.crop.png"))
+    want = load_encoder(model["onnx"]).encode(to_encoder_input(crop[None]), flip_average=True)[0]
+    np.testing.assert_allclose(tri.planes, want, rtol=0, atol=1e-6)
+    assert np.abs(tri.planes - load_triplane(plain).planes).max() > 1e-3
+
+
 def test_encode_and_the_python_api_write_the_same_permissions(capsys, model, photos, tmp_path) -> None:
     """``lp3d encode`` and ``save_triplane`` publish through one writer (lp3d.atomic): the outputs get
     the mode of any new file, ``0666 & ~umask``. The umask 027 is unusual on purpose: its 0640 is
@@ -869,13 +892,14 @@ def test_video_steady_keeps_every_frame_and_changes_them(capsys, model, face_vid
     assert change["30"] < change["0"], change
 
 
-def test_video_refine_fits_every_frame(capsys, model, face_video, tmp_path) -> None:
+def test_video_refine_and_flip_average_change_every_frame(capsys, model, face_video, tmp_path) -> None:
     """``lp3d video --refine 1`` (issue 21): each frame's head is fitted to its crop (the camera searched
-    for on the first frame, then followed), so the frames differ from plain lifting."""
+    for on the first frame, then followed), so the frames differ from plain lifting; so do
+    ``--flip-average``'s (each frame encoded with its mirror image)."""
     import imageio_ffmpeg
 
     frames = {}
-    for name, extra in (("plain", ()), ("refined", ("--refine", 1))):
+    for name, extra in (("plain", ()), ("refined", ("--refine", 1)), ("flipped", ("--flip-average",))):
         out = tmp_path / f"{name}.mp4"
         code, stdout, err = run(
             capsys,
@@ -896,8 +920,9 @@ def test_video_refine_fits_every_frame(capsys, model, face_video, tmp_path) -> N
         reader = imageio_ffmpeg.read_frames(str(out))
         w, h = next(reader)["size"]
         frames[name] = np.stack([np.frombuffer(f, np.uint8).reshape(h, w, 3) for f in reader]).astype(float)
-    assert frames["plain"].shape == frames["refined"].shape and frames["plain"].shape[0] == 2
-    assert np.abs(frames["plain"] - frames["refined"]).mean() > 0.1
+    for name in ("refined", "flipped"):
+        assert frames["plain"].shape == frames[name].shape and frames["plain"].shape[0] == 2
+        assert np.abs(frames["plain"] - frames[name]).mean() > 0.1, name
 
 
 def test_video_without_faces(capsys, model, tmp_path) -> None:
@@ -947,17 +972,29 @@ def test_demo_lifts_a_teacher_portrait_and_the_astronaut(capsys, model, tmp_path
 
 def test_demo_refine_adds_refined_heads_and_rows(capsys, model, tmp_path) -> None:
     """``lp3d demo --refine 2`` (issue 21): the refined triplanes beside the feed-forward ones, and
-    one more row per head in the contact sheet."""
+    one more row per head in the contact sheet; with ``--flip-average`` the feed-forward heads are
+    the flip-averaged ones."""
     plain, refined = tmp_path / "plain", tmp_path / "refined"
     assert run(capsys, "demo", "--out", plain, "--model", model["onnx"], *DEMO_SMALL)[0] == 0
     code, out, err = run(
-        capsys, "demo", "--out", refined, "--model", model["onnx"], *DEMO_SMALL, "--refine", 2
+        capsys,
+        "demo",
+        "--out",
+        refined,
+        "--model",
+        model["onnx"],
+        *DEMO_SMALL,
+        "--refine",
+        2,
+        "--flip-average",
     )
     assert code == 0, err
     assert "teacher_portrait: refined 2 steps" in out and "astronaut: refined 2 steps" in out
     assert {"teacher_portrait.refined.npz", "astronaut.refined.npz"} <= listing(refined)
     a, b = load_triplane(refined / "astronaut.npz"), load_triplane(refined / "astronaut.refined.npz")
     assert "refined 2 steps" in (b.source or "") and not np.array_equal(a.planes, b.planes)
+    assert "flip-averaged" in (a.source or "") and "flip-averaged" in out
+    assert not np.allclose(a.planes, load_triplane(plain / "astronaut.npz").planes, atol=1e-3)
     rows = {d: np.asarray(Image.open(d / "side_by_side.png")).shape[0] for d in (plain, refined)}
     assert rows[refined] > rows[plain]
 

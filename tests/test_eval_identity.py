@@ -114,7 +114,9 @@ def oracle_report(teacher, scene):
 
 @pytest.fixture(scope="module")
 def mean_report(teacher, scene):
-    settings = dataclasses.replace(SETTINGS, baseline_steps=2, refine=RefineSettings(steps=6, pose_steps=4))
+    settings = dataclasses.replace(
+        SETTINGS, baseline_steps=2, refine=RefineSettings(steps=6, pose_steps=4), flip_average=True
+    )
     torch.manual_seed(0)
     student = Student(CFG, teacher.decoder(), scene)
     student.start_from_mean(_mean_planes(teacher, settings.baseline_mean_of))
@@ -154,6 +156,21 @@ def test_mean_student_sits_on_the_floor_with_no_identity_specificity(mean_report
     for row in report["per_identity"]:
         assert abs(row["novel_psnr"] - row["floor_novel_psnr"]) < SAME_DB
     assert floor["novel_psnr"] < report["ceiling"]["novel_psnr"]
+
+
+def test_flip_averaged_mean_student_is_one_symmetric_head(mean_report):
+    """Flip-averaging a student that ignores its input gives one head for every input, the mean
+    head made mirror-symmetric: still no identity specificity, but a different head from the
+    student's (the mean of 16 training heads is not symmetric), so the flipped pass really ran."""
+    report, _ = mean_report
+    s, f = report["student"], report["flip_averaged"]
+    assert abs(f["identity_specificity_db"]) < 0.5
+    assert abs(f["novel_psnr"] - s["novel_psnr"]) > 1e-3
+    assert f["encode_ms"] > 0
+    for row in report["per_identity"]:
+        for key in ("flip_averaged_input_psnr", "flip_averaged_novel_psnr"):
+            assert np.isfinite(row[key]), key
+    assert "\nflip_averaged" in summary_table(report)
 
 
 def test_report_holds_per_identity_rows_and_every_section(mean_report, tmp_path):

@@ -206,6 +206,17 @@ def superres_model_arg(p: argparse.ArgumentParser) -> None:
     )
 
 
+def flip_average_arg(p: argparse.ArgumentParser, what: str = "each photo") -> None:
+    """``--flip-average``: :meth:`lp3d.lift.loaded.LoadedEncoder.encode`'s flip-averaged encoding."""
+    p.add_argument(
+        "--flip-average",
+        action="store_true",
+        help=f"also encode {what} flipped left to right and average the two heads (the second "
+        "mirrored back): +0.2 dB novel-view PSNR on held-out heads for twice the encoder's time "
+        "(bench/RESULTS.md)",
+    )
+
+
 def resolve_model(arg: Path | None) -> Path:
     from lp3d.lift.inference import DEFAULT_MODEL
 

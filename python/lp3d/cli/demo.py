@@ -37,6 +37,7 @@ from lp3d.cli.common import (
     VideoWriter,
     describe_size,
     final_images,
+    flip_average_arg,
     image_side,
     int_in,
     native_triplane,
@@ -102,6 +103,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="coarse+fine samples per ray, e.g. 48+48 (default: 24+24, quick on a CPU)",
     )
     p.add_argument("--frames", type=int_in(2, 720), default=24, help="orbit frames (default: 24)")
+    flip_average_arg(p, "each portrait")
     add_refine_argument(p, "its portrait")
 
 
@@ -256,11 +258,13 @@ def run(args: argparse.Namespace) -> int:
         print(f"  {p.name}: {p.description}")
 
     t0 = time.perf_counter()
-    planes = encoder.run(to_encoder_input(np.stack([p.crop for p in portraits])))
+    inputs = to_encoder_input(np.stack([p.crop for p in portraits]))
+    planes = encoder.encode(inputs, flip_average=args.flip_average)
     ms = (time.perf_counter() - t0) * 1e3 / len(portraits)
-    print(f"encoded {len(portraits)} portraits: {ms:.0f} ms per image ({encoder.backend})")
+    how = ", flip-averaged" if args.flip_average else ""
+    print(f"encoded {len(portraits)} portraits: {ms:.0f} ms per image ({encoder.backend}{how})")
     lifted = [
-        pkg.triplane(plane, source=f"lp3d demo: {p.description} (model {pkg.config_name})")
+        pkg.triplane(plane, source=f"lp3d demo: {p.description} (model {pkg.config_name}{how})")
         for p, plane in zip(portraits, planes, strict=True)
     ]
 

@@ -7,6 +7,7 @@ import dataclasses
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -16,6 +17,7 @@ from lp3d.cli.common import (
     check_distinct,
     check_folder,
     check_output,
+    flip_average_arg,
     int_in,
     resolve_model,
     say,
@@ -64,6 +66,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--batch-size", type=int_in(1, 256), default=4, help="images per encoder call (default: 4)"
     )
+    flip_average_arg(p)
     add_refine_argument(p)
     p.add_argument("--half", action="store_true", help="store the planes as float16 (half the file size)")
     p.add_argument(
@@ -115,9 +118,22 @@ def _crop_path(dest: Path) -> Path:
     return dest.with_name(dest.stem + ".crop.png")
 
 
+def _encode(encoder: Any, crops: Sequence[np.ndarray], batch_size: int, flip_average: bool) -> np.ndarray:
+    """The crops' planes (N, 3, 32, T, T), ``batch_size`` images per encoder call."""
+    from lp3d.photo import to_encoder_input
+
+    batch = to_encoder_input(np.stack(crops))
+    return np.concatenate(
+        [
+            encoder.encode(batch[i : i + batch_size], flip_average=flip_average)
+            for i in range(0, len(batch), batch_size)
+        ]
+    )
+
+
 def run(args: argparse.Namespace) -> int:
     from lp3d.lift.inference import load_encoder
-    from lp3d.photo import PhotoError, load_image, prepare_photo, to_encoder_input
+    from lp3d.photo import PhotoError, load_image, prepare_photo
     from lp3d.render.triplane_io import save_triplane
 
     images = _collect_images(args.inputs)
@@ -159,13 +175,12 @@ def run(args: argparse.Namespace) -> int:
     t_prep = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    batch = to_encoder_input(np.stack(crops))
-    planes = np.concatenate(
-        [encoder.run(batch[i : i + args.batch_size]) for i in range(0, len(batch), args.batch_size)]
-    )
+    planes = _encode(encoder, crops, args.batch_size, args.flip_average)
     t_enc = time.perf_counter() - t0
+    how = ", flip-averaged" if args.flip_average else ""
+    model = f"model {pkg.config_name}, {encoder.backend}{how}"
     tris = [
-        pkg.triplane(plane, source=f"lp3d encode {img.name} (model {pkg.config_name}, {encoder.backend})")
+        pkg.triplane(plane, source=f"lp3d encode {img.name} ({model})")
         for img, plane in zip(images, planes, strict=True)
     ]
     t0 = time.perf_counter()
@@ -188,7 +203,7 @@ def run(args: argparse.Namespace) -> int:
     n = len(images)
     say(
         f"timings: detect+crop {t_prep:.2f} s ({t_prep / n:.3f} s/image), encode {t_enc:.2f} s "
-        f"({t_enc / n:.3f} s/image, {encoder.backend}), "
+        f"({t_enc / n:.3f} s/image, {encoder.backend}{how}), "
         + (f"refine {t_refine:.2f} s ({t_refine / n:.2f} s/image), " if args.refine else "")
         + f"write {t_write:.2f} s"
     )

@@ -54,6 +54,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "view, at the true camera and at the camera found from the image; default 0: skip)",
     )
     p.add_argument(
+        "--flip-average",
+        action="store_true",
+        help="also score lp3d encode --flip-average (the planes of the input and of its mirror image, "
+        "averaged) as the row flip_averaged",
+    )
+    p.add_argument(
         "--lpips-weights", default=None, help="torchvision AlexNet/VGG16 state dict for the LPIPS metric"
     )
     p.add_argument(
@@ -93,6 +99,7 @@ def run(args: argparse.Namespace) -> int:
         n_identities=args.n_identities,
         baseline_steps=args.baseline_steps,
         refine=RefineSettings(steps=args.refine),
+        flip_average=args.flip_average,
         progress=not args.no_progress,
     )
     try:
@@ -114,6 +121,8 @@ def run(args: argparse.Namespace) -> int:
     print(summary_table(report))
     s = report["student"]
     print(f"student  : encode {s['encode_ms']:.1f} ms, render {s['render_ms']:.1f} ms per view")
+    if "flip_averaged" in report:
+        print(f"flip_averaged: encode {report['flip_averaged']['encode_ms']:.1f} ms")
     if "refined" in report:
         r, p = report["refined"], report["refined_photo"]
         print(f"refined  : fit {r['refine_s']:.1f} s ({r['settings']['steps']} steps)")

@@ -19,6 +19,7 @@ from lp3d.cli.common import (
     check_output,
     describe_size,
     final_images,
+    flip_average_arg,
     float_in,
     int_in,
     make_camera,
@@ -61,6 +62,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="causal smoothing of the triplane, state = s * state + (1 - s) * new, applied before "
         "--steady (0 = off, default; it lags behind a turning head: prefer --steady)",
     )
+    flip_average_arg(p, "each frame")
     add_refine_argument(p, "each frame")
     p.add_argument("--no-detect", action="store_true", help="skip face detection (centre square crop)")
     p.add_argument("--model", type=Path, default=None, help="as for encode")
@@ -126,7 +128,7 @@ def _lift_frames(
                 crop = crops[min(i, len(crops) - 1)] if crops else centre_crop(frame.shape)
                 face = crop_image(frame, crop, pkg.image_size)
                 t0 = time.perf_counter()
-                planes = encoder.run(to_encoder_input(face[None]))[0]
+                planes = encoder.encode(to_encoder_input(face[None]), flip_average=args.flip_average)[0]
                 if refine_settings is not None:  # counted as encoding: both make the frame's planes
                     # The camera is searched for once, then followed from frame to frame.
                     fitted = refine(pkg.triplane(planes), face, refine_settings, start_camera=fit_camera)

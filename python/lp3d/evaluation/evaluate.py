@@ -49,6 +49,9 @@ triplane (the analogue of GAN inversion's start at the mean latent). It optimise
 directly, which is less constrained than a generator's latent space; it shows what the encoder buys:
 accuracy against time.
 
+With ``flip_average``, the method ``flip_averaged`` is the student's flip-averaged encoding
+(``lp3d encode --flip-average``, :mod:`lp3d.lift.flip_average`), scored as the student is.
+
 ``report.json``: run facts, ``identity_seeds``, ``input_yaw_deg``, ``per_identity`` (per seed: input
 yaw and pitch, own/other PSNR and SSIM, specificity, floor, ceiling and, when run, baseline PSNR), the
 averages per method under ``student``, ``baseline``, ``floor`` and ``ceiling``, and the student's
@@ -100,6 +103,7 @@ from lp3d.evaluation.report import (
     summary_table,
     write_outputs,
 )
+from lp3d.lift.flip_average import flip_averaged
 from lp3d.lift.refine import RefineSettings
 from lp3d.teachers import Teacher
 from lp3d.training.checkpoint import load_checkpoint, student_from_checkpoint
@@ -251,6 +255,15 @@ def _evaluate_identity(run: EvalRun, teacher: Teacher, seed: int, yaw: float, *,
     run.metrics["student"].add("input", pred_in, truth_in, run.lpips)
     run.add("student", pred_nv, truth_nv)
     run.metrics["floor"].add("novel", run.floor_nv, truth_nv, run.lpips)
+    if settings.flip_average:
+        with torch.no_grad():
+            planes_f, t_flip = timed(
+                lambda image=image: flip_averaged(student.encode, image), device, settings.timing_repeats
+            )
+            pred_f = render_student(student, planes_f, cam)
+            run.metrics["flip_averaged"].add("input", pred_f, truth_in, run.lpips)
+            run.add("flip_averaged", render_student(student, planes_f, views), truth_nv)
+        run.flip_encode_s.append(t_flip)
 
     # The ceiling: the teacher's own head at the student's plane resolution.
     if run.ceiling_teacher is not None:

@@ -80,7 +80,7 @@ def fit_triplane(
     return planes.detach()
 
 
-METHODS = ("student", "refined", "refined_photo", "baseline", "floor", "ceiling")
+METHODS = ("student", "flip_averaged", "refined", "refined_photo", "baseline", "floor", "ceiling")
 
 
 @dataclass
@@ -108,6 +108,7 @@ class EvalRun:
     truths: list[dict[str, Tensor]] = field(default_factory=list)
     pitches: list[float] = field(default_factory=list)
     encode_s: list[float] = field(default_factory=list)
+    flip_encode_s: list[float] = field(default_factory=list)
     render_s: list[float] = field(default_factory=list)
     fit_s: list[float] = field(default_factory=list)
     refine_s: list[float] = field(default_factory=list)
@@ -229,6 +230,11 @@ def _per_identity(
             "ceiling_novel_psnr": per_method["ceiling"][k]["novel_psnr"],
         }
         row["input_psnr"] = run.metrics["student"].values["input_psnr"][k]
+        if "flip_averaged" in per_method:
+            f = per_method["flip_averaged"][k]
+            row["flip_averaged_input_psnr"] = run.metrics["flip_averaged"].values["input_psnr"][k]
+            row["flip_averaged_novel_psnr"] = f["novel_psnr"]
+            row["flip_averaged_identity_specificity_db"] = f["identity_specificity_db"]
         if "refined" in per_method:
             r = per_method["refined"][k]
             row["refined_input_psnr"] = run.metrics["refined"].values["input_psnr"][k]
@@ -300,6 +306,14 @@ def build_report(run: EvalRun, seeds: list[int], yaws: list[float]) -> dict[str,
         },
         "per_identity": _per_identity(run, cross, seeds, yaws),
     }
+    if settings.flip_average:
+        report["flip_averaged"] = {
+            "method": "lp3d encode --flip-average: the mean of the student's planes of the input and the "
+            "mirror of its planes of the input flipped left to right (lp3d.lift.flip_average)",
+            **metrics["flip_averaged"].summary(),
+            **cross["flip_averaged"].summary(),
+            "encode_ms": 1000 * statistics.median(run.flip_encode_s),
+        }
     if settings.refine.steps > 0:
         report["refined"] = {
             "method": "lp3d encode --refine: the student's planes fitted to the input view (Adam, L1 on "

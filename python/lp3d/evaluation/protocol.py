@@ -49,6 +49,9 @@ class EvalSettings:
     baseline_mean_of: int = 16
     #: ``lp3d encode --refine``'s fit, scored as the method "refined" (``steps = 0``: skipped).
     refine: RefineSettings = field(default_factory=lambda: RefineSettings(steps=0))
+    #: Also score the student's flip-averaged encoding (:mod:`lp3d.lift.flip_average`) as the method
+    #: "flip_averaged".
+    flip_average: bool = False
     timing_repeats: int = 3
     figure_identities: int = 8
     #: A progress bar (stderr) over identities and baseline fits.

@@ -93,7 +93,7 @@ def summary_table(report: dict[str, Any]) -> str:
 
     head = ("method", "input PSNR", "novel PSNR own", "vs other identities", "specificity", "SSIM")
     lines = [head]
-    for method in ("student", "refined", "refined_photo", "baseline", "floor", "ceiling"):
+    for method in ("student", "flip_averaged", "refined", "refined_photo", "baseline", "floor", "ceiling"):
         s = report.get(method)
         if s is None:
             continue

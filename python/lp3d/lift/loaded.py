@@ -2,7 +2,8 @@
 :class:`LoadedSuperres` (feature image -> image), with the checks on their inputs and outputs that
 both backends share (:func:`_reshape_planes`).
 
-May import :mod:`lp3d.lift.model_package` and :mod:`lp3d.render`; no backend (onnxruntime, torch)."""
+May import :mod:`lp3d.lift.model_package`, :mod:`lp3d.lift.flip_average` and :mod:`lp3d.render`; no
+backend (onnxruntime, torch)."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from lp3d.lift.flip_average import flip_averaged
 from lp3d.lift.model_package import ModelPackage, ModelPackageError
 from lp3d.render.settings import N_CHANNELS
 
@@ -90,6 +92,10 @@ class LoadedEncoder:
     run: Callable[[np.ndarray], np.ndarray]
     description: str
     superres: LoadedSuperres | None = None
+
+    def encode(self, images: np.ndarray, *, flip_average: bool = False) -> np.ndarray:
+        """``run``, or with ``flip_average`` its flip-averaged form (:mod:`lp3d.lift.flip_average`)."""
+        return flip_averaged(self.run, images) if flip_average else self.run(images)
 
 
 def _reshape_planes(out: np.ndarray, batch: int, where: str, resolution: int) -> np.ndarray:
