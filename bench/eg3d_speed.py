@@ -10,7 +10,10 @@ EG3D side: its unmodified ``ImportanceRenderer``, ``RaySampler`` and ``OSGDecode
 ``torch.set_num_threads(--threads)``. Its two random draws (the coarse jitter's ``rand_like`` and
 ``sample_pdf(det=False)``) are switched to lp3d's deterministic mode (no jitter, ``det=True``) from
 outside, so the two renders can be compared as well as timed. lp3d side: ``lp3d_render.render`` with
-every output (rgb, features, depth, weights), its pipeline compiled by an untimed warm-up.
+every output (rgb, features, depth, weights), its pipeline compiled by an untimed warm-up; with
+``--outputs rgb`` only the RGB image and depth, what an RGB view needs (lp3d's decoder then computes
+density and three colour channels; EG3D's always computes all 32 features, whose first three are
+the RGB image, so the two are compared on those).
 
 The scene: ``--scene random`` (default), ``bench/render_bench.py``'s 256² random triplane with an
 EG3D-scaled decoder, or ``--scene teacher``, a procedural teacher head (its decoder's gains of up to
@@ -115,6 +118,12 @@ def main(argv: list[str] | None = None) -> int:
         "--scene", choices=("random", "teacher"), default="random", help="what to render (default random)"
     )
     p.add_argument("--seed", type=int, default=0, help="teacher identity for --scene teacher (default 0)")
+    p.add_argument(
+        "--outputs",
+        choices=("all", "rgb"),
+        default="all",
+        help="what lp3d_render computes: every output (default) or the RGB image and depth only",
+    )
     args = p.parse_args(argv)
     for name in ("resolution", "samples", "repeats", "threads"):
         if getattr(args, name) < 1:
@@ -155,9 +164,11 @@ def main(argv: list[str] | None = None) -> int:
 
     tri = head.to_native()
 
+    outputs = None if args.outputs == "all" else ["rgb", "depth"]
+
     def lp3d() -> dict[str, np.ndarray]:
         return lp3d_render.render(
-            tri, camera, resolution=r, depth_resolution=s, depth_resolution_importance=s
+            tri, camera, resolution=r, depth_resolution=s, depth_resolution_importance=s, outputs=outputs
         )
 
     ours = lp3d()  # compiles the pipeline (untimed)
@@ -166,13 +177,14 @@ def main(argv: list[str] | None = None) -> int:
     t_eg3d = median_s(eg3d, args.repeats)
     feat = theirs[0][0].numpy().reshape(r, r, -1)
     depth = theirs[1][0].numpy().reshape(r, r)
-    d_feat = float(np.abs(ours["features"].transpose(1, 2, 0) - feat).max())  # lp3d: (32, R, R)
+    mine = ours["features"] if outputs is None else ours["rgb"]  # lp3d: (C, R, R)
+    d_feat = float(np.abs(mine.transpose(1, 2, 0) - feat[..., : mine.shape[0]]).max())
     d_depth = float(np.abs(ours["depth"].reshape(r, r) - depth).max())
 
     info = lp3d_render.adapter_info()
     print(
         f"Command: `EG3D_SRC=... python bench/eg3d_speed.py --scene {args.scene} --resolution {r} "
-        f"--samples {s} --repeats {args.repeats} --threads {args.threads}`  "
+        f"--samples {s} --repeats {args.repeats} --threads {args.threads} --outputs {args.outputs}`  "
     )
     print(
         f"{platform.machine()}, {os.cpu_count()} CPUs, load {os.getloadavg()[0]:.1f}; "
@@ -180,12 +192,15 @@ def main(argv: list[str] | None = None) -> int:
         f"torch {torch.__version__}, {args.threads} threads\n"
     )
     print(
-        "| R | samples | EG3D ImportanceRenderer s/frame | lp3d_render s/frame | EG3D / lp3d "
-        "| max abs Δ features | max abs Δ depth |"
+        "| R | samples | lp3d outputs | EG3D ImportanceRenderer s/frame | lp3d_render s/frame | EG3D / lp3d "
+        f"| max abs Δ {'features' if outputs is None else 'RGB (features 0-2)'} | max abs Δ depth |"
     )
-    print("|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|")
     ratio = t_eg3d / t_lp3d
-    print(f"| {r} | {s}+{s} | {t_eg3d:.2f} | {t_lp3d:.2f} | {ratio:.2f}× | {d_feat:.1e} | {d_depth:.1e} |")
+    print(
+        f"| {r} | {s}+{s} | {args.outputs} | {t_eg3d:.2f} | {t_lp3d:.2f} | {ratio:.2f}× | {d_feat:.1e} "
+        f"| {d_depth:.1e} |"
+    )
     return 0
 
 

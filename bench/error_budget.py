@@ -130,6 +130,11 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="also swap in the student's shape channels alone, and its colour channels alone",
     )
+    p.add_argument(
+        "--flip-average",
+        action="store_true",
+        help="flip-average the student's planes (lp3d encode --flip-average)",
+    )
     args = p.parse_args(argv)
     if args.n_identities < 2:
         p.error("--n-identities must be >= 2 (the plane scales are spreads over identities)")
@@ -168,7 +173,7 @@ def main(argv: list[str] | None = None) -> int:
             image = render_truth(truth_teacher, planes_t, truth_dec, cam, cfg, scene)["high"]
             truth = render_truth(truth_teacher, planes_t, truth_dec, views, cfg, scene)["high"]
             ceiling = torch.from_numpy(ceiling_teacher.sample(seed).planes.astype(np.float32)).unsqueeze(0)
-            student = torch.from_numpy(enc.run(image.numpy()))
+            student = torch.from_numpy(enc.encode(image.numpy(), flip_average=args.flip_average))
             items.append(
                 {"split": split, "seed": seed, "truth": truth, "ceiling": ceiling, "student": student}
             )
