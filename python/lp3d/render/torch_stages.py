@@ -198,8 +198,11 @@ def sample_triplane(planes: Tensor, points: Tensor, *, box_warp: float = 1.0) ->
     n_tri, n_planes, channels, height, width = planes.shape
     n_points = points.shape[1]
     q = points * (2.0 / box_warp)
-    axes = torch.tensor(PLANE_AXES, device=points.device)  # (3, 2): (u, v) world axis per plane
-    grid = q[:, :, axes].permute(0, 2, 1, 3).reshape(n_tri * n_planes, 1, n_points, 2)
+    # (P, 3, K, 2): each plane's (u, v) world axes. Basic indexing, not ``q[:, :, tensor]``: that one's
+    # backward is index_put_(accumulate=True), which on the CPU sums the two planes that share an axis
+    # in thread order, so the same fit (lp3d encode --refine) differed from run to run.
+    grid = torch.stack([torch.stack((q[..., u], q[..., v]), dim=-1) for u, v in PLANE_AXES], dim=1)
+    grid = grid.reshape(n_tri * n_planes, 1, n_points, 2)
     sampled = F.grid_sample(
         planes.reshape(n_tri * n_planes, channels, height, width),
         grid,
