@@ -6,23 +6,20 @@ same head; the encoder is not mirror-symmetric by construction (its pixel-coordi
 are not), and the two estimates err differently, most at the largest input yaws. Averaging them
 raised the shipped model's held-out novel-view PSNR by 0.21 dB and its identity specificity by 0.20
 dB (``bench/RESULTS.md``, "Flip-averaged encoding") for twice the encoder's work, in one call of twice
-the batch. ``lp3d encode --flip-average``, ``lp3d video --flip-average`` and ``lp3d eval
---flip-average`` use it.
+the batch. ``lp3d encode``, ``video``, ``demo`` and ``eval`` offer it as ``--flip-average``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 
 from lp3d.render.triplane import mirror_planes
 
-Array = TypeVar("Array", Any, np.ndarray)
 
-
-def flip_averaged(encode: Callable[[Array], Array], images: Array) -> Array:
+def flip_averaged(encode: Callable[[Any], Any], images: Any) -> Any:
     """``encode`` (images (B, 3, S, S) -> planes (B, 3, C, T, T), numpy or torch) applied flip-averaged:
     ``(encode(x) + mirror(encode(flip(x)))) / 2``, both halves in one call of batch 2B."""
     if isinstance(images, np.ndarray):
