@@ -1,0 +1,138 @@
+"""How fine the baked field must be to reach exact 48+48's error, and where: fields of any k (and of two
+k, a finer one in the bricks a surface crosses) scored without storing them.
+
+    python bench/baked_resolution.py [--seeds 1000003 1000011] [--yaws 25 -30] [--resolution 64]
+
+A k = 16 field of a teacher head would take ~770 MiB, beyond lavapipe's 128 MiB storage binding, so it
+cannot be baked here. Its renders can still be computed exactly: a field's lookup is the trilinear
+mix of its sub-cell's eight corners (``lp3d.render.baked.baked_lookup``), and a corner's value is the
+decoder's at that point, rounded to float16 as the field stores it. This script decodes each
+sample's corners as the float64 reference renders, for k = 6 (the viewer's field, which this must
+match: ``bench/baked_error.py``'s "field" row) and finer, and for *two-level* fields: bricks at
+``k_fine`` where the k = 4 corners' raw density rises above ``--dense`` and falls below ``--solid``
+inside the brick (a surface crosses it), ``k_coarse`` elsewhere. Memory is what such a field would
+store (8 bytes a point); PSNR is against exact 192+192 on the GPU, beside exact 48+48's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import numpy as np
+
+import lp3d_render
+from lp3d.render.baked import EMPTY_RAW, colour_weight, decode_brick_points
+from lp3d.render.camera import look_at_camera
+from lp3d.render.psnr import psnr_db
+from lp3d.render.reference import decode, render_with, sample_triplane
+from lp3d.render.settings import RenderSettings
+from lp3d.render.triplane import TriplaneData
+from lp3d.teachers import ProceduralTeacher
+
+
+def decoded_corners(tri: TriplaneData, q: np.ndarray) -> np.ndarray:
+    """(N, 4): raw density and premultiplied RGB at plane coordinates ``q`` (N, 3), float16-rounded
+    as the field stores them (``bake_reference``'s values)."""
+    world = q[None] * (0.5 * tri.box_warp)
+    feat = sample_triplane(tri.planes.astype(np.float64), world, box_warp=tri.box_warp)
+    sigma, out = decode(feat, tri.w0, tri.b0, tri.w1, tri.b1)
+    sigma = sigma[0].astype(np.float16).astype(np.float64)
+    value = np.concatenate([sigma[:, None], out[0, :, :3] * colour_weight(sigma)[:, None]], axis=-1)
+    return value.astype(np.float16).astype(np.float64)
+
+
+def virtual_lookup(
+    tri: TriplaneData, cell_k: np.ndarray, points: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """``baked_lookup`` of a field whose cell (i, j, l) is split ``cell_k[i, j, l]`` times per axis (0:
+    no brick), its corners decoded on the fly: ``(sigma_raw (...), rgb (..., 3))`` at world
+    ``points`` (..., 3)."""
+    g = cell_k.shape[0]
+    p = points.reshape(-1, 3)
+    s = (p * (2.0 / tri.box_warp) + 1.0) * (0.5 * g)
+    cell = np.clip(np.floor(s), 0, g - 1)
+    k_of = cell_k[tuple(cell.astype(np.int64).T)]
+    sigma, rgb = np.full(len(p), EMPTY_RAW), np.zeros((len(p), 3))
+    for k in np.unique(k_of[k_of > 0]):
+        m = k_of == k
+        local = np.clip((s[m] - cell[m]) * k, 0.0, k)
+        i0 = np.minimum(np.floor(local), k - 1)
+        f = local - i0
+        acc, weight = np.zeros((m.sum(), 4)), np.zeros(m.sum())
+        for corner in range(8):
+            d = np.array([corner & 1, (corner >> 1) & 1, corner >> 2])
+            w = np.prod(np.where(d == 1, f, 1.0 - f), axis=-1)
+            value = decoded_corners(tri, (cell[m] * k + i0 + d) * (2.0 / (g * k)) - 1.0)
+            acc += w[:, None] * value
+            weight += w * colour_weight(value[:, 0])
+        sigma[m], rgb[m] = acc[:, 0], acc[:, 1:] / weight[:, None]
+    return sigma.reshape(points.shape[:-1]), rgb.reshape(*points.shape[:-1], 3)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--seeds", type=int, nargs="+", default=[1_000_003, 1_000_011], help="teacher heads")
+    p.add_argument("--yaws", type=float, nargs="+", default=[25.0, -30.0], help="one view per head (deg)")
+    p.add_argument("--resolution", type=int, default=64, help="rays per side (default 64)")
+    p.add_argument("--dense", type=float, default=10.0, help="fine bricks: raw density rises above this")
+    p.add_argument("--solid", type=float, default=50.0, help="... and falls below this (default 50)")
+    args = p.parse_args(argv)
+    if len(args.yaws) != len(args.seeds):
+        p.error("give one --yaws per --seeds")
+    uniform = (6, 8, 12, 16)
+    two_level = ((4, 12), (4, 16))
+    seeds = " ".join(map(str, args.seeds))
+    yaws = " ".join(f"{y:g}" for y in args.yaws)
+    print(
+        f"Command: `python bench/baked_resolution.py --seeds {seeds} --yaws {yaws} "
+        f"--resolution {args.resolution} --dense {args.dense:g} --solid {args.solid:g}`\n"
+    )
+    print("| head, view | field | fine bricks | MiB | points to bake | PSNR vs exact 192+192 | exact 48+48 |")
+    print("|---|---|---|---|---|---|---|")
+    r = args.resolution
+    for seed, yaw in zip(args.seeds, args.yaws, strict=True):
+        head = ProceduralTeacher(resolution=64).sample(seed)
+        tri = head.to_native()
+        index = lp3d_render.bake(tri, subdivisions=2, occupancy_epsilon=1e-4).index
+        cam = look_at_camera(yaw_deg=yaw, pitch_deg=5)
+        ref = lp3d_render.render(
+            tri, cam, resolution=r, depth_resolution=192, depth_resolution_importance=192, outputs=["rgb"]
+        )["rgb"]
+        exact = psnr_db(lp3d_render.render(tri, cam, resolution=r, outputs=["rgb"])["rgb"], ref)
+        gpu = lp3d_render.render(
+            tri, cam, resolution=r, occupancy_epsilon=1e-4, baked_subdivisions=6, outputs=["rgb"]
+        )["rgb"]
+        view = f"{seed}, yaw {yaw:g}"
+        print(f"| {view} | k 6, baked on the GPU | – | | | {psnr_db(gpu, ref):.2f} dB | {exact:.2f} dB |")
+        corners = decode_brick_points(head, index, 4)[0].reshape(int((index >= 0).sum()), -1)
+        crossed = (corners.max(-1) > args.dense) & (corners.min(-1) < args.solid)
+        order = np.argsort(index.ravel())
+        cells = order[index.ravel()[order] >= 0]  # brick order
+        fields = [(f"k {k}", k, k) for k in uniform] + [(f"k {a} / {b}", a, b) for a, b in two_level]
+        for name, k_coarse, k_fine in fields:
+            cell_k = np.zeros(index.shape, np.int64)
+            cell_k.ravel()[cells] = np.where(crossed, k_fine, k_coarse)
+            points = np.where(crossed, (k_fine + 1) ** 3, (k_coarse + 1) ** 3).sum()
+
+            def evaluate(
+                o: np.ndarray,
+                d: np.ndarray,
+                t: np.ndarray,
+                head: TriplaneData = head,
+                cell_k: np.ndarray = cell_k,
+            ) -> tuple[np.ndarray, np.ndarray]:
+                return virtual_lookup(head, cell_k, o[:, None, :] + t[..., None] * d[:, None, :])
+
+            out = render_with(head, cam, RenderSettings(resolution=r), evaluate)["rgb"]
+            fine = f"{crossed.sum()} of {len(crossed)}" if k_fine != k_coarse else "–"
+            print(
+                f"| {view} | {name} | {fine} | {points * 8 / 2**20:.0f} | {points / 1e6:.1f} M "
+                f"| {psnr_db(out, ref):.2f} dB | {exact:.2f} dB |",
+                flush=True,
+            )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
