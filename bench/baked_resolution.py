@@ -81,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
     if len(args.yaws) != len(args.seeds):
         p.error("give one --yaws per --seeds")
     uniform = (6, 8, 12, 16)
-    two_level = ((4, 12), (4, 16))
+    two_level = ((4, 10), (4, 12), (4, 16))
     seeds = " ".join(map(str, args.seeds))
     yaws = " ".join(f"{y:g}" for y in args.yaws)
     print(
