@@ -22,24 +22,18 @@ import sys
 import numpy as np
 
 import lp3d_render
-from lp3d.render.baked import EMPTY_RAW, colour_weight, decode_brick_points
+from lp3d.render.baked import EMPTY_RAW, colour_weight, decode_at, decode_brick_points, field_values
 from lp3d.render.camera import look_at_camera
 from lp3d.render.psnr import psnr_db
-from lp3d.render.reference import decode, render_with, sample_triplane
+from lp3d.render.reference import render_with
 from lp3d.render.settings import RenderSettings
 from lp3d.render.triplane import TriplaneData
 from lp3d.teachers import ProceduralTeacher
 
 
 def decoded_corners(tri: TriplaneData, q: np.ndarray) -> np.ndarray:
-    """(N, 4): raw density and premultiplied RGB at plane coordinates ``q`` (N, 3), float16-rounded
-    as the field stores them (``bake_reference``'s values)."""
-    world = q[None] * (0.5 * tri.box_warp)
-    feat = sample_triplane(tri.planes.astype(np.float64), world, box_warp=tri.box_warp)
-    sigma, out = decode(feat, tri.w0, tri.b0, tri.w1, tri.b1)
-    sigma = sigma[0].astype(np.float16).astype(np.float64)
-    value = np.concatenate([sigma[:, None], out[0, :, :3] * colour_weight(sigma)[:, None]], axis=-1)
-    return value.astype(np.float16).astype(np.float64)
+    """(N, 4): the field's values at plane coordinates ``q`` (N, 3) as stored, in float16."""
+    return field_values(*decode_at(tri, q)).astype(np.float16).astype(np.float64)
 
 
 def virtual_lookup(

@@ -65,23 +65,33 @@ def brick_points(index: np.ndarray, k: int) -> np.ndarray:
     return grid * (2.0 / (g * k)) - 1.0
 
 
-def decode_brick_points(tri: TriplaneData, index: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """The float64 decoder at every brick point of ``index``: raw density (bricks, k+1, k+1, k+1) and
-    RGB, its first three features, not premultiplied (bricks, k+1, k+1, k+1, 3)."""
-    q = brick_points(index, k)
+def decode_at(tri: TriplaneData, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The float64 decoder at plane coordinates ``q`` (..., 3): raw density (...) and RGB, its first
+    three features, not premultiplied (..., 3)."""
     world = q * (0.5 * tri.box_warp)
     feat = sample_triplane(tri.planes.astype(np.float64), world.reshape(1, -1, 3), box_warp=tri.box_warp)
     sigma_raw, out = decode(feat, tri.w0, tri.b0, tri.w1, tri.b1)
     return sigma_raw.reshape(q.shape[:-1]), out[..., :3].reshape(*q.shape[:-1], 3)
 
 
-def bake_reference(tri: TriplaneData, index: np.ndarray, k: int) -> np.ndarray:
-    """The field's values in float64 (bricks, k+1, k+1, k+1, 4): the decoder's raw density and its
-    first three features times their :func:`colour_weight` at every brick point of ``index``. The
-    weight is that of the raw density as stored (rounded to float16), as the lookup recomputes it."""
-    sigma_raw, rgb = decode_brick_points(tri, index, k)
+def decode_brick_points(tri: TriplaneData, index: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`decode_at` every brick point of ``index``: raw density (bricks, k+1, k+1, k+1) and RGB
+    (bricks, k+1, k+1, k+1, 3)."""
+    return decode_at(tri, brick_points(index, k))
+
+
+def field_values(sigma_raw: np.ndarray, rgb: np.ndarray) -> np.ndarray:
+    """What the field stores for decoded points, in float64 (..., 4): the raw density and the RGB
+    times its :func:`colour_weight`. The weight is that of the raw density as stored (rounded to
+    float16), as the lookup recomputes it."""
     weight = colour_weight(sigma_raw.astype(np.float16))
     return np.concatenate([sigma_raw[..., None], rgb * weight[..., None]], axis=-1)
+
+
+def bake_reference(tri: TriplaneData, index: np.ndarray, k: int) -> np.ndarray:
+    """The field's values in float64 (bricks, k+1, k+1, k+1, 4): :func:`field_values` at every brick
+    point of ``index``."""
+    return field_values(*decode_brick_points(tri, index, k))
 
 
 def baked_lookup(
