@@ -303,8 +303,10 @@ def test_one_baked_setting_in_both_languages() -> None:
 
     native = lp3d_render._lp3d_render
     assert BAKED.baked_subdivisions == native.BAKED_SUBDIVISIONS
+    assert BAKED.baked_fine_subdivisions == native.BAKED_FINE_SUBDIVISIONS
     assert BAKED.occupancy_epsilon == pytest.approx(native.BAKED_OCCUPANCY_EPSILON, rel=1e-7)
-    assert dataclasses.replace(BAKED, occupancy_epsilon=0.0, baked_subdivisions=0) == Skips()  # nothing else
+    plain = dataclasses.replace(BAKED, occupancy_epsilon=0.0, baked_subdivisions=0, baked_fine_subdivisions=0)
+    assert plain == Skips()  # nothing else
     # The guide's thresholds.
     (wgsl,) = re.findall(r"const GUIDE_RAW: f32 = (-?[0-9.]+);", source)
     assert float(wgsl) == GUIDE_RAW

@@ -4,7 +4,7 @@
 
 use std::sync::Arc;
 
-use lp3d_renderer::baked::{BrickLayout, EMPTY, MAX_SUBDIVISIONS};
+use lp3d_renderer::baked::{BrickLayout, EMPTY, MAX_FINE_SUBDIVISIONS, MAX_SUBDIVISIONS};
 use lp3d_renderer::settings::MAX_SAMPLES;
 use lp3d_renderer::{BakeSpec, GpuBaked, RenderSettings, Skips};
 use numpy::{PyArray1, PyArrayMethods, PyUntypedArrayMethods};
@@ -22,12 +22,38 @@ pub struct BakedField {
     inner: Arc<GpuBaked>,
 }
 
+impl BakedField {
+    /// The points of one level, read back: (bricks, k + 1, k + 1, k + 1, 4) float16.
+    fn level<'py>(&self, py: Python<'py>, fine: bool) -> PyResult<Bound<'py, PyAny>> {
+        let g = gpu(py)?;
+        let mut halves = py.detach(|| g.renderer.read_baked_values(&self.inner)).map_err(to_py)?;
+        let spec = &self.inner.spec;
+        let n_coarse = self.inner.n_coarse();
+        let coarse_halves = n_coarse * BrickLayout::points_per_brick(spec.subdivisions) * 4;
+        let (k, n) = if fine {
+            halves.drain(..coarse_halves);
+            (spec.fine_subdivisions, self.inner.n_bricks - n_coarse)
+        } else {
+            halves.truncate(coarse_halves);
+            (spec.subdivisions, n_coarse)
+        };
+        let k1 = k as usize + 1;
+        let arr = PyArray1::from_vec(py, halves).reshape([n, k1, k1, k1, 4])?;
+        arr.call_method1("view", ("float16",))
+    }
+}
+
 #[pymethods]
 impl BakedField {
     /// Points per baked cell edge, k.
     #[getter]
     fn subdivisions(&self) -> u32 {
         self.inner.spec.subdivisions
+    }
+    /// A two-level field's points per cell edge in the bricks a surface crosses; 0 for one level.
+    #[getter]
+    fn fine_subdivisions(&self) -> u32 {
+        self.inner.spec.fine_subdivisions
     }
     /// The occupancy skip's per-interval opacity bound the bake kept cells for.
     #[getter]
@@ -49,6 +75,11 @@ impl BakedField {
     fn bricks(&self) -> usize {
         self.inner.n_bricks
     }
+    /// Of those, the fine bricks of a two-level field (numbered after the coarse ones).
+    #[getter]
+    fn fine_bricks(&self) -> usize {
+        self.inner.n_bricks - self.inner.n_coarse()
+    }
     #[getter]
     fn bake_seconds(&self) -> f64 {
         self.inner.bake_seconds
@@ -64,24 +95,29 @@ impl BakedField {
             self.inner.index.iter().map(|&b| if b == EMPTY { -1 } else { b as i64 }).collect();
         Ok(PyArray1::from_vec(py, idx).reshape([self.inner.cells; 3])?.into_any())
     }
-    /// (bricks, k + 1, k + 1, k + 1, 4) float16: (sigma_raw, w r, w g, w b) at each brick point, read
-    /// back from the GPU; point (a, b, c) of the brick of cell (ix, iy, iz) sits at plane
-    /// coordinates -1 + 2 ((ix, iy, iz) k + (a, b, c)) / (G k).
+    /// (coarse bricks, k + 1, k + 1, k + 1, 4) float16: (sigma_raw, w r, w g, w b) at each point of
+    /// the bricks numbered below ``bricks - fine_bricks``, read back from the GPU; point (a, b, c)
+    /// of the brick of cell (ix, iy, iz) sits at plane coordinates -1 + 2 ((ix, iy, iz) k + (a, b,
+    /// c)) / (G k).
     #[getter]
     fn values<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        let g = gpu(py)?;
-        let halves = py.detach(|| g.renderer.read_baked_values(&self.inner)).map_err(to_py)?;
-        let k1 = self.inner.spec.subdivisions as usize + 1;
-        let shape = [self.inner.n_bricks, k1, k1, k1, 4];
-        let arr = PyArray1::from_vec(py, halves).reshape(shape)?;
-        arr.call_method1("view", ("float16",))
+        self.level(py, false)
+    }
+    /// (fine bricks, k_f + 1, k_f + 1, k_f + 1, 4) float16: a two-level field's fine bricks, as
+    /// ``values`` with k_f = ``fine_subdivisions`` (empty for one level).
+    #[getter]
+    fn fine_values<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        self.level(py, true)
     }
     fn __repr__(&self) -> String {
         format!(
-            "BakedField(subdivisions={}, cells={}, bricks={}, occupancy_epsilon={}, {:.1} MiB)",
+            "BakedField(subdivisions={}, fine_subdivisions={}, cells={}, bricks={}, fine_bricks={}, \
+             occupancy_epsilon={}, {:.1} MiB)",
             self.inner.spec.subdivisions,
+            self.inner.spec.fine_subdivisions,
             self.inner.cells,
             self.inner.n_bricks,
+            self.inner.n_bricks - self.inner.n_coarse(),
             self.inner.spec.epsilon,
             self.inner.device_bytes() as f64 / (1 << 20) as f64
         )
@@ -97,9 +133,11 @@ impl BakedField {
 #[pyfunction]
 #[pyo3(
     signature = (triplane, subdivisions=Arg::Default(4), occupancy_epsilon=Arg::Default(1e-4),
-                 depth_resolution=Arg::Default(48), deterministic=Arg::Default(true), progress=None),
-    text_signature = "(triplane, subdivisions=4, occupancy_epsilon=0.0001, depth_resolution=48, deterministic=True, progress=None)"
+                 depth_resolution=Arg::Default(48), deterministic=Arg::Default(true), progress=None,
+                 fine_subdivisions=Arg::Default(0)),
+    text_signature = "(triplane, subdivisions=4, occupancy_epsilon=0.0001, depth_resolution=48, deterministic=True, progress=None, fine_subdivisions=0)"
 )]
+#[allow(clippy::too_many_arguments)]
 pub fn bake<'py>(
     py: Python<'py>,
     triplane: &Bound<'py, PyAny>,
@@ -108,16 +146,25 @@ pub fn bake<'py>(
     depth_resolution: Arg<'py, i64>,
     deterministic: Arg<'py, bool>,
     progress: Option<Bound<'py, PyAny>>,
+    fine_subdivisions: Arg<'py, i64>,
 ) -> PyResult<BakedField> {
     guarded(|| {
         let tri = Triplane::arg(triplane)?;
         let k = int_arg(&subdivisions, "subdivisions", 1, MAX_SUBDIVISIONS as i64)? as u32;
+        let fine = int_arg(&fine_subdivisions, "fine_subdivisions", 0, MAX_FINE_SUBDIVISIONS as i64)? as u32;
+        if fine != 0 && fine <= k {
+            return Err(invalid(
+                "fine_subdivisions",
+                format!("must be 0 or above subdivisions ({k}), got {fine}"),
+            ));
+        }
         let settings = RenderSettings {
             depth_resolution: int_arg(&depth_resolution, "depth_resolution", 4, MAX_SAMPLES as i64)? as u32,
             deterministic: bool_arg(&deterministic, "deterministic")?,
             skips: Skips {
                 occupancy_epsilon: f32_arg(&occupancy_epsilon, "occupancy_epsilon")?,
                 baked_subdivisions: k,
+                baked_fine_subdivisions: fine,
                 ..Skips::EXACT
             },
             ..RenderSettings::default()
@@ -129,6 +176,7 @@ pub fn bake<'py>(
         let bounds = uploaded.scene().bounds;
         let spec = BakeSpec {
             subdivisions: k,
+            fine_subdivisions: fine,
             epsilon: settings.skips.occupancy_epsilon,
             max_delta: settings.max_interval(bounds.ray_start, bounds.ray_end),
         };
@@ -164,9 +212,13 @@ pub fn bake<'py>(
 
 /// Attaches a field saved earlier (``lp3d.render.baked.load_baked`` reads the file and checks it
 /// belongs to ``triplane``) to the triplane's GPU copy: ``index`` (G, G, G) int64 (-1 empty),
-/// ``values`` (bricks, k+1, k+1, k+1, 4) float16 bits as uint16. Every array is checked here.
+/// ``values`` (bricks, k+1, k+1, k+1, 4) float16 bits as uint16, and for a two-level field
+/// (``fine_subdivisions`` > 0) ``fine_values`` (fine bricks, k_f+1, k_f+1, k_f+1, 4) the same way.
+/// Every array is checked here.
 #[pyfunction]
-#[pyo3(signature = (triplane, index, values, *, subdivisions, occupancy_epsilon, max_delta))]
+#[pyo3(signature = (triplane, index, values, *, subdivisions, occupancy_epsilon, max_delta,
+                    fine_subdivisions=0, fine_values=None))]
+#[allow(clippy::too_many_arguments)]
 pub fn attach_baked<'py>(
     py: Python<'py>,
     triplane: &Bound<'py, PyAny>,
@@ -175,6 +227,8 @@ pub fn attach_baked<'py>(
     subdivisions: i64,
     occupancy_epsilon: f64,
     max_delta: f64,
+    fine_subdivisions: i64,
+    fine_values: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<BakedField> {
     guarded(|| {
         let tri = Triplane::arg(triplane)?;
@@ -195,13 +249,29 @@ pub fn attach_baked<'py>(
             .map(|b| if b < 0 { EMPTY } else { u32::try_from(b).unwrap_or(EMPTY - 1) })
             .collect();
         let values = values.to_vec().map_err(|_| invalid("values", "must be contiguous"))?;
+        let fine_values = match fine_values {
+            Some(f) if !f.is_none() => f
+                .cast::<numpy::PyArrayDyn<u16>>()
+                .map_err(|_| invalid("fine_values", "expected a uint16 array of float16 bits"))?
+                .to_vec()
+                .map_err(|_| invalid("fine_values", "must be contiguous"))?,
+            _ => Vec::new(),
+        };
+        let fine = u32::try_from(fine_subdivisions).map_err(|_| {
+            invalid("fine_subdivisions", format!("must be 0 or in (subdivisions, {MAX_FINE_SUBDIVISIONS}]"))
+        })?;
         let k = u32::try_from(subdivisions).map_err(|_| invalid("subdivisions", "must be in [1, 8]"))?;
-        let spec = BakeSpec { subdivisions: k, epsilon: occupancy_epsilon as f32, max_delta };
+        let spec = BakeSpec {
+            subdivisions: k,
+            fine_subdivisions: fine,
+            epsilon: occupancy_epsilon as f32,
+            max_delta,
+        };
         let g = gpu(py)?;
         let tri = tri.get();
         let uploaded = py.detach(|| guarded(|| tri.on_gpu(g, true)))?;
         let inner = py
-            .detach(|| g.renderer.attach_baked(&uploaded, spec, shape[0], index, &values))
+            .detach(|| g.renderer.attach_baked(&uploaded, spec, shape[0], index, &values, &fine_values))
             .map_err(to_py)?;
         Ok(BakedField { inner })
     })

@@ -50,6 +50,7 @@ fn _lp3d_render(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("MAX_SAMPLES", MAX_SAMPLES)?;
     // Skips::BAKED, for the test that ties it to lp3d.render.settings.BAKED.
     m.add("BAKED_SUBDIVISIONS", Skips::BAKED.baked_subdivisions)?;
+    m.add("BAKED_FINE_SUBDIVISIONS", Skips::BAKED.baked_fine_subdivisions)?;
     m.add("BAKED_OCCUPANCY_EPSILON", Skips::BAKED.occupancy_epsilon)?;
     m.add("FFHQ_FOCAL", FFHQ_FOCAL)?;
     m.add("FFHQ_RADIUS", FFHQ_RADIUS)?;

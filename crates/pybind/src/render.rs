@@ -3,7 +3,7 @@
 
 use std::hash::BuildHasher;
 
-use lp3d_renderer::baked::MAX_SUBDIVISIONS;
+use lp3d_renderer::baked::{MAX_FINE_SUBDIVISIONS, MAX_SUBDIVISIONS};
 use lp3d_renderer::settings::{MAX_RESOLUTION, MAX_SAMPLES};
 use lp3d_renderer::triplane::N_CHANNELS;
 use lp3d_renderer::{Camera, Outputs, RenderOutput, RenderSettings, Skips};
@@ -30,7 +30,9 @@ use crate::triplane::Triplane;
 /// ``baked_subdivisions`` = k > 0 skips the decoder: samples are looked up in the triplane's
 /// baked field (``bake``; baked with k points per cell edge on first use), which holds
 /// density and RGB only, so ``features`` cannot be asked for (docs/baked.md); it needs
-/// ``occupancy_epsilon`` > 0. ``baked_guide=True`` uses that field as a guide instead: samples it
+/// ``occupancy_epsilon`` > 0. ``baked_fine_subdivisions`` > k makes it a two-level field: the
+/// bricks a surface crosses get that many points per cell edge (docs/baked.md, "Two levels").
+/// ``baked_guide=True`` uses that field as a guide instead: samples it
 /// finds dense (or next to a dense one) on a still-visible ray are decoded exactly, the rest
 /// looked up (docs/baked.md, "The guide").
 ///
@@ -44,8 +46,9 @@ use crate::triplane::Triplane;
                  outputs=None, white_back=Arg::Default(false), *,
                  transmittance_threshold=Arg::Default(0.0), empty_threshold=Arg::Default(0.0),
                  occupancy_epsilon=Arg::Default(0.0), occupancy_coarse=Arg::Default(false),
-                 baked_subdivisions=Arg::Default(0), baked_guide=Arg::Default(false)),
-    text_signature = "(triplane, camera, resolution=128, depth_resolution=48, depth_resolution_importance=48, deterministic=True, seed=None, outputs=None, white_back=False, *, transmittance_threshold=0.0, empty_threshold=0.0, occupancy_epsilon=0.0, occupancy_coarse=False, baked_subdivisions=0, baked_guide=False)"
+                 baked_subdivisions=Arg::Default(0), baked_fine_subdivisions=Arg::Default(0),
+                 baked_guide=Arg::Default(false)),
+    text_signature = "(triplane, camera, resolution=128, depth_resolution=48, depth_resolution_importance=48, deterministic=True, seed=None, outputs=None, white_back=False, *, transmittance_threshold=0.0, empty_threshold=0.0, occupancy_epsilon=0.0, occupancy_coarse=False, baked_subdivisions=0, baked_fine_subdivisions=0, baked_guide=False)"
 )]
 #[allow(clippy::too_many_arguments)]
 // Long because: every argument is checked here, before any GPU work, one after another in the
@@ -66,6 +69,7 @@ pub fn render<'py>(
     occupancy_epsilon: Arg<'py, f64>,
     occupancy_coarse: Arg<'py, bool>,
     baked_subdivisions: Arg<'py, i64>,
+    baked_fine_subdivisions: Arg<'py, i64>,
     baked_guide: Arg<'py, bool>,
 ) -> PyResult<Bound<'py, PyDict>> {
     guarded(|| {
@@ -108,6 +112,12 @@ pub fn render<'py>(
                     "baked_subdivisions",
                     0,
                     MAX_SUBDIVISIONS as i64,
+                )? as u32,
+                baked_fine_subdivisions: int_arg(
+                    &baked_fine_subdivisions,
+                    "baked_fine_subdivisions",
+                    0,
+                    MAX_FINE_SUBDIVISIONS as i64,
                 )? as u32,
                 baked_guide: bool_arg(&baked_guide, "baked_guide")?,
             },

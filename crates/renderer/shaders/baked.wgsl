@@ -39,28 +39,30 @@ fn baked_colour_weight(sigma_raw: f32) -> f32 {
     return BAKED_COLOUR_FLOOR + clamp(sigma_raw / BAKED_COLOUR_RAMP, 0.0, 1.0);
 }
 
-// The first of the two words of point i (each of i's components in 0..=k) of `brick`.
-fn baked_word(brick: u32, i: vec3<u32>) -> u32 {
-    let k1 = params.baked_subdivisions + 1u;
-    return params.baked_values_offset + 2u * (((brick * k1 + i.x) * k1 + i.y) * k1 + i.z);
-}
-
-// Point i of `brick`: (sigma_raw, w r, w g, w b), w its colour weight.
-fn baked_point(brick: u32, i: vec3<u32>) -> vec4<f32> {
-    let w = baked_word(brick, i);
-    return vec4<f32>(halves_to_f32(baked[w]), halves_to_f32(baked[w + 1u]));
-}
-
-// Where a point falls in the baked field: its cell's brick (BAKED_EMPTY if none), the first point
-// of the sub-cell around it and the point's place in that sub-cell (each in [0, 1]).
+// Where a point falls in the baked field: the first word of its brick's points (BAKED_EMPTY if
+// its cell has no brick) and the brick's points per edge, k + 1; the first point of the sub-cell
+// around it and the point's place in that sub-cell (each in [0, 1]).
 struct BakedSpot {
-    brick: u32,
+    base: u32,
+    k1: u32,
     i0: vec3<u32>,
     f: vec3<f32>,
 }
 
+// The first of the two words of point i (each of i's components in 0..=k) of a spot's brick.
+fn baked_word(spot: BakedSpot, i: vec3<u32>) -> u32 {
+    return spot.base + 2u * ((i.x * spot.k1 + i.y) * spot.k1 + i.z);
+}
+
+// Point i of a spot's brick: (sigma_raw, w r, w g, w b), w its colour weight.
+fn baked_point(spot: BakedSpot, i: vec3<u32>) -> vec4<f32> {
+    let w = baked_word(spot, i);
+    return vec4<f32>(halves_to_f32(baked[w]), halves_to_f32(baked[w + 1u]));
+}
+
 // Cells are the baked field's (G per axis over plane coordinates [-1, 1], the edge cells clamped
-// so they stand for everything beyond); inside a cell, k intervals per axis.
+// so they stand for everything beyond); inside a cell, k intervals per axis (k_f in a two-level
+// field's fine bricks, numbered from params.baked_fine_first on).
 fn baked_spot(pos: vec3<f32>) -> BakedSpot {
     let g = params.baked_cells;
     let gf = f32(g);
@@ -68,10 +70,16 @@ fn baked_spot(pos: vec3<f32>) -> BakedSpot {
     let cell_f = clamp(floor(s), vec3<f32>(0.0), vec3<f32>(gf - 1.0));
     let cell = vec3<u32>(cell_f);
     let brick = baked[(cell.x * g + cell.y) * g + cell.z];
-    let kf = f32(params.baked_subdivisions);
+    let kc1 = params.baked_subdivisions + 1u;
+    let fine = brick != BAKED_EMPTY && brick >= params.baked_fine_first;
+    let k = select(params.baked_subdivisions, params.baked_fine_subdivisions, fine);
+    let k1 = k + 1u;
+    let first = select(brick * kc1 * kc1 * kc1, params.baked_fine_first * kc1 * kc1 * kc1 + (brick - params.baked_fine_first) * k1 * k1 * k1, fine);
+    let base = select(params.baked_values_offset + 2u * first, BAKED_EMPTY, brick == BAKED_EMPTY);
+    let kf = f32(k);
     let local = clamp((s - cell_f) * kf, vec3<f32>(0.0), vec3<f32>(kf));
     let i0_f = min(floor(local), vec3<f32>(kf - 1.0));
-    return BakedSpot(brick, vec3<u32>(i0_f), local - i0_f);
+    return BakedSpot(base, k1, vec3<u32>(i0_f), local - i0_f);
 }
 
 // Corner c of a spot's sub-cell, + (c & 1, c >> 1 & 1, c >> 2): its offset and trilinear weight.
@@ -84,7 +92,7 @@ fn baked_corner(f: vec3<f32>, c: u32) -> vec4<f32> {
 // The baked raw density at world point `pos` (returned) and its RGB into dst[0].xyz (w = 0).
 fn baked_sample(pos: vec3<f32>, dst: ptr<function, array<vec4<f32>, 8>>) -> f32 {
     let spot = baked_spot(pos);
-    if (spot.brick == BAKED_EMPTY) {
+    if (spot.base == BAKED_EMPTY) {
         (*dst)[0] = vec4<f32>(0.0);
         return BAKED_EMPTY_RAW;
     }
@@ -93,7 +101,7 @@ fn baked_sample(pos: vec3<f32>, dst: ptr<function, array<vec4<f32>, 8>>) -> f32 
     // The 8 corners as one loop, not eight copies: lavapipe inlines every call.
     for (var c = 0u; c < 8u; c++) {
         let corner = baked_corner(spot.f, c);
-        let point = baked_point(spot.brick, spot.i0 + vec3<u32>(corner.xyz));
+        let point = baked_point(spot, spot.i0 + vec3<u32>(corner.xyz));
         acc += corner.w * point;
         weight += corner.w * baked_colour_weight(point.x);
     }
@@ -104,13 +112,13 @@ fn baked_sample(pos: vec3<f32>, dst: ptr<function, array<vec4<f32>, 8>>) -> f32 
 // baked_sample's raw density alone (half the loads): what the guide tests.
 fn baked_raw(pos: vec3<f32>) -> f32 {
     let spot = baked_spot(pos);
-    if (spot.brick == BAKED_EMPTY) {
+    if (spot.base == BAKED_EMPTY) {
         return BAKED_EMPTY_RAW;
     }
     var raw = 0.0;
     for (var c = 0u; c < 8u; c++) {
         let corner = baked_corner(spot.f, c);
-        raw += corner.w * halves_to_f32(baked[baked_word(spot.brick, spot.i0 + vec3<u32>(corner.xyz))]).x;
+        raw += corner.w * halves_to_f32(baked[baked_word(spot, spot.i0 + vec3<u32>(corner.xyz))]).x;
     }
     return raw;
 }

@@ -55,8 +55,10 @@ struct Params {
     baked_cells: u32,
     // Where the points start in `baked` (u32 words: after the G^3 index).
     baked_values_offset: u32,
-    _pad1: u32,
-    _pad2: u32,
+    // Two-level fields (docs/baked.md, "Two levels"): bricks numbered from this one on are fine
+    // (0xffffffff: none), with this many points per cell edge; their points follow the coarse ones.
+    baked_fine_first: u32,
+    baked_fine_subdivisions: u32,
 }
 
 // EG3D OSGDecoder with effective weights, packed as vec4 rows for uniform layout.
@@ -85,7 +87,8 @@ struct Decoder {
 // The baked field (docs/baked.md), one buffer so that render_rays keeps to WebGPU's default of 8
 // storage buffers per stage: per baked cell the number of its brick or BAKED_EMPTY (G^3 words),
 // then from baked_values_offset per brick (k + 1)^3 points of two words, (sigma_raw, r) and
-// (g, b) as packed float16 pairs.
+// (g, b) as packed float16 pairs (a two-level field's fine bricks after the coarse ones, with
+// (k_f + 1)^3 points each).
 @group(0) @binding(9) var<storage, read> baked: array<u32>;
 // The bake's own bindings: the cell of each brick, and the field it writes the points into.
 @group(0) @binding(11) var<storage, read> bake_cells: array<u32>;

@@ -14,12 +14,26 @@
 //! (`baked_colour_weight` in `baked.wgsl`), so that corners in empty space do not tint a surface.
 //! Point (a, b, c) of brick n is value `((n (k+1) + a)(k+1) + b)(k+1) + c`; its plane
 //! coordinates are `-1 + 2 (cell k + (a, b, c)) / (G k)`.
+//!
+//! A *two-level* field (`BakeSpec::fine_subdivisions` > 0) splits the bricks a surface crosses
+//! ([`crossed`], judged on their k-point values) finer, into k_f³ sub-cells: its bricks are numbered
+//! in cell order, first the N_c coarse ones, then the fine ones, whose (k_f + 1)³ points follow all
+//! the coarse points. A brick number n >= N_c is fine brick n - N_c (`baked_fine_first` in the
+//! shader's `Params`).
 
 use crate::error::{Error, Result};
 use crate::occupancy::Occupancy;
 
 /// Largest accepted points per cell edge, k.
 pub const MAX_SUBDIVISIONS: u32 = 8;
+/// Largest accepted points per cell edge of a two-level field's fine bricks, k_f.
+pub const MAX_FINE_SUBDIVISIONS: u32 = 16;
+/// A brick is crossed by a surface when its raw density rises above this at one of its points
+/// ([`crossed`]) ...
+pub const CROSSED_DENSE: f32 = 10.0;
+/// ... and falls below this at another (`bench/baked_resolution.py` chose both: 38% of a teacher
+/// head's bricks, holding the error of a uniform field as fine, `bench/RESULTS.md`).
+pub const CROSSED_SOLID: f32 = 50.0;
 /// `index` of a cell without a brick (`BAKED_EMPTY` in `shaders/baked.wgsl`).
 pub const EMPTY: u32 = u32::MAX;
 /// Bytes per baked point: four float16.
@@ -39,6 +53,8 @@ pub fn baked_cells(g: usize) -> usize {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct BakeSpec {
     pub subdivisions: u32,
+    /// Points per cell edge of the bricks a surface crosses; 0 = one level.
+    pub fine_subdivisions: u32,
     pub epsilon: f32,
     pub max_delta: f64,
 }
@@ -49,6 +65,7 @@ impl BakeSpec {
     /// intervals keep fewer cells).
     pub fn covers(&self, need: &BakeSpec) -> bool {
         self.subdivisions == need.subdivisions
+            && self.fine_subdivisions == need.fine_subdivisions
             && self.epsilon <= need.epsilon
             && self.max_delta >= need.max_delta
     }
@@ -95,6 +112,46 @@ impl BrickLayout {
     pub fn points_per_brick(subdivisions: u32) -> usize {
         (subdivisions as usize + 1).pow(3)
     }
+
+    /// The two-level layout of these bricks, the ones `is_fine` (in brick order) made fine: the
+    /// coarse ones keep their order as bricks 0..N_c, the fine ones follow as N_c.. .
+    pub fn two_level(&self, is_fine: &[bool]) -> TwoLevelLayout {
+        assert_eq!(is_fine.len(), self.brick_cells.len());
+        let mut index = vec![EMPTY; self.index.len()];
+        let (mut coarse, mut fine) = (Vec::new(), Vec::new());
+        for (brick, &cell) in self.brick_cells.iter().enumerate() {
+            if is_fine[brick] {
+                fine.push(cell);
+            } else {
+                index[cell as usize] = coarse.len() as u32;
+                coarse.push(brick as u32);
+            }
+        }
+        for (j, &cell) in fine.iter().enumerate() {
+            index[cell as usize] = (coarse.len() + j) as u32;
+        }
+        TwoLevelLayout { index, coarse_bricks: coarse, fine_cells: fine }
+    }
+}
+
+/// A two-level field's bricks ([`BrickLayout::two_level`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct TwoLevelLayout {
+    /// G³ entries: the cell's brick number (coarse 0..N_c, then fine), or [`EMPTY`].
+    pub index: Vec<u32>,
+    /// The coarse bricks, as numbers of the one-level layout they came from (N_c).
+    pub coarse_bricks: Vec<u32>,
+    /// The flat cell index of each fine brick, in fine-brick order.
+    pub fine_cells: Vec<u32>,
+}
+
+/// Whether a surface crosses a brick, from its points' raw densities: one above [`CROSSED_DENSE`]
+/// and one below [`CROSSED_SOLID`]. A brick that stays below the first is empty or faint there;
+/// one that stays above the second is inside the head, where its colour is hidden.
+pub fn crossed(sigma_raw: impl IntoIterator<Item = f32>) -> bool {
+    let (lo, hi) =
+        sigma_raw.into_iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), s| (lo.min(s), hi.max(s)));
+    hi > CROSSED_DENSE && lo < CROSSED_SOLID
 }
 
 /// The bound of each of `g`³ blocks of `grid`'s cells (`g` divides its resolution): the largest
@@ -146,7 +203,7 @@ mod tests {
         let g = 8;
         let occ = grid(g, &[(4, 4, 4)]);
         // Intervals of 1.5 cells (box 1, G 8: cell 0.125): reach 2 cells.
-        let spec = BakeSpec { subdivisions: 2, epsilon: 1e-6, max_delta: 0.1875 };
+        let spec = BakeSpec { subdivisions: 2, fine_subdivisions: 0, epsilon: 1e-6, max_delta: 0.1875 };
         let layout = BrickLayout::new(&occ, &spec, 1.0).unwrap();
         assert_eq!(layout.brick_cells.len(), 5 * 5 * 5);
         for x in 0..g {
@@ -167,7 +224,7 @@ mod tests {
     fn a_fine_occupancy_grid_is_baked_in_blocks_of_its_cells() {
         assert_eq!([64, 32, 16, 48, 96, 128].map(baked_cells), [32, 32, 16, 48, 32, 32]);
         let occ = grid(64, &[(10, 20, 30)]);
-        let spec = BakeSpec { subdivisions: 2, epsilon: 1e-6, max_delta: 0.02 };
+        let spec = BakeSpec { subdivisions: 2, fine_subdivisions: 0, epsilon: 1e-6, max_delta: 0.02 };
         let layout = BrickLayout::new(&occ, &spec, 1.0).unwrap();
         // Block (5, 10, 15) of 32³, and one block around it (cells 1/32 wide > 0.02).
         assert_eq!((layout.cells, layout.brick_cells.len()), (32, 27));
@@ -178,7 +235,7 @@ mod tests {
     #[test]
     fn an_empty_scene_has_no_bricks_and_bad_subdivisions_are_refused() {
         let occ = grid(4, &[]);
-        let spec = BakeSpec { subdivisions: 4, epsilon: 1e-6, max_delta: 0.03 };
+        let spec = BakeSpec { subdivisions: 4, fine_subdivisions: 0, epsilon: 1e-6, max_delta: 0.03 };
         assert!(BrickLayout::new(&occ, &spec, 1.0).unwrap().brick_cells.is_empty());
         let bad = BakeSpec { subdivisions: 9, ..spec };
         let e = BrickLayout::new(&occ, &bad, 1.0).unwrap_err().to_string();
@@ -187,11 +244,41 @@ mod tests {
 
     #[test]
     fn covers_needs_the_same_points_and_no_more_cells() {
-        let a = BakeSpec { subdivisions: 4, epsilon: 1e-6, max_delta: 0.03 };
+        let a = BakeSpec { subdivisions: 4, fine_subdivisions: 0, epsilon: 1e-6, max_delta: 0.03 };
         assert!(a.covers(&a));
         assert!(a.covers(&BakeSpec { epsilon: 1e-4, max_delta: 0.02, ..a }));
         assert!(!a.covers(&BakeSpec { epsilon: 1e-7, ..a }));
         assert!(!a.covers(&BakeSpec { max_delta: 0.05, ..a }));
         assert!(!a.covers(&BakeSpec { subdivisions: 2, ..a }));
+        assert!(!a.covers(&BakeSpec { fine_subdivisions: 8, ..a }));
+    }
+
+    #[test]
+    fn a_two_level_layout_numbers_coarse_bricks_then_fine_ones() {
+        let g = 8;
+        let occ = grid(g, &[(1, 1, 1), (5, 5, 5)]);
+        let spec = BakeSpec { subdivisions: 2, fine_subdivisions: 0, epsilon: 1e-6, max_delta: 0.1 };
+        let one = BrickLayout::new(&occ, &spec, 1.0).unwrap();
+        let n = one.brick_cells.len();
+        assert!(n > 6);
+        let is_fine: Vec<bool> = (0..n).map(|b| b % 3 == 0).collect();
+        let two = one.two_level(&is_fine);
+        let coarse: Vec<u32> = (0..n as u32).filter(|b| b % 3 != 0).collect();
+        assert_eq!(two.coarse_bricks, coarse);
+        let fine: Vec<u32> = (0..n).step_by(3).map(|b| one.brick_cells[b]).collect();
+        assert_eq!(two.fine_cells, fine);
+        for (b, &cell) in one.brick_cells.iter().enumerate() {
+            let want = if b % 3 == 0 { coarse.len() + b / 3 } else { b - b / 3 - 1 };
+            assert_eq!(two.index[cell as usize] as usize, want, "brick {b}");
+        }
+        assert_eq!(two.index.iter().filter(|&&b| b != EMPTY).count(), n);
+    }
+
+    #[test]
+    fn crossed_needs_a_point_above_dense_and_one_below_solid() {
+        assert!(crossed([-5.0, 20.0]));
+        assert!(crossed([0.0, 60.0]));
+        assert!(!crossed([-5.0, 9.0])); // faint
+        assert!(!crossed([60.0, 80.0])); // inside
     }
 }

@@ -41,8 +41,10 @@ pub struct Params {
     pub baked_subdivisions: u32,
     pub baked_cells: u32,
     pub baked_values_offset: u32,
-    pub _pad1: u32,
-    pub _pad2: u32,
+    /// Two-level fields: the first fine brick's number (`u32::MAX`: none) ...
+    pub baked_fine_first: u32,
+    /// ... and the fine bricks' points per cell edge.
+    pub baked_fine_subdivisions: u32,
 }
 
 impl Params {
@@ -84,8 +86,8 @@ impl Params {
             baked_subdivisions: 0,
             baked_cells: 0,
             baked_values_offset: 0,
-            _pad1: 0,
-            _pad2: 0,
+            baked_fine_first: u32::MAX,
+            baked_fine_subdivisions: 0,
         }
     }
 }

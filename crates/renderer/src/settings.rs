@@ -53,6 +53,11 @@ pub struct Skips {
     /// the occupancy skip keeps; RGB, depth and weights only. Needs `occupancy_epsilon` > 0 (the
     /// bake stores nothing where that skip takes the density as 0). 0 = off.
     pub baked_subdivisions: u32,
+    /// A two-level field: the bricks a surface crosses (`baked::crossed`) hold this many points
+    /// per cell edge instead, more than `baked_subdivisions`; the rest keep that many. The
+    /// error falls with the square of the sub-cell and the bricks a surface crosses are where it
+    /// is (`docs/baked.md`, "Two levels"). 0 = one level.
+    pub baked_fine_subdivisions: u32,
     /// Use the baked field as a guide, not in place of the decoder: decode exactly the samples
     /// it finds dense (or next to a dense one along the ray) while the ray is still visible, and
     /// look up the rest (`docs/baked.md`, "The guide"). Needs `baked_subdivisions` > 0; RGB,
@@ -67,6 +72,7 @@ impl Skips {
         occupancy_epsilon: 0.0,
         occupancy_coarse: false,
         baked_subdivisions: 0,
+        baked_fine_subdivisions: 0,
         baked_guide: false,
     };
 
@@ -98,6 +104,17 @@ impl Skips {
         }
         if k > 0 && self.occupancy_epsilon == 0.0 {
             return Err(Error::invalid("baked_subdivisions", "needs occupancy_epsilon > 0"));
+        }
+        let fine = self.baked_fine_subdivisions;
+        if fine != 0 && !(k > 0 && fine > k && fine <= crate::baked::MAX_FINE_SUBDIVISIONS) {
+            return Err(Error::invalid(
+                "baked_fine_subdivisions",
+                format!(
+                    "must be 0 or in (baked_subdivisions, {}] with baked_subdivisions > 0, got {fine} \
+                     (baked_subdivisions {k})",
+                    crate::baked::MAX_FINE_SUBDIVISIONS
+                ),
+            ));
         }
         if self.baked_guide && k == 0 {
             return Err(Error::invalid(

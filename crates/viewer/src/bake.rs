@@ -29,6 +29,8 @@ use crate::quality::{FrameTimes, Ladder, Rung};
 /// closer image than k = 4 at the same frame time, for ~60 MiB and a bake of seconds on a teacher
 /// head (bench/RESULTS.md, "Baked field"); k = 8 does not fit lavapipe's 128 MiB binding.
 pub const BAKE_SUBDIVISIONS: u32 = Skips::BAKED.baked_subdivisions;
+/// Points per cell edge in the bricks a surface crosses (two levels; 0: one): `Skips::BAKED`'s.
+pub const BAKE_FINE_SUBDIVISIONS: u32 = Skips::BAKED.baked_fine_subdivisions;
 /// The occupancy skip's epsilon the field is baked for: `Skips::BAKED`'s (1e-4), invisible in an
 /// 8-bit image.
 pub const BAKE_EPSILON: f32 = Skips::BAKED.occupancy_epsilon;
@@ -49,6 +51,7 @@ pub fn baked_settings(chosen: &RenderSettings) -> RenderSettings {
             occupancy_epsilon: BAKE_EPSILON,
             occupancy_coarse: true,
             baked_subdivisions: BAKE_SUBDIVISIONS,
+            baked_fine_subdivisions: BAKE_FINE_SUBDIVISIONS,
             baked_guide: false,
         },
         ..*chosen
@@ -61,6 +64,7 @@ pub fn spec_for(settings: &RenderSettings, (ray_start, ray_end): (f32, f32)) -> 
     let s = baked_settings(settings);
     BakeSpec {
         subdivisions: BAKE_SUBDIVISIONS,
+        fine_subdivisions: BAKE_FINE_SUBDIVISIONS,
         epsilon: BAKE_EPSILON,
         max_delta: s.max_interval(ray_start, ray_end),
     }

@@ -10,6 +10,11 @@ stored float16 raw density). ``index`` (G, G, G) gives each cell's brick number 
 coordinates ``-1 + 2 ((ix, iy, iz) k + (a, b, c)) / (G k)``. A point in a cell without a brick has raw
 density :data:`EMPTY_RAW` and RGB 0.
 
+A *two-level* field (``fine_subdivisions`` k_f > k) splits the bricks a surface crosses
+(:func:`crossed`, judged on their k-point values) into k_f³ sub-cells: ``index`` numbers the coarse
+bricks 0..N_c in cell order, then the fine ones N_c.. in cell order; ``values`` holds the N_c coarse
+bricks and ``fine_values`` (fine bricks, k_f+1, k_f+1, k_f+1, 4) the others (:func:`split_levels`).
+
 Why premultiplied: at a surface, half of a sample's corners may lie in empty space, where the
 decoder's colour is anything; weighting each corner's colour by a weight that grows with its density
 keeps it out of the surface's colour (+2.3 dB against exact 192+192 on a teacher head at k = 6,
@@ -46,6 +51,41 @@ COLOUR_FLOOR = 0.03
 #: itself: no exp or log for each of a sample's eight corners (the opacity cost 14% of a baked frame),
 #: and as accurate (46.2 dB against 46.1 for the opacity of a 0.02 interval; 20: 46.1, 100: 46.1).
 COLOUR_RAMP = 50.0
+
+
+#: A brick is crossed by a surface when a point's raw density is above this and another's below
+#: :data:`CROSSED_SOLID` (Rust's ``baked::CROSSED_DENSE`` / ``CROSSED_SOLID``).
+CROSSED_DENSE = 10.0
+CROSSED_SOLID = 50.0
+
+
+def crossed(values: np.ndarray) -> np.ndarray:
+    """(bricks,) bool: the bricks of ``values`` (bricks, k+1, k+1, k+1, 4) a surface crosses, the
+    ones a two-level field makes fine."""
+    sigma = values[..., 0].reshape(values.shape[0], -1).astype(np.float64)
+    return (sigma.max(axis=1) > CROSSED_DENSE) & (sigma.min(axis=1) < CROSSED_SOLID)
+
+
+def two_level_index(index: np.ndarray, fine: np.ndarray) -> np.ndarray:
+    """The two-level index of a one-level ``index`` whose bricks ``fine`` (bricks,) are made fine:
+    coarse bricks renumbered 0..N_c in cell order, then the fine ones (as the GPU's bake does)."""
+    out = np.full(index.shape, -1, np.int64)
+    flat, cells = index.ravel(), out.reshape(-1)
+    order = np.argsort(flat)
+    in_order = order[flat[order] >= 0]  # cells in brick order
+    is_fine = fine[flat[in_order]]
+    coarse_cells, fine_cells = in_order[~is_fine], in_order[is_fine]
+    cells[coarse_cells] = np.arange(len(coarse_cells))
+    cells[fine_cells] = len(coarse_cells) + np.arange(len(fine_cells))
+    return out
+
+
+def split_levels(index: np.ndarray, n_coarse: int) -> tuple[np.ndarray, np.ndarray]:
+    """A two-level ``index`` as two one-level ones: the coarse bricks' (0..N_c, -1 elsewhere) and
+    the fine bricks' (0..N_f, -1 elsewhere)."""
+    coarse = np.where((index >= 0) & (index < n_coarse), index, -1)
+    fine = np.where(index >= n_coarse, index - n_coarse, -1)
+    return coarse, fine
 
 
 def colour_weight(sigma_raw: np.ndarray) -> np.ndarray:
@@ -95,12 +135,39 @@ def bake_reference(tri: TriplaneData, index: np.ndarray, k: int) -> np.ndarray:
 
 
 def baked_lookup(
-    index: np.ndarray, values: np.ndarray, k: int, box_warp: float, points: np.ndarray
+    index: np.ndarray,
+    values: np.ndarray,
+    k: int,
+    box_warp: float,
+    points: np.ndarray,
+    fine_values: np.ndarray | None = None,
+    fine_k: int = 0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``(sigma_raw (...), rgb (..., 3))`` at world ``points`` (..., 3): trilinear inside the point's
     cell (edge cells clamped, so they stand for everything beyond), the RGB as the interpolated
     premultiplied RGB over the interpolated colour weight; :data:`EMPTY_RAW` and 0 in a cell without
-    a brick."""
+    a brick. A two-level field gives ``fine_values`` and ``fine_k`` too."""
+    if not fine_k:
+        return _lookup_level(index, values, k, box_warp, points)
+    coarse, fine = split_levels(index, len(values))
+    sigma_c, rgb_c = _lookup_level(coarse, values, k, box_warp, points)
+    sigma_f, rgb_f = _lookup_level(fine, np.asarray(fine_values), fine_k, box_warp, points)
+    in_fine = _brick_at(fine, box_warp, points) >= 0
+    return np.where(in_fine, sigma_f, sigma_c), np.where(in_fine[..., None], rgb_f, rgb_c)
+
+
+def _brick_at(index: np.ndarray, box_warp: float, points: np.ndarray) -> np.ndarray:
+    """The brick number (or -1) of the cell around each world point (...)."""
+    g = index.shape[0]
+    s = (np.asarray(points, np.float64) * (2.0 / box_warp) + 1.0) * (0.5 * g)
+    cell = np.clip(np.floor(s), 0, g - 1).astype(np.int64)
+    return index[cell[..., 0], cell[..., 1], cell[..., 2]]
+
+
+def _lookup_level(
+    index: np.ndarray, values: np.ndarray, k: int, box_warp: float, points: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`baked_lookup` in a one-level field."""
     g = index.shape[0]
     s = (np.asarray(points, np.float64) * (2.0 / box_warp) + 1.0) * (0.5 * g)
     cell = np.clip(np.floor(s), 0, g - 1)
@@ -157,13 +224,16 @@ def guide_walk(
     sigma_raw: np.ndarray,
     feat: np.ndarray,
     exact: np.ndarray,
+    *,
+    fine_values: np.ndarray | None = None,
+    fine_k: int = 0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One walk of the guided render over sorted samples ``t`` (rays, M) holding looked-up values
     (or, where ``exact``, decoded ones the coarse walk kept): front to back, each sample the guide
     picks (:data:`GUIDE_RAW`, :data:`GUIDE_TRANSMITTANCE`, judged on the transmittance of the values
     as revised so far) is decoded, unless it already is. Returns the revised values and ``exact``."""
     points = o[:, None, :] + t[..., None] * d[:, None, :]
-    near = near_dense(baked_lookup(index, values, k, tri.box_warp, points)[0])
+    near = near_dense(baked_lookup(index, values, k, tri.box_warp, points, fine_values, fine_k)[0])
     sigma_raw, feat, exact = sigma_raw.copy(), feat.copy(), exact.copy()
     planes = tri.planes.astype(np.float64)
     transmittance = np.ones(t.shape[0])  # through the intervals before the previous sample
@@ -189,18 +259,23 @@ def render_baked_reference(
     settings: RenderSettings,
     *,
     guided: bool = False,
+    fine_values: np.ndarray | None = None,
+    fine_k: int = 0,
 ) -> dict[str, np.ndarray]:
     """:func:`lp3d.render.reference.render_reference` with every sample looked up in the field
     instead of decoded (the same sampler and compositing); ``rgb``, ``depth`` and ``weights_sum``.
-    ``guided``: the field guides the decoder instead (:func:`guide_walk`, ``baked_guide=True``)."""
+    ``guided``: the field guides the decoder instead (:func:`guide_walk`, ``baked_guide=True``). A
+    two-level field gives ``fine_values`` and ``fine_k`` too."""
 
     def evaluate(o: np.ndarray, d: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         points = o[:, None, :] + t[..., None] * d[:, None, :]
-        sigma_raw, rgb = baked_lookup(index, values, k, tri.box_warp, points)
+        sigma_raw, rgb = baked_lookup(index, values, k, tri.box_warp, points, fine_values, fine_k)
         return sigma_raw, rgb
 
     def guide(o, d, t, sigma_raw, feat, exact):  # type: ignore[no-untyped-def]
-        return guide_walk(tri, index, values, k, o, d, t, sigma_raw, feat, exact)
+        return guide_walk(
+            tri, index, values, k, o, d, t, sigma_raw, feat, exact, fine_values=fine_values, fine_k=fine_k
+        )
 
     if guided and settings.depth_resolution > COARSE_CACHE:
         raise ValueError(f"the guided reference models depth_resolution <= {COARSE_CACHE}")
@@ -212,7 +287,9 @@ def render_baked_reference(
 # ------------------------------------------------------------------------------------------ the file
 
 #: ``format`` of a saved baked field (``save_baked``).
-BAKED_FORMAT = "lp3d-baked-field-v2"  # v1 stored RGB not premultiplied
+BAKED_FORMAT = "lp3d-baked-field-v3"  # v2 had one level; v1 stored RGB not premultiplied
+#: Older formats :func:`load_baked` still reads (one level, fine_subdivisions 0).
+ONE_LEVEL_FORMAT = "lp3d-baked-field-v2"
 #: The numbers a saved field holds besides its arrays.
 SCALARS = ("subdivisions", "occupancy_epsilon", "max_delta")
 #: Largest cells per axis a file may claim (the occupancy grid's limit).
@@ -241,6 +318,8 @@ def save_baked(path: str | os.PathLike[str], field: Any, triplane: Any) -> Path:
         "max_delta": np.array(field.max_delta, np.float64),
         "index": field.index.astype(np.int64),
         "values": field.values,
+        "fine_subdivisions": np.array(field.fine_subdivisions, np.int64),
+        "fine_values": field.fine_values,
     }
     with atomic_path(out) as tmp, open(tmp, "wb") as f:
         np.savez(f, **arrays)
@@ -267,16 +346,28 @@ def load_baked(path: str | os.PathLike[str], triplane: Any) -> Any:
         raise ValueError(f"{where}: missing {', '.join(missing)}")
     if str(data["format"]) == "lp3d-baked-field-v1":
         raise ValueError(f"{where}: format: baked by an older lp3d (RGB not premultiplied); bake again")
-    if str(data["format"]) != BAKED_FORMAT:
+    if str(data["format"]) == ONE_LEVEL_FORMAT:
+        data.setdefault("fine_subdivisions", np.array(0, np.int64))
+        data.setdefault("fine_values", np.zeros((0, 1, 1, 1, 4), np.float16))
+    elif str(data["format"]) != BAKED_FORMAT:
         raise ValueError(f"{where}: format {str(data['format'])[:40]!r}, expected {BAKED_FORMAT!r}")
+    elif "fine_subdivisions" not in data or "fine_values" not in data:
+        raise ValueError(f"{where}: missing fine_subdivisions or fine_values")
     if str(data["triplane_sha256"]) != triplane_digest(triplane):
         raise ValueError(f"{where}: baked for other planes or another decoder than this triplane's")
     scalars = {name: _scalar(data[name], f"{where}: {name}") for name in SCALARS}
     index, values = data["index"], data["values"]
     if index.dtype.kind != "i" or index.ndim != 3 or len(set(index.shape)) != 1 or index.shape[0] > MAX_CELLS:
         raise ValueError(f"{where}: index must be (G, G, G) integers, G <= {MAX_CELLS}, got {index.shape}")
-    if values.dtype != np.float16 or values.ndim != 5 or values.shape[-1] != 4:
-        raise ValueError(f"{where}: values must be (bricks, k+1, k+1, k+1, 4) float16, got {values.shape}")
+    for name in ("values", "fine_values"):
+        a = data[name]
+        if a.dtype != np.float16 or a.ndim != 5 or a.shape[-1] != 4:
+            raise ValueError(
+                f"{where}: {name} must be (bricks, k+1, k+1, k+1, 4) float16, got {a.dtype} {a.shape}"
+            )
+    fine_k = _scalar(data["fine_subdivisions"], f"{where}: fine_subdivisions")
+    if fine_k != int(fine_k):
+        raise ValueError(f"{where}: fine_subdivisions: must be a whole number, got {fine_k}")
     return lp3d_render.attach_baked(
         triplane,
         index.astype(np.int64),
@@ -284,6 +375,8 @@ def load_baked(path: str | os.PathLike[str], triplane: Any) -> Any:
         subdivisions=int(scalars["subdivisions"]),
         occupancy_epsilon=scalars["occupancy_epsilon"],
         max_delta=scalars["max_delta"],
+        fine_subdivisions=int(fine_k),
+        fine_values=np.ascontiguousarray(data["fine_values"]).view(np.uint16),
     )
 
 

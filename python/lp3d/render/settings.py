@@ -31,6 +31,8 @@ N_OUT = 33
 
 #: Largest baked-field points per cell edge (Rust's ``baked::MAX_SUBDIVISIONS``).
 MAX_BAKED_SUBDIVISIONS = 8
+#: ... and in a two-level field's fine bricks (``baked::MAX_FINE_SUBDIVISIONS``).
+MAX_BAKED_FINE_SUBDIVISIONS = 16
 
 
 @dataclass(frozen=True)
@@ -52,6 +54,9 @@ class Skips:
     #: at k points per baked cell edge in the cells the occupancy skip keeps (density and RGB
     #: only; needs occupancy_epsilon > 0). 0 = off.
     baked_subdivisions: int = 0
+    #: A two-level field (docs/baked.md, "Two levels"): the bricks a surface crosses get this many
+    #: points per cell edge instead, more than baked_subdivisions. 0 = one level.
+    baked_fine_subdivisions: int = 0
     #: Use that field as a guide instead (docs/baked.md, "The guide"): decode exactly the samples it
     #: finds dense, or next to a dense one, while the ray is still visible; look up the rest. Needs
     #: baked_subdivisions > 0.
@@ -73,6 +78,14 @@ class Skips:
             raise ValueError(f"baked_subdivisions must be an int in [0, {MAX_BAKED_SUBDIVISIONS}], got {k!r}")
         if k > 0 and self.occupancy_epsilon == 0.0:
             raise ValueError("baked_subdivisions needs occupancy_epsilon > 0")
+        fine = self.baked_fine_subdivisions
+        if not _is_int(fine) or not (fine == 0 or k < fine <= MAX_BAKED_FINE_SUBDIVISIONS):
+            raise ValueError(
+                f"baked_fine_subdivisions must be 0 or an int in (baked_subdivisions, "
+                f"{MAX_BAKED_FINE_SUBDIVISIONS}], got {fine!r} (baked_subdivisions {k})"
+            )
+        if fine and k == 0:
+            raise ValueError("baked_fine_subdivisions needs baked_subdivisions > 0")
         if not isinstance(self.baked_guide, bool):
             raise ValueError(f"baked_guide must be a bool, got {self.baked_guide!r}")
         if self.baked_guide and k == 0:

@@ -7,18 +7,43 @@
 use std::time::Instant;
 
 use super::*;
-use crate::baked::{BakeSpec, BrickLayout, POINT_BYTES};
+use crate::baked::{crossed, BakeSpec, BrickLayout, MAX_FINE_SUBDIVISIONS, POINT_BYTES};
 use crate::kernel::{build_render_variant, FieldUse};
 
 /// Points per bake dispatch: ~0.1 s each on lavapipe, so a viewer drawing meanwhile waits at most
 /// that long for its frame.
 pub const BAKE_CHUNK: usize = 1 << 16;
 
-/// Checks a saved field before it is uploaded; its number of bricks.
-fn check_saved_field(spec: &BakeSpec, cells: usize, index: &[u32], values: &[u16]) -> Result<usize> {
+/// One level of a bake: the cells of its bricks (flat indices of the G³ grid) and their k.
+struct BakePass<'a> {
+    cells: &'a [u32],
+    cells_per_axis: usize,
+    k: u32,
+}
+
+/// Checks a saved field before it is uploaded: `values` holds the coarse bricks' points,
+/// `fine_values` a two-level field's fine ones' (empty for one level). Its numbers of coarse and
+/// fine bricks.
+fn check_saved_field(
+    spec: &BakeSpec,
+    cells: usize,
+    index: &[u32],
+    values: &[u16],
+    fine_values: &[u16],
+) -> Result<(usize, usize)> {
     let k = spec.subdivisions;
     if !(1..=crate::baked::MAX_SUBDIVISIONS).contains(&k) {
         return Err(Error::invalid("subdivisions", format!("must be in [1, 8], got {k}")));
+    }
+    let kf = spec.fine_subdivisions;
+    if kf != 0 && !(kf > k && kf <= MAX_FINE_SUBDIVISIONS) {
+        return Err(Error::invalid(
+            "fine_subdivisions",
+            format!("must be 0 or in (subdivisions, {MAX_FINE_SUBDIVISIONS}], got {kf}"),
+        ));
+    }
+    if kf == 0 && !fine_values.is_empty() {
+        return Err(Error::invalid("fine_values", "a one-level field (fine_subdivisions 0) has none"));
     }
     if !(spec.epsilon > 0.0 && spec.epsilon < 1.0 && spec.max_delta.is_finite() && spec.max_delta > 0.0) {
         return Err(Error::invalid("occupancy_epsilon", "must be in (0, 1), with a positive max_delta"));
@@ -33,20 +58,35 @@ fn check_saved_field(spec: &BakeSpec, cells: usize, index: &[u32], values: &[u16
     if values.len() % per_brick != 0 {
         return Err(Error::invalid("values", format!("must be (bricks, {0}, {0}, {0}, 4)", k + 1)));
     }
-    let n_bricks = values.len() / per_brick;
-    // Every brick named by exactly one cell, in cell order (as a bake numbers them).
+    let n_coarse = values.len() / per_brick;
+    let per_fine = 4 * BrickLayout::points_per_brick(kf);
+    if kf != 0 && fine_values.len() % per_fine != 0 {
+        return Err(Error::invalid(
+            "fine_values",
+            format!("must be (fine bricks, {0}, {0}, {0}, 4)", kf + 1),
+        ));
+    }
+    let n_fine = if kf == 0 { 0 } else { fine_values.len() / per_fine };
+    // Every brick named by exactly one cell, each level in cell order (as a bake numbers them).
     let named: Vec<u32> = index.iter().copied().filter(|&b| b != crate::baked::EMPTY).collect();
-    if named.len() != n_bricks || named.iter().enumerate().any(|(i, &b)| b as usize != i) {
+    let coarse = named.iter().filter(|&&b| (b as usize) < n_coarse);
+    let fine = named.iter().filter(|&&b| (b as usize) >= n_coarse);
+    if named.len() != n_coarse + n_fine
+        || coarse.enumerate().any(|(i, &b)| b as usize != i)
+        || fine.enumerate().any(|(i, &b)| b as usize != n_coarse + i)
+    {
         return Err(Error::invalid(
             "index",
-            format!("must name bricks 0..{n_bricks} once each, in cell order"),
+            format!("must name bricks 0..{} once each, each level in cell order", n_coarse + n_fine),
         ));
     }
     // Finite float16 only (exponent 31 is Inf or NaN): the renderer's output stays finite.
-    if let Some(i) = values.iter().position(|&h| (h >> 10) & 0x1f == 0x1f) {
-        return Err(Error::invalid("values", format!("NaN or Inf at flat index {i}")));
+    for (name, halves) in [("values", values), ("fine_values", fine_values)] {
+        if let Some(i) = halves.iter().position(|&h| (h >> 10) & 0x1f == 0x1f) {
+            return Err(Error::invalid(name, format!("NaN or Inf at flat index {i}")));
+        }
     }
-    Ok(n_bricks)
+    Ok((n_coarse, n_fine))
 }
 
 /// The baked field's pipelines, each built on first use, and what the bake binds.
@@ -87,6 +127,8 @@ pub struct GpuBaked {
     pub cells: usize,
     pub index: Vec<u32>,
     pub n_bricks: usize,
+    /// Two-level fields: the first fine brick's number (N_c); `u32::MAX` for one level.
+    pub fine_first: u32,
     /// Seconds the bake took (brick layout, upload, kernel, wait).
     pub bake_seconds: f64,
     /// The index (G³ words), then the points (two words each): `baked` in `shaders/params.wgsl`.
@@ -103,16 +145,27 @@ impl GpuBaked {
     pub fn values_offset(&self) -> u32 {
         self.index.len() as u32
     }
+
+    /// Bricks at `spec.subdivisions` (all of a one-level field's), N_c.
+    pub fn n_coarse(&self) -> usize {
+        self.n_bricks.min(self.fine_first as usize)
+    }
+
+    /// Points of the field: the coarse bricks', then the fine ones'.
+    pub fn n_points(&self) -> usize {
+        let fine =
+            (self.n_bricks - self.n_coarse()) * BrickLayout::points_per_brick(self.spec.fine_subdivisions);
+        self.n_coarse() * BrickLayout::points_per_brick(self.spec.subdivisions) + fine
+    }
 }
 
-/// The field's buffer as the kernels read it: `index`, then `words` (or `n_words` zeros).
+/// The field's buffer as the kernels read it: `index`, then `n_words` words, the first of them
+/// `words` (if given), the rest zeros.
 fn field_buffer(dev: &wgpu::Device, index: &[u32], words: Option<&[u32]>, n_words: usize) -> wgpu::Buffer {
     let mut contents = Vec::with_capacity((index.len() + n_words).max(2));
     contents.extend_from_slice(index);
-    match words {
-        Some(w) => contents.extend_from_slice(w),
-        None => contents.resize(index.len() + n_words, 0),
-    }
+    contents.extend_from_slice(words.unwrap_or_default());
+    contents.resize(index.len() + n_words, 0);
     contents.resize(contents.len().max(2), 0);
     dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
         label: Some("lp3d baked field"),
@@ -137,9 +190,9 @@ impl Renderer {
 
     /// [`Renderer::bake`] in dispatches of [`BAKE_CHUNK`] points, each waited for, calling
     /// `progress(points done, points)` after each; returning false stops the bake (an error
-    /// naming it). Other work on the device (a viewer's frames) runs between the dispatches.
-    // Long because: one error scope covers every buffer and dispatch of the bake, so that a
-    // device that runs out reports it once, as the bake's error.
+    /// naming it). Other work on the device (a viewer's frames) runs between the dispatches. A
+    /// two-level field bakes every brick coarse first, reads their densities back to find the
+    /// ones a surface crosses (`baked::crossed`), then bakes those fine (`points` grows then).
     pub fn bake_with_progress(
         &self,
         tri: &GpuTriplane,
@@ -151,6 +204,13 @@ impl Renderer {
             return Err(Error::invalid(
                 "occupancy_epsilon",
                 format!("a bake needs epsilon in (0, 1), got {}", spec.epsilon),
+            ));
+        }
+        let fine_k = spec.fine_subdivisions;
+        if fine_k != 0 && !(fine_k > spec.subdivisions && fine_k <= MAX_FINE_SUBDIVISIONS) {
+            return Err(Error::invalid(
+                "fine_subdivisions",
+                format!("must be 0 or in (subdivisions, {MAX_FINE_SUBDIVISIONS}], got {fine_k}"),
             ));
         }
         let grid = {
@@ -173,27 +233,124 @@ impl Renderer {
             value_bytes,
             ": use fewer subdivisions or a larger occupancy_epsilon",
         )?;
+        let index_words = layout.index.len() as u32;
+        let data = field_buffer(&self.device, &layout.index, None, n_points * 2);
+        let mut total = n_points;
+        let pass =
+            BakePass { cells: &layout.brick_cells, cells_per_axis: layout.cells, k: spec.subdivisions };
+        self.run_bake(tri, &pass, index_words, &data, &mut |done| progress(done, total))?;
+        if fine_k == 0 {
+            return self.keep_baked(
+                tri,
+                spec,
+                layout.cells,
+                layout.index,
+                layout.brick_cells.len(),
+                u32::MAX,
+                data,
+                start,
+            );
+        }
 
+        // Second level: which bricks a surface crosses, from their coarse points' densities.
+        let one_level = GpuBaked {
+            spec: BakeSpec { fine_subdivisions: 0, ..spec },
+            cells: layout.cells,
+            index: layout.index.clone(),
+            n_bricks: layout.brick_cells.len(),
+            fine_first: u32::MAX,
+            bake_seconds: 0.0,
+            data,
+        };
+        let halves = self.read_baked_values(&one_level)?;
+        let is_fine: Vec<bool> = halves
+            .chunks(4 * per_brick)
+            .map(|brick| crossed(brick.iter().step_by(4).map(|&h| half::f16::from_bits(h).to_f32())))
+            .collect();
+        let two = layout.two_level(&is_fine);
+        let n_coarse = two.coarse_bricks.len();
+        let fine_points = two.fine_cells.len() * BrickLayout::points_per_brick(fine_k);
+        let coarse_words: Vec<u32> = two
+            .coarse_bricks
+            .iter()
+            .flat_map(|&b| {
+                let at = b as usize * per_brick * 4;
+                halves[at..at + per_brick * 4].chunks(2).map(|h| h[0] as u32 | (h[1] as u32) << 16)
+            })
+            .collect();
+        let bytes = (two.index.len() * 4 + coarse_words.len() * 4 + fine_points * POINT_BYTES) as u64;
+        self.check_binding(
+            "baked_fine_subdivisions",
+            "the two-level baked field",
+            bytes,
+            ": use fewer fine subdivisions or a larger occupancy_epsilon",
+        )?;
+        let data =
+            field_buffer(&self.device, &two.index, Some(&coarse_words), coarse_words.len() + fine_points * 2);
+        let done_coarse = n_points;
+        total = n_points + fine_points;
+        let fine_offset = index_words + coarse_words.len() as u32;
+        let pass = BakePass { cells: &two.fine_cells, cells_per_axis: layout.cells, k: fine_k };
+        self.run_bake(tri, &pass, fine_offset, &data, &mut |done| progress(done_coarse + done, total))?;
+        let n_bricks = n_coarse + two.fine_cells.len();
+        self.keep_baked(tri, spec, layout.cells, two.index, n_bricks, n_coarse as u32, data, start)
+    }
+
+    /// Records a finished bake with its triplane.
+    #[allow(clippy::too_many_arguments)]
+    fn keep_baked(
+        &self,
+        tri: &GpuTriplane,
+        spec: BakeSpec,
+        cells: usize,
+        index: Vec<u32>,
+        n_bricks: usize,
+        fine_first: u32,
+        data: wgpu::Buffer,
+        start: Instant,
+    ) -> Result<Arc<GpuBaked>> {
+        let baked = Arc::new(GpuBaked {
+            spec,
+            cells,
+            index,
+            n_bricks,
+            fine_first,
+            bake_seconds: start.elapsed().as_secs_f64(),
+            data,
+        });
+        *tri.baked.lock().map_err(|_| Error::Gpu("baked field lock poisoned".into()))? = Some(baked.clone());
+        Ok(baked)
+    }
+
+    /// Decodes every point of `pass`'s bricks into `data`, from word `values_offset` on, in
+    /// dispatches of [`BAKE_CHUNK`] points; `progress(points done)` after each (false stops).
+    // Long because: one error scope covers every buffer and dispatch of the pass, so that a
+    // device that runs out reports it once, as the bake's error.
+    fn run_bake(
+        &self,
+        tri: &GpuTriplane,
+        pass: &BakePass,
+        values_offset: u32,
+        data: &wgpu::Buffer,
+        progress: &mut dyn FnMut(usize) -> bool,
+    ) -> Result<()> {
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let oom = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let dev = &self.device;
-        let init = |label: &str, data: &[u32]| {
-            let padded: &[u32] = if data.is_empty() { &[0] } else { data };
-            dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some(label),
-                contents: bytemuck::cast_slice(padded),
-                usage: wgpu::BufferUsages::STORAGE,
-            })
-        };
-        let cells_buf = init("lp3d bake cells", &layout.brick_cells);
-        let data = field_buffer(dev, &layout.index, None, n_points * 2);
+        let n_points = pass.cells.len() * BrickLayout::points_per_brick(pass.k);
+        let padded: &[u32] = if pass.cells.is_empty() { &[0] } else { pass.cells };
+        let cells_buf = dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("lp3d bake cells"),
+            contents: bytemuck::cast_slice(padded),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
         let mut params = Params::new(&tri.scene, &RenderSettings::default(), 3, 1);
         if tri.half {
             params.flags |= FLAG_HALF_PLANES;
         }
-        params.baked_cells = layout.cells as u32;
-        params.baked_subdivisions = spec.subdivisions;
-        params.baked_values_offset = layout.index.len() as u32;
+        params.baked_cells = pass.cells_per_axis as u32;
+        params.baked_subdivisions = pass.k;
+        params.baked_values_offset = values_offset;
         let params_buf = dev.create_buffer(&wgpu::BufferDescriptor {
             label: Some("lp3d bake params"),
             size: std::mem::size_of::<Params>() as u64,
@@ -225,40 +382,31 @@ impl Renderer {
             let mut encoder =
                 dev.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("lp3d bake") });
             {
-                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                let mut cpass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
                     label: Some("lp3d bake pass"),
                     timestamp_writes: None,
                 });
-                pass.set_pipeline(self.bake_pipeline());
-                pass.set_bind_group(0, &group, &[]);
-                pass.dispatch_workgroups(gx, gy, 1);
+                cpass.set_pipeline(self.bake_pipeline());
+                cpass.set_bind_group(0, &group, &[]);
+                cpass.dispatch_workgroups(gx, gy, 1);
             }
             self.queue.submit([encoder.finish()]);
             self.device
                 .poll(wgpu::PollType::wait_indefinitely())
                 .map_err(|e| Error::Gpu(format!("waiting for the bake failed: {e}")))?;
             done += count;
-            if !progress(done, n_points) {
+            if !progress(done) {
                 let _ = pollster::block_on(scope.pop());
                 return Err(Error::invalid("bake", "stopped before it finished"));
             }
         }
-        self.check(scope, "baking the field")?;
-        let baked = Arc::new(GpuBaked {
-            spec,
-            cells: layout.cells,
-            n_bricks: layout.brick_cells.len(),
-            index: layout.index,
-            bake_seconds: start.elapsed().as_secs_f64(),
-            data,
-        });
-        *tri.baked.lock().map_err(|_| Error::Gpu("baked field lock poisoned".into()))? = Some(baked.clone());
-        Ok(baked)
+        self.check(scope, "baking the field")
     }
 
     /// Attaches a field baked earlier (its `index` and `values` as `read_baked_values` gave them,
-    /// e.g. saved and loaded) to `tri` without baking again. Everything is checked: the caller
-    /// vouches only that it was baked from these planes and decoder.
+    /// e.g. saved and loaded; a two-level field's fine bricks' points in `fine_values`) to `tri`
+    /// without baking again. Everything is checked: the caller vouches only that it was baked
+    /// from these planes and decoder.
     pub fn attach_baked(
         &self,
         tri: &GpuTriplane,
@@ -266,15 +414,22 @@ impl Renderer {
         cells: usize,
         index: Vec<u32>,
         values: &[u16],
+        fine_values: &[u16],
     ) -> Result<Arc<GpuBaked>> {
-        let n_bricks = check_saved_field(&spec, cells, &index, values)?;
-        let bytes = (index.len() * 4 + values.len() * 2) as u64;
+        let (n_coarse, n_fine) = check_saved_field(&spec, cells, &index, values, fine_values)?;
+        let bytes = (index.len() * 4 + values.len() * 2 + fine_values.len() * 2) as u64;
         self.check_binding("values", "the field", bytes, "")?;
-        let words: Vec<u32> = values.chunks(2).map(|h| h[0] as u32 | (h[1] as u32) << 16).collect();
+        let words: Vec<u32> = values
+            .chunks(2)
+            .chain(fine_values.chunks(2))
+            .map(|h| h[0] as u32 | (h[1] as u32) << 16)
+            .collect();
+        let fine_first = if spec.fine_subdivisions == 0 { u32::MAX } else { n_coarse as u32 };
         let baked = Arc::new(GpuBaked {
             spec,
             cells,
-            n_bricks,
+            n_bricks: n_coarse + n_fine,
+            fine_first,
             data: field_buffer(&self.device, &index, Some(&words), words.len()),
             index,
             bake_seconds: 0.0,
@@ -296,6 +451,7 @@ impl Renderer {
         }
         let need = BakeSpec {
             subdivisions: k,
+            fine_subdivisions: settings.skips.baked_fine_subdivisions,
             epsilon: settings.skips.occupancy_epsilon,
             max_delta: settings.max_interval(tri.scene.bounds.ray_start, tri.scene.bounds.ray_end),
         };
@@ -306,7 +462,7 @@ impl Renderer {
     }
 
     /// The values of a baked field, read back: `n_bricks * (k + 1)³` points of four float16
-    /// bits (sigma_raw, r, g, b).
+    /// bits (sigma_raw, r, g, b); a two-level field's coarse bricks', then its fine ones'.
     pub fn read_baked_values(&self, baked: &GpuBaked) -> Result<Vec<u16>> {
         let offset = baked.values_offset() as u64 * 4;
         let size = baked.data.size() - offset;
@@ -323,7 +479,7 @@ impl Renderer {
         self.queue.submit([encoder.finish()]);
         let mut words = vec![0f32; (size / 4) as usize];
         self.read_back(&mut [(&read, size, &mut words)])?;
-        let n = baked.n_bricks * BrickLayout::points_per_brick(baked.spec.subdivisions) * 4;
+        let n = baked.n_points() * 4;
         let halves = words.iter().flat_map(|w| {
             let b = w.to_bits();
             [(b & 0xffff) as u16, (b >> 16) as u16]

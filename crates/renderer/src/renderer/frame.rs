@@ -60,6 +60,10 @@ impl Renderer {
             params.baked_subdivisions = b.spec.subdivisions;
             params.baked_cells = b.cells as u32;
             params.baked_values_offset = b.values_offset();
+            if b.spec.fine_subdivisions > 0 {
+                params.baked_fine_first = b.fine_first;
+                params.baked_fine_subdivisions = b.spec.fine_subdivisions;
+            }
         }
         let baked_buffer = self.baked_binding(baked.as_deref());
 

@@ -1,0 +1,192 @@
+"""Two-level baked fields (docs/baked.md, "Two levels"): the bricks a surface crosses baked finer.
+The GPU's choice of fine bricks against the rule stated in the reference, both levels' values
+against the float64 decoder, two-level renders against the float64 reference of the same lookups,
+the saved file, and the arguments refused. Small configs as in tests/test_baked.py (32² rays,
+12+12 samples, G = 32, k 2 / 4); bench/baked_resolution.py measures the error at the users'
+settings."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import lp3d_render
+from lp3d.render.baked import (
+    bake_reference,
+    colour_weight,
+    crossed,
+    decode_brick_points,
+    load_baked,
+    render_baked_reference,
+    save_baked,
+    split_levels,
+    two_level_index,
+)
+from lp3d.render.camera import look_at_camera
+from lp3d.render.settings import RenderSettings, Skips
+from lp3d.render.triplane import TriplaneData
+from lp3d.teachers import ProceduralTeacher
+
+S, N, R, G, K, KF = 12, 12, 32, 32, 2, 4
+EPS = 1e-6
+VIEWS = [(0, 0), (35, -10), (-50, 20)]
+
+
+@pytest.fixture(scope="module")
+def head() -> TriplaneData:
+    return ProceduralTeacher(resolution=64).sample(5)
+
+
+@pytest.fixture(scope="module")
+def native(head: TriplaneData, gpu) -> lp3d_render.Triplane:
+    return dataclasses.replace(head, occupancy=head.to_native().bake_occupancy(G)).to_native()
+
+
+@pytest.fixture(scope="module")
+def fields(native) -> tuple[lp3d_render.BakedField, lp3d_render.BakedField]:
+    """The same head baked with one level (k) and two (k / k_f), for 12 coarse samples."""
+    one = lp3d_render.bake(native, subdivisions=K, occupancy_epsilon=EPS, depth_resolution=S)
+    two = lp3d_render.bake(
+        native, subdivisions=K, fine_subdivisions=KF, occupancy_epsilon=EPS, depth_resolution=S
+    )
+    return one, two
+
+
+def test_the_fine_bricks_are_the_ones_a_surface_crosses(fields) -> None:
+    """The GPU makes fine exactly the bricks whose k-point densities `crossed` picks, and numbers the
+    coarse bricks first, each level in cell order; the same cells hold bricks as with one level."""
+    one, two = fields
+    assert (two.subdivisions, two.fine_subdivisions, two.bricks) == (K, KF, one.bricks)
+    fine = crossed(one.values)
+    assert 0 < fine.sum() < len(fine)  # a surface crosses some bricks, not all
+    assert two.fine_bricks == int(fine.sum())
+    assert np.array_equal(two.index, two_level_index(one.index, fine))
+    n_coarse = two.bricks - two.fine_bricks
+    coarse_index, fine_index = split_levels(two.index, n_coarse)
+    assert np.array_equal(coarse_index[coarse_index >= 0], np.arange(n_coarse))
+    assert np.array_equal(fine_index[fine_index >= 0], np.arange(two.fine_bricks))
+
+
+def test_both_levels_are_the_decoder_rounded_to_float16(head, fields) -> None:
+    """Each level's points are the float64 decoder's (raw density and premultiplied RGB), within one
+    float16 rounding plus float32's decoder error, as tests/test_baked.py holds the one-level field."""
+    _, two = fields
+    n_coarse = two.bricks - two.fine_bricks
+    for got, index, k in zip(
+        (two.values, two.fine_values), split_levels(two.index, n_coarse), (K, KF), strict=True
+    ):
+        assert got.dtype == np.float16 and got.shape == (int((index >= 0).sum()), k + 1, k + 1, k + 1, 4)
+        want = bake_reference(head, index, k)
+        want[..., 1:] = decode_brick_points(head, index, k)[1] * colour_weight(got[..., 0])[..., None]
+        err = np.abs(got.astype(np.float64) - want)
+        bound = np.abs(want) * 2.0**-11 + 2.0**-25 + np.array([1e-4, 1e-5, 1e-5, 1e-5])
+        assert np.all(err <= bound), (k, float(np.max(err - bound)))
+
+
+@pytest.mark.parametrize("importance", [0, N])
+def test_a_two_level_render_is_the_reference(head, native, fields, importance) -> None:
+    """The GPU's lookups in both levels and the float64 reference's, with the field's own float16
+    values: to 1e-4. With the importance draw, RGB to 1e-4 + 3 |depth error| (tests/test_baked.py
+    says why): the fine bricks follow the decoder's colour across a surface more closely, so a
+    sample moved by float32's rounding of the inverse CDF changes it more (one ray of the 3,072
+    here: depth off by 3.5e-6, RGB by 1.08e-4)."""
+    _, two = fields
+    cams = np.stack([look_at_camera(yaw_deg=y, pitch_deg=p) for y, p in VIEWS])
+    skips = Skips(occupancy_epsilon=EPS, baked_subdivisions=K, baked_fine_subdivisions=KF)
+    settings = RenderSettings(
+        resolution=R, depth_resolution=S, depth_resolution_importance=importance, skips=skips
+    )
+    outputs = ["rgb", "depth", "weights_sum"]
+    got = lp3d_render.render(native, cams, **settings.native_kwargs(), outputs=outputs)
+    want = render_baked_reference(
+        head,
+        two.index,
+        two.values,
+        K,
+        cams,
+        dataclasses.replace(settings, skips=Skips()),
+        fine_values=two.fine_values,
+        fine_k=KF,
+    )
+    assert float(want["weights_sum"].max()) > 0.9
+    for name in ("depth", "weights_sum"):
+        np.testing.assert_allclose(got[name], want[name], atol=1e-4, rtol=0, err_msg=name)
+    depth_err = np.abs(got["depth"] - want["depth"])[:, None]
+    assert (depth_err <= 1e-5).mean() > 0.99
+    rgb_err = np.abs(got["rgb"] - want["rgb"])
+    assert np.all(rgb_err <= 1e-4 + 3.0 * depth_err), float(np.max(rgb_err - 3.0 * depth_err))
+
+
+def test_the_fine_level_brings_the_render_closer_to_exact_mode(native) -> None:
+    """Where the error is (the bricks a surface crosses) the finer points cut it: a k 2 / 4 field is
+    nearer exact mode than k 2 alone, and about as near as k 4 everywhere (measured: 29.2, 32.3 and
+    32.4 dB)."""
+    cam = look_at_camera(yaw_deg=20, pitch_deg=5)
+    kw = {"resolution": R, "depth_resolution": S, "depth_resolution_importance": N, "outputs": ["rgb"]}
+    exact = lp3d_render.render(native, cam, **kw)["rgb"]
+
+    def psnr(**field: int) -> float:
+        rgb = lp3d_render.render(native, cam, **kw, occupancy_epsilon=EPS, **field)["rgb"]
+        return float(10 * np.log10(4.0 / np.mean((exact - rgb) ** 2)))
+
+    one, two, four = (
+        psnr(baked_subdivisions=K),
+        psnr(baked_subdivisions=K, baked_fine_subdivisions=KF),
+        psnr(baked_subdivisions=KF),
+    )
+    assert two > one + 2.0 and two > four - 0.5, (one, two, four)
+
+
+def test_a_saved_two_level_field_renders_as_the_baked_one(head, native, fields, tmp_path) -> None:
+    """save_baked writes both levels (format v3); load_baked puts them on a fresh copy of the triplane,
+    which renders exactly as the baked field; a damaged fine level is refused by name, and a
+    one-level file of the previous format still loads."""
+    _, two = fields
+    path = save_baked(tmp_path / "two.baked.npz", two, native)
+    kw = {"resolution": R, "depth_resolution": S, "depth_resolution_importance": N, "outputs": ["rgb"]}
+    kw |= {"occupancy_epsilon": EPS, "baked_subdivisions": K, "baked_fine_subdivisions": KF}
+    cam = look_at_camera(yaw_deg=-20)
+    want = lp3d_render.render(native, cam, **kw)["rgb"]
+    second = dataclasses.replace(head, occupancy=native.occupancy).to_native()
+    loaded = load_baked(path, second)
+    assert (loaded.bricks, loaded.fine_bricks, loaded.bake_seconds) == (two.bricks, two.fine_bricks, 0.0)
+    assert np.array_equal(lp3d_render.render(second, cam, **kw)["rgb"], want)
+    good = dict(np.load(path, allow_pickle=False))
+    damaged = {
+        "short": (good | {"fine_values": good["fine_values"][:-1]}, "index: must name bricks"),
+        "nan": (good | {"fine_values": np.full_like(good["fine_values"], np.inf)}, "fine_values: NaN or Inf"),
+        "k": (good | {"fine_subdivisions": np.array(K)}, "fine_subdivisions"),
+        "fraction": (good | {"fine_subdivisions": np.array(4.5)}, "fine_subdivisions: must be a whole"),
+        "missing": ({k: v for k, v in good.items() if k != "fine_values"}, "missing fine_subdivisions or"),
+    }
+    for name, (arrays, words) in damaged.items():
+        bad = tmp_path / f"{name}.npz"
+        np.savez(bad, **arrays)
+        with pytest.raises(ValueError, match=words):
+            load_baked(bad, second)
+    one_level = lp3d_render.bake(second, subdivisions=K, occupancy_epsilon=EPS, depth_resolution=S)
+    v2 = dict(np.load(save_baked(tmp_path / "one.npz", one_level, second), allow_pickle=False))
+    v2 = {k: v for k, v in v2.items() if not k.startswith("fine_")}
+    v2["format"] = np.array("lp3d-baked-field-v2")
+    np.savez(tmp_path / "v2.npz", **v2)
+    assert load_baked(tmp_path / "v2.npz", second).fine_subdivisions == 0
+
+
+def test_bad_two_level_arguments_are_named(native) -> None:
+    cam = look_at_camera()
+    kw = {"resolution": 8, "depth_resolution": S, "depth_resolution_importance": N, "occupancy_epsilon": EPS}
+    with pytest.raises(ValueError, match="baked_fine_subdivisions: must be 0 or in"):
+        lp3d_render.render(native, cam, **kw, baked_subdivisions=4, baked_fine_subdivisions=4)
+    with pytest.raises(ValueError, match="baked_fine_subdivisions"):
+        lp3d_render.render(native, cam, **kw, baked_subdivisions=4, baked_fine_subdivisions=17)
+    with pytest.raises(ValueError, match="baked_fine_subdivisions: must be 0 or in"):
+        lp3d_render.render(native, cam, **kw, baked_fine_subdivisions=6)
+    with pytest.raises(ValueError, match="fine_subdivisions: must be 0 or above subdivisions"):
+        lp3d_render.bake(native, subdivisions=4, fine_subdivisions=3)
+    with pytest.raises(ValueError, match="baked_fine_subdivisions must be 0 or an int"):
+        fine_below = Skips(occupancy_epsilon=EPS, baked_subdivisions=4, baked_fine_subdivisions=2)
+        RenderSettings(skips=fine_below).validate()
+    with pytest.raises(ValueError, match="baked_fine_subdivisions needs baked_subdivisions > 0"):
+        RenderSettings(skips=Skips(occupancy_epsilon=EPS, baked_fine_subdivisions=6)).validate()
