@@ -19,6 +19,7 @@ import argparse
 import math
 import os
 import platform
+import re
 import statistics
 import sys
 import time
@@ -75,6 +76,17 @@ SETTINGS = [
             | ({"transmittance_threshold": SKIP, "empty_threshold": SKIP} if t else {}),
         )
         for k in (2, 4, 6)
+        for s in (24, 48)
+        for t in (False, True)
+    ),
+    # Two levels (docs/baked.md, "Two levels"): k 10 in the bricks a surface crosses, k 4 elsewhere.
+    *(
+        Setting(
+            f"baked k 4 / 10 {s}+{s}{', T + empty skips' if t else ''}",
+            s,
+            {"occupancy_epsilon": EPS, "baked_subdivisions": 4, "baked_fine_subdivisions": 10}
+            | ({"transmittance_threshold": SKIP, "empty_threshold": SKIP} if t else {}),
+        )
         for s in (24, 48)
         for t in (False, True)
     ),
@@ -139,16 +151,26 @@ def eg3d_timer(src: str, head: TriplaneData, cams: np.ndarray, repeats: int):
     return median_ms(frame, repeats) / len(cams)
 
 
-def measure(name: str, head: TriplaneData, repeats: int, eg3d_src: str | None) -> dict:
+def field_of(st: Setting) -> tuple[int, int] | None:
+    """The field a setting renders with, (k, k_f) (k_f 0: one level), or None (exact mode)."""
+    k = st.kwargs.get("baked_subdivisions")
+    return None if k is None else (k, st.kwargs.get("baked_fine_subdivisions", 0))
+
+
+def measure(
+    name: str, head: TriplaneData, repeats: int, eg3d_src: str | None, settings: list[Setting]
+) -> dict:
     tri = head.to_native()
     cams = np.stack([look_at_camera(yaw_deg=y, pitch_deg=PITCH) for y in YAWS])
     common = {"resolution": R, "outputs": ["rgb"]}
     fine = {"depth_resolution": 192, "depth_resolution_importance": 192}
     ref = lp3d_render.render(tri, cams, **common, **fine)["rgb"]
     bakes = {}
-    for k in (2, 4, 6):
+    for k in sorted({field_of(st) for st in settings if field_of(st)}):
         start = time.perf_counter()
-        field = lp3d_render.bake(tri, subdivisions=k, occupancy_epsilon=EPS, depth_resolution=24)
+        field = lp3d_render.bake(
+            tri, subdivisions=k[0], fine_subdivisions=k[1], occupancy_epsilon=EPS, depth_resolution=24
+        )
         bakes[k] = {
             "s": time.perf_counter() - start,
             "bricks": field.bricks,
@@ -156,11 +178,13 @@ def measure(name: str, head: TriplaneData, repeats: int, eg3d_src: str | None) -
             "mib": field.device_bytes / 2**20,
         }
     rows = []
-    held = 6  # the triplane holds one field, the last baked (settings of one k come together)
-    for st in SETTINGS:
-        k = st.kwargs.get("baked_subdivisions")
+    held = max(bakes) if bakes else None  # the triplane holds one field, the last baked
+    for st in settings:
+        k = field_of(st)
         if k is not None and k != held:  # the field for this k (baked for 24 samples and more)
-            lp3d_render.bake(tri, subdivisions=k, occupancy_epsilon=EPS, depth_resolution=24)
+            lp3d_render.bake(
+                tri, subdivisions=k[0], fine_subdivisions=k[1], occupancy_epsilon=EPS, depth_resolution=24
+            )
             held = k
 
         def call(st: Setting = st) -> np.ndarray:
@@ -172,7 +196,7 @@ def measure(name: str, head: TriplaneData, repeats: int, eg3d_src: str | None) -
         rows.append(
             {
                 "setting": st.name,
-                "baked": k,
+                "baked": k,  # (k, k_f) or None
                 "guided": bool(st.kwargs.get("baked_guide")),
                 "ms": ms,
                 "psnr": statistics.mean(psnr_db(rgb[i], ref[i]) for i in range(len(cams))),
@@ -187,7 +211,9 @@ def measure(name: str, head: TriplaneData, repeats: int, eg3d_src: str | None) -
 def report(results: list[dict], args: argparse.Namespace) -> str:
     info = lp3d_render.adapter_info()
     lines = [
-        f"Command: `EG3D_SRC=... python bench/baked.py --repeats {args.repeats}`  ",
+        f"Command: `EG3D_SRC=... python bench/baked.py --repeats {args.repeats}"
+        + (f" --only '{args.only}'" if args.only else "")
+        + "`  ",
         f"{platform.machine()}, {os.cpu_count()} CPUs, load {os.getloadavg()[0]:.1f}, "
         f"{time.strftime('%Y-%m-%d')}; adapter {info.get('name')} ({info.get('driver_info', '')})",
         "",
@@ -213,15 +239,20 @@ def report(results: list[dict], args: argparse.Namespace) -> str:
             "|---|---|---|---|---|---|",
         ]
         for k, b in res["bakes"].items():
-            best = min((r for r in rows if r["baked"] == k and not r["guided"]), key=lambda r: r["ms"])
-            saved = exact48["ms"] - best["ms"]
+            own = [r for r in rows if r["baked"] == k and not r["guided"]]
+            if not own:
+                continue
+            saved = exact48["ms"] - min(own, key=lambda r: r["ms"])["ms"]
             frames = math.ceil(b["s"] * 1e3 / saved) if saved > 0 else "never"
             size = f"{b['cells']}³ | {b['bricks']} | {b['mib']:.1f}"
-            lines.append(f"| {k} | {size} | {b['s']:.2f} | {frames} |")
+            label = f"{k[0]} / {k[1]}" if k[1] else f"{k[0]}"
+            lines.append(f"| {label} | {size} | {b['s']:.2f} | {frames} |")
         lines.append("")
         for bar, ref in (("exact 48+48", exact48), ("exact 24+24", exact24)):
             for kind, guided in (("baked", False), ("guided", True)):
                 mine = [r for r in rows if r["baked"] and r["guided"] == guided]
+                if not mine:
+                    continue
                 ok = [r for r in mine if r["psnr"] >= ref["psnr"]]
                 if ok:
                     best = min(ok, key=lambda r: r["ms"])
@@ -291,14 +322,21 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--repeats", type=int, default=3, help="timed calls per setting (default 3)")
     p.add_argument("--out", type=Path, help="also write the markdown report here")
     p.add_argument("--plot", type=Path, help="write the time-vs-error plot (PNG) here")
+    p.add_argument(
+        "--only",
+        help="run only the settings whose name matches this regular expression (exact 24+24 and "
+        "48+48, which the report compares against, always run)",
+    )
     args = p.parse_args(argv)
     if args.repeats < 1:
         p.error("--repeats must be >= 1")
     src = os.environ.get("EG3D_SRC")
+    always = ("exact 24+24", "exact 48+48")
+    settings = [st for st in SETTINGS if not args.only or st.name in always or re.search(args.only, st.name)]
     results = []
     for name, head in scenes():
         print(f"{name} ...", file=sys.stderr, flush=True)
-        results.append(measure(name, head, args.repeats, src))
+        results.append(measure(name, head, args.repeats, src, settings))
     text = report(results, args)
     print(text)
     if args.out:

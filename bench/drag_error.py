@@ -5,7 +5,7 @@ shows it: rendered at its rung's resolution, scaled to 128² with bilinear filte
     python bench/drag_error.py [--figure docs/viewer-drag-rungs.png]      # about 2 minutes
 
 The rungs are those of a 128² · 48+48 view (`crates/viewer/src/quality.rs`): the exact ladder's
-drag rungs, and the baked field's with the viewer's skips (`crates/viewer/src/bake.rs`: k 6,
+drag rungs, and the baked field's with the viewer's skips (`crates/viewer/src/bake.rs`: k 4 / 10,
 epsilon 1e-4, transmittance and empty-ray thresholds 1e-3, the occupancy grid in the coarse pass;
 the field baked for half the chosen samples, as the viewer bakes it). Scenes: the viewer bench's
 teacher head (seed 0) and two held-out ones, three novel views each (yaw -30/0/30, pitch 5).
@@ -40,6 +40,7 @@ VIEWER_SKIPS = {
     "transmittance_threshold": 1e-3,
     "empty_threshold": 1e-3,
     "baked_subdivisions": BAKED.baked_subdivisions,
+    "baked_fine_subdivisions": BAKED.baked_fine_subdivisions,
 }
 #: (label, resolution, samples per pass, baked).
 RUNGS = [
@@ -95,6 +96,7 @@ def main(argv: list[str] | None = None) -> int:
         lp3d_render.bake(
             tri,
             subdivisions=BAKED.baked_subdivisions,
+            fine_subdivisions=BAKED.baked_fine_subdivisions,
             occupancy_epsilon=BAKED.occupancy_epsilon,
             depth_resolution=24,
         )

@@ -149,10 +149,14 @@ def test_drag_draws_from_the_baked_field_once_it_is_ready(gpu, sphere_file: Path
     meta = json.loads(shot.with_suffix(".json").read_text())
     bake, field = meta["bake"], meta["bake"]["field"]
     assert bake["state"] == "ready" and bake["error"] is None, bake
-    assert field["subdivisions"] == 6 and field["epsilon"] == pytest.approx(1e-4), field
-    # The index (4 bytes per cell) and (k + 1)³ points of 8 bytes per brick.
-    assert field["bricks"] > 0
-    assert field["device_bytes"] == 4 * field["cells"] ** 3 + 8 * 7**3 * field["bricks"]
+    assert (field["subdivisions"], field["fine_subdivisions"]) == (4, 10), field
+    assert field["epsilon"] == pytest.approx(1e-4), field
+    # The index (4 bytes per cell) and (k + 1)³ points of 8 bytes per brick: 5³ in the coarse
+    # bricks, 11³ in the fine ones (the sphere's surface crosses some of its bricks).
+    coarse_bricks, fine_bricks = field["bricks"] - field["fine_bricks"], field["fine_bricks"]
+    assert coarse_bricks > 0 and fine_bricks > 0
+    points = 5**3 * coarse_bricks + 11**3 * fine_bricks
+    assert field["device_bytes"] == 4 * field["cells"] ** 3 + 8 * points
     assert 0 < field["bake_seconds"] <= bake["job_seconds"]
     frames = meta["frames"]
     dragging = [f for f in frames if f["dragging"]]

@@ -77,10 +77,13 @@ impl Skips {
     };
 
     /// The baked field as the viewer's moving frames and `lp3d orbit --baked` use it
-    /// (`docs/baked.md`, `bench/RESULTS.md` "Baked field"): k = 6, the largest that fits lavapipe's
-    /// 128 MiB storage binding on teacher heads and the best error at the same frame time; the
-    /// occupancy skip at 1e-4 per interval. `lp3d.render.settings.BAKED` is the same (a test).
-    pub const BAKED: Skips = Skips { occupancy_epsilon: 1e-4, baked_subdivisions: 6, ..Skips::EXACT };
+    /// (`docs/baked.md`, `bench/RESULTS.md` "Baked field"): two levels, k = 10 in the bricks a
+    /// surface crosses and 4 elsewhere, 95-104 MiB on teacher heads and encoder outputs (within
+    /// lavapipe's 128 MiB storage binding, where a uniform k = 8 is not) and 5 dB closer to exact
+    /// mode than the uniform k = 6 at the same frame time; the occupancy skip at 1e-4 per
+    /// interval. `lp3d.render.settings.BAKED` is the same (a test).
+    pub const BAKED: Skips =
+        Skips { occupancy_epsilon: 1e-4, baked_subdivisions: 4, baked_fine_subdivisions: 10, ..Skips::EXACT };
 
     pub fn validate(&self) -> Result<()> {
         for (name, v) in [

@@ -24,10 +24,12 @@ use lp3d_renderer::{
 use crate::orbit::Orbit;
 use crate::quality::{FrameTimes, Ladder, Rung};
 
-/// Points per baked cell edge, k: `Skips::BAKED`'s (6). A lookup costs the same whatever k, and
-/// the field's error falls with the square of the sub-cell (`docs/baked.md`), so k = 6 draws a
-/// closer image than k = 4 at the same frame time, for ~60 MiB and a bake of seconds on a teacher
-/// head (bench/RESULTS.md, "Baked field"); k = 8 does not fit lavapipe's 128 MiB binding.
+/// Points per baked cell edge, k: `Skips::BAKED`'s (4, and 10 in the bricks a surface crosses).
+/// A lookup costs the same whatever k, and the field's error falls with the square of the
+/// sub-cell (`docs/baked.md`), so the finer field draws a closer image at the same frame time;
+/// two levels put the points where the error is: ~100 MiB and a bake of ~20 s on a teacher head
+/// (bench/RESULTS.md, "Two levels"), where a uniform k = 8 does not fit lavapipe's 128 MiB
+/// binding.
 pub const BAKE_SUBDIVISIONS: u32 = Skips::BAKED.baked_subdivisions;
 /// Points per cell edge in the bricks a surface crosses (two levels; 0: one): `Skips::BAKED`'s.
 pub const BAKE_FINE_SUBDIVISIONS: u32 = Skips::BAKED.baked_fine_subdivisions;
@@ -167,11 +169,14 @@ impl BakeState {
     }
 }
 
-/// `baked field (k 6, 58 MiB, baked in 7.2 s)`.
+/// `baked field (k 4 / 10, 98 MiB, baked in 17.5 s)`.
 pub fn field_label(field: &GpuBaked) -> String {
+    let k = match field.spec.fine_subdivisions {
+        0 => format!("{}", field.spec.subdivisions),
+        fine => format!("{} / {fine}", field.spec.subdivisions),
+    };
     format!(
-        "baked field (k {}, {:.0} MiB, baked in {:.1} s)",
-        field.spec.subdivisions,
+        "baked field (k {k}, {:.0} MiB, baked in {:.1} s)",
         field.device_bytes() as f64 / (1 << 20) as f64,
         field.bake_seconds
     )

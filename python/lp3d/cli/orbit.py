@@ -102,6 +102,7 @@ def bake_for(args: argparse.Namespace, rtri: object, sr: object) -> Skips:
         field = lp3d_render.bake(
             rtri,
             subdivisions=BAKED.baked_subdivisions,
+            fine_subdivisions=BAKED.baked_fine_subdivisions,
             occupancy_epsilon=BAKED.occupancy_epsilon,
             depth_resolution=args.samples[0],
             progress=advance,

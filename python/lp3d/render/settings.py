@@ -94,7 +94,7 @@ class Skips:
 
 #: The baked field as ``lp3d orbit --baked`` and the viewer's moving frames use it (docs/baked.md):
 #: Rust's ``Skips::BAKED`` (tests/test_baked.py ties them).
-BAKED = Skips(occupancy_epsilon=1e-4, baked_subdivisions=6)
+BAKED = Skips(occupancy_epsilon=1e-4, baked_subdivisions=4, baked_fine_subdivisions=10)
 #: How many exact 48 + 48 frames a bake of :data:`BAKED` costs, rounded up: 8–12 on teacher heads and
 #: encoder outputs at 128² (bench/RESULTS.md, "Baked field"). Fewer frames than this render faster
 #: exactly; with fewer samples per ray, exact frames are cheaper and the bake pays later.

@@ -70,8 +70,8 @@ impl ViewerApp {
         }
     }
 
-    /// Which field the image on screen came from, e.g. `baked field (k 6, 58 MiB, baked in
-    /// 7.2 s)` or `exact (decoding every sample)`.
+    /// Which field the image on screen came from, e.g. `baked field (k 4 / 10, 98 MiB, baked in
+    /// 17.5 s)` or `exact (decoding every sample)`.
     pub(super) fn source_label(&self) -> String {
         let field = self.loaded.as_ref().and_then(|l| l.gpu.baked());
         match (self.shown, field) {
@@ -114,13 +114,16 @@ impl ViewerApp {
         };
         let field = match &field {
             Some(f) => format!(
-                "{{\"subdivisions\": {}, \"epsilon\": {}, \"max_delta\": {}, \"cells\": {}, \"bricks\": {}, \
-                 \"device_bytes\": {}, \"bake_seconds\": {}}}",
+                "{{\"subdivisions\": {}, \"fine_subdivisions\": {}, \"epsilon\": {}, \"max_delta\": {}, \
+                 \"cells\": {}, \"bricks\": {}, \"fine_bricks\": {}, \"device_bytes\": {}, \
+                 \"bake_seconds\": {}}}",
                 f.spec.subdivisions,
+                f.spec.fine_subdivisions,
                 json_number(f.spec.epsilon as f64),
                 json_number(f.spec.max_delta),
                 f.cells,
                 f.n_bricks,
+                f.n_bricks - f.n_coarse(),
                 f.device_bytes(),
                 json_number(f.bake_seconds)
             ),
