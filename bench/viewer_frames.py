@@ -186,9 +186,11 @@ def main(argv: list[str] | None = None) -> int:
     fields = [r["field"] for r in results if r["field"]]
     if fields:
         f = fields[0]
+        k = f"{f['subdivisions']}" + (f" / {f['fine_subdivisions']}" if f.get("fine_subdivisions") else "")
+        fine = f" ({f['fine_bricks']} fine)" if f.get("fine_subdivisions") else ""
         lines += [
             "",
-            f"Baked field: k {f['subdivisions']}, epsilon {f['epsilon']:.0e}, {f['bricks']} bricks of "
+            f"Baked field: k {k}, epsilon {f['epsilon']:.0e}, {f['bricks']} bricks{fine} of "
             f"{f['cells']}³ cells, {f['device_bytes'] / 2**20:.0f} MiB; the GPU part of the bake "
             f"{statistics.median(x['bake_seconds'] for x in fields):.1f} s (median).",
         ]

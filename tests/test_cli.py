@@ -421,7 +421,7 @@ def test_orbit_baked_auto_bakes_only_when_it_pays_and_stays_within_the_bound(
     from lp3d.render.settings import bake_pays_after
 
     n = bake_pays_after(12, 12)  # SMALL's samples: a bake pays later than at 48+48
-    assert n == 48 and bake_pays_after(48, 48) == 12 and bake_pays_after(64, 0) == 18
+    assert n == 60 and bake_pays_after(48, 48) == 15 and bake_pays_after(64, 0) == 23
     paths = {name: tmp_path / f"{name}.gif" for name in ("auto", "on", "exact", "strict", "short")}
 
     def orbit(name: str, *flags: object, frames: int = n) -> str:

@@ -6,6 +6,7 @@ mod background;
 mod baking;
 mod frame;
 mod layouts;
+mod saved_field;
 mod upload;
 
 use std::sync::atomic::{AtomicU64, Ordering};

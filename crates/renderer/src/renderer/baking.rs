@@ -21,74 +21,6 @@ struct BakePass<'a> {
     k: u32,
 }
 
-/// Checks a saved field before it is uploaded: `values` holds the coarse bricks' points,
-/// `fine_values` a two-level field's fine ones' (empty for one level). Its numbers of coarse and
-/// fine bricks.
-fn check_saved_field(
-    spec: &BakeSpec,
-    cells: usize,
-    index: &[u32],
-    values: &[u16],
-    fine_values: &[u16],
-) -> Result<(usize, usize)> {
-    let k = spec.subdivisions;
-    if !(1..=crate::baked::MAX_SUBDIVISIONS).contains(&k) {
-        return Err(Error::invalid("subdivisions", format!("must be in [1, 8], got {k}")));
-    }
-    let kf = spec.fine_subdivisions;
-    if kf != 0 && !(kf > k && kf <= MAX_FINE_SUBDIVISIONS) {
-        return Err(Error::invalid(
-            "fine_subdivisions",
-            format!("must be 0 or in (subdivisions, {MAX_FINE_SUBDIVISIONS}], got {kf}"),
-        ));
-    }
-    if kf == 0 && !fine_values.is_empty() {
-        return Err(Error::invalid("fine_values", "a one-level field (fine_subdivisions 0) has none"));
-    }
-    if !(spec.epsilon > 0.0 && spec.epsilon < 1.0 && spec.max_delta.is_finite() && spec.max_delta > 0.0) {
-        return Err(Error::invalid("occupancy_epsilon", "must be in (0, 1), with a positive max_delta"));
-    }
-    if !(1..=crate::occupancy::MAX_RESOLUTION).contains(&cells) || index.len() != cells.pow(3) {
-        return Err(Error::invalid(
-            "index",
-            format!("must be (G, G, G) with G in [1, 512], got {} entries", index.len()),
-        ));
-    }
-    let per_brick = 4 * BrickLayout::points_per_brick(k);
-    if values.len() % per_brick != 0 {
-        return Err(Error::invalid("values", format!("must be (bricks, {0}, {0}, {0}, 4)", k + 1)));
-    }
-    let n_coarse = values.len() / per_brick;
-    let per_fine = 4 * BrickLayout::points_per_brick(kf);
-    if kf != 0 && fine_values.len() % per_fine != 0 {
-        return Err(Error::invalid(
-            "fine_values",
-            format!("must be (fine bricks, {0}, {0}, {0}, 4)", kf + 1),
-        ));
-    }
-    let n_fine = if kf == 0 { 0 } else { fine_values.len() / per_fine };
-    // Every brick named by exactly one cell, each level in cell order (as a bake numbers them).
-    let named: Vec<u32> = index.iter().copied().filter(|&b| b != crate::baked::EMPTY).collect();
-    let coarse = named.iter().filter(|&&b| (b as usize) < n_coarse);
-    let fine = named.iter().filter(|&&b| (b as usize) >= n_coarse);
-    if named.len() != n_coarse + n_fine
-        || coarse.enumerate().any(|(i, &b)| b as usize != i)
-        || fine.enumerate().any(|(i, &b)| b as usize != n_coarse + i)
-    {
-        return Err(Error::invalid(
-            "index",
-            format!("must name bricks 0..{} once each, each level in cell order", n_coarse + n_fine),
-        ));
-    }
-    // Finite float16 only (exponent 31 is Inf or NaN): the renderer's output stays finite.
-    for (name, halves) in [("values", values), ("fine_values", fine_values)] {
-        if let Some(i) = halves.iter().position(|&h| (h >> 10) & 0x1f == 0x1f) {
-            return Err(Error::invalid(name, format!("NaN or Inf at flat index {i}")));
-        }
-    }
-    Ok((n_coarse, n_fine))
-}
-
 /// The baked field's pipelines, each built on first use, and what the bake binds.
 pub(super) struct BakedPipelines {
     /// render_rays looking samples up in a baked field (`BAKED`).
@@ -132,7 +64,7 @@ pub struct GpuBaked {
     /// Seconds the bake took (brick layout, upload, kernel, wait).
     pub bake_seconds: f64,
     /// The index (G³ words), then the points (two words each): `baked` in `shaders/params.wgsl`.
-    data: wgpu::Buffer,
+    pub(super) data: wgpu::Buffer,
 }
 
 impl GpuBaked {
@@ -161,7 +93,12 @@ impl GpuBaked {
 
 /// The field's buffer as the kernels read it: `index`, then `n_words` words, the first of them
 /// `words` (if given), the rest zeros.
-fn field_buffer(dev: &wgpu::Device, index: &[u32], words: Option<&[u32]>, n_words: usize) -> wgpu::Buffer {
+pub(super) fn field_buffer(
+    dev: &wgpu::Device,
+    index: &[u32],
+    words: Option<&[u32]>,
+    n_words: usize,
+) -> wgpu::Buffer {
     let mut contents = Vec::with_capacity((index.len() + n_words).max(2));
     contents.extend_from_slice(index);
     contents.extend_from_slice(words.unwrap_or_default());
@@ -235,10 +172,9 @@ impl Renderer {
         )?;
         let index_words = layout.index.len() as u32;
         let data = field_buffer(&self.device, &layout.index, None, n_points * 2);
-        let mut total = n_points;
         let pass =
             BakePass { cells: &layout.brick_cells, cells_per_axis: layout.cells, k: spec.subdivisions };
-        self.run_bake(tri, &pass, index_words, &data, &mut |done| progress(done, total))?;
+        self.run_bake(tri, &pass, index_words, &data, &mut |done| progress(done, n_points))?;
         if fine_k == 0 {
             return self.keep_baked(
                 tri,
@@ -252,7 +188,6 @@ impl Renderer {
             );
         }
 
-        // Second level: which bricks a surface crosses, from their coarse points' densities.
         let one_level = GpuBaked {
             spec: BakeSpec { fine_subdivisions: 0, ..spec },
             cells: layout.cells,
@@ -262,7 +197,30 @@ impl Renderer {
             bake_seconds: 0.0,
             data,
         };
+        self.bake_second_level(tri, spec, &layout, one_level, &mut |done, fine_points| {
+            progress(n_points + done, n_points + fine_points)
+        })
+        .and_then(|(index, n_bricks, n_coarse, data)| {
+            self.keep_baked(tri, spec, layout.cells, index, n_bricks, n_coarse, data, start)
+        })
+    }
+
+    /// A two-level field's second level: reads the coarse bake `one_level` back, finds the bricks a
+    /// surface crosses (`baked::crossed`) and bakes them at `spec.fine_subdivisions` into a new
+    /// buffer after the other bricks' coarse points. `progress(fine points done, fine points)`.
+    /// The new index, bricks, coarse bricks (N_c) and buffer.
+    fn bake_second_level(
+        &self,
+        tri: &GpuTriplane,
+        spec: BakeSpec,
+        layout: &BrickLayout,
+        one_level: GpuBaked,
+        progress: &mut dyn FnMut(usize, usize) -> bool,
+    ) -> Result<(Vec<u32>, usize, u32, wgpu::Buffer)> {
+        let fine_k = spec.fine_subdivisions;
+        let per_brick = BrickLayout::points_per_brick(spec.subdivisions);
         let halves = self.read_baked_values(&one_level)?;
+        drop(one_level);
         let is_fine: Vec<bool> = halves
             .chunks(4 * per_brick)
             .map(|brick| crossed(brick.iter().step_by(4).map(|&h| half::f16::from_bits(h).to_f32())))
@@ -285,15 +243,12 @@ impl Renderer {
             bytes,
             ": use fewer fine subdivisions or a larger occupancy_epsilon",
         )?;
-        let data =
-            field_buffer(&self.device, &two.index, Some(&coarse_words), coarse_words.len() + fine_points * 2);
-        let done_coarse = n_points;
-        total = n_points + fine_points;
-        let fine_offset = index_words + coarse_words.len() as u32;
+        let n_words = coarse_words.len() + fine_points * 2;
+        let data = field_buffer(&self.device, &two.index, Some(&coarse_words), n_words);
+        let fine_offset = (two.index.len() + coarse_words.len()) as u32;
         let pass = BakePass { cells: &two.fine_cells, cells_per_axis: layout.cells, k: fine_k };
-        self.run_bake(tri, &pass, fine_offset, &data, &mut |done| progress(done_coarse + done, total))?;
-        let n_bricks = n_coarse + two.fine_cells.len();
-        self.keep_baked(tri, spec, layout.cells, two.index, n_bricks, n_coarse as u32, data, start)
+        self.run_bake(tri, &pass, fine_offset, &data, &mut |done| progress(done, fine_points))?;
+        Ok((two.index, n_coarse + two.fine_cells.len(), n_coarse as u32, data))
     }
 
     /// Records a finished bake with its triplane.
@@ -401,41 +356,6 @@ impl Renderer {
             }
         }
         self.check(scope, "baking the field")
-    }
-
-    /// Attaches a field baked earlier (its `index` and `values` as `read_baked_values` gave them,
-    /// e.g. saved and loaded; a two-level field's fine bricks' points in `fine_values`) to `tri`
-    /// without baking again. Everything is checked: the caller vouches only that it was baked
-    /// from these planes and decoder.
-    pub fn attach_baked(
-        &self,
-        tri: &GpuTriplane,
-        spec: BakeSpec,
-        cells: usize,
-        index: Vec<u32>,
-        values: &[u16],
-        fine_values: &[u16],
-    ) -> Result<Arc<GpuBaked>> {
-        let (n_coarse, n_fine) = check_saved_field(&spec, cells, &index, values, fine_values)?;
-        let bytes = (index.len() * 4 + values.len() * 2 + fine_values.len() * 2) as u64;
-        self.check_binding("values", "the field", bytes, "")?;
-        let words: Vec<u32> = values
-            .chunks(2)
-            .chain(fine_values.chunks(2))
-            .map(|h| h[0] as u32 | (h[1] as u32) << 16)
-            .collect();
-        let fine_first = if spec.fine_subdivisions == 0 { u32::MAX } else { n_coarse as u32 };
-        let baked = Arc::new(GpuBaked {
-            spec,
-            cells,
-            n_bricks: n_coarse + n_fine,
-            fine_first,
-            data: field_buffer(&self.device, &index, Some(&words), words.len()),
-            index,
-            bake_seconds: 0.0,
-        });
-        *tri.baked.lock().map_err(|_| Error::Gpu("baked field lock poisoned".into()))? = Some(baked.clone());
-        Ok(baked)
     }
 
     /// The baked field a render with `settings` uses: the triplane's, when it covers them, else

@@ -1,0 +1,111 @@
+//! A baked field saved earlier, put back on the GPU (`lp3d.render.baked.load_baked` reads the file;
+//! `Renderer::attach_baked` checks every array again here before it reaches the GPU).
+
+use super::baking::field_buffer;
+use super::*;
+use crate::baked::{BakeSpec, BrickLayout, MAX_FINE_SUBDIVISIONS};
+
+/// Checks a saved field before it is uploaded: `values` holds the coarse bricks' points,
+/// `fine_values` a two-level field's fine ones' (empty for one level). Its numbers of coarse and
+/// fine bricks.
+fn check_saved_field(
+    spec: &BakeSpec,
+    cells: usize,
+    index: &[u32],
+    values: &[u16],
+    fine_values: &[u16],
+) -> Result<(usize, usize)> {
+    let k = spec.subdivisions;
+    if !(1..=crate::baked::MAX_SUBDIVISIONS).contains(&k) {
+        return Err(Error::invalid("subdivisions", format!("must be in [1, 8], got {k}")));
+    }
+    let kf = spec.fine_subdivisions;
+    if kf != 0 && !(kf > k && kf <= MAX_FINE_SUBDIVISIONS) {
+        return Err(Error::invalid(
+            "fine_subdivisions",
+            format!("must be 0 or in (subdivisions, {MAX_FINE_SUBDIVISIONS}], got {kf}"),
+        ));
+    }
+    if kf == 0 && !fine_values.is_empty() {
+        return Err(Error::invalid("fine_values", "a one-level field (fine_subdivisions 0) has none"));
+    }
+    if !(spec.epsilon > 0.0 && spec.epsilon < 1.0 && spec.max_delta.is_finite() && spec.max_delta > 0.0) {
+        return Err(Error::invalid("occupancy_epsilon", "must be in (0, 1), with a positive max_delta"));
+    }
+    if !(1..=crate::occupancy::MAX_RESOLUTION).contains(&cells) || index.len() != cells.pow(3) {
+        return Err(Error::invalid(
+            "index",
+            format!("must be (G, G, G) with G in [1, 512], got {} entries", index.len()),
+        ));
+    }
+    let per_brick = 4 * BrickLayout::points_per_brick(k);
+    if values.len() % per_brick != 0 {
+        return Err(Error::invalid("values", format!("must be (bricks, {0}, {0}, {0}, 4)", k + 1)));
+    }
+    let n_coarse = values.len() / per_brick;
+    let per_fine = 4 * BrickLayout::points_per_brick(kf);
+    if kf != 0 && fine_values.len() % per_fine != 0 {
+        return Err(Error::invalid(
+            "fine_values",
+            format!("must be (fine bricks, {0}, {0}, {0}, 4)", kf + 1),
+        ));
+    }
+    let n_fine = if kf == 0 { 0 } else { fine_values.len() / per_fine };
+    // Every brick named by exactly one cell, each level in cell order (as a bake numbers them).
+    let named: Vec<u32> = index.iter().copied().filter(|&b| b != crate::baked::EMPTY).collect();
+    let coarse = named.iter().filter(|&&b| (b as usize) < n_coarse);
+    let fine = named.iter().filter(|&&b| (b as usize) >= n_coarse);
+    if named.len() != n_coarse + n_fine
+        || coarse.enumerate().any(|(i, &b)| b as usize != i)
+        || fine.enumerate().any(|(i, &b)| b as usize != n_coarse + i)
+    {
+        return Err(Error::invalid(
+            "index",
+            format!("must name bricks 0..{} once each, each level in cell order", n_coarse + n_fine),
+        ));
+    }
+    // Finite float16 only (exponent 31 is Inf or NaN): the renderer's output stays finite.
+    for (name, halves) in [("values", values), ("fine_values", fine_values)] {
+        if let Some(i) = halves.iter().position(|&h| (h >> 10) & 0x1f == 0x1f) {
+            return Err(Error::invalid(name, format!("NaN or Inf at flat index {i}")));
+        }
+    }
+    Ok((n_coarse, n_fine))
+}
+
+impl Renderer {
+    /// Attaches a field baked earlier (its `index` and `values` as `read_baked_values` gave them,
+    /// e.g. saved and loaded; a two-level field's fine bricks' points in `fine_values`) to `tri`
+    /// without baking again. Everything is checked: the caller vouches only that it was baked
+    /// from these planes and decoder.
+    pub fn attach_baked(
+        &self,
+        tri: &GpuTriplane,
+        spec: BakeSpec,
+        cells: usize,
+        index: Vec<u32>,
+        values: &[u16],
+        fine_values: &[u16],
+    ) -> Result<Arc<GpuBaked>> {
+        let (n_coarse, n_fine) = check_saved_field(&spec, cells, &index, values, fine_values)?;
+        let bytes = (index.len() * 4 + values.len() * 2 + fine_values.len() * 2) as u64;
+        self.check_binding("values", "the field", bytes, "")?;
+        let words: Vec<u32> = values
+            .chunks(2)
+            .chain(fine_values.chunks(2))
+            .map(|h| h[0] as u32 | (h[1] as u32) << 16)
+            .collect();
+        let fine_first = if spec.fine_subdivisions == 0 { u32::MAX } else { n_coarse as u32 };
+        let baked = Arc::new(GpuBaked {
+            spec,
+            cells,
+            n_bricks: n_coarse + n_fine,
+            fine_first,
+            data: field_buffer(&self.device, &index, Some(&words), words.len()),
+            index,
+            bake_seconds: 0.0,
+        });
+        *tri.baked.lock().map_err(|_| Error::Gpu("baked field lock poisoned".into()))? = Some(baked.clone());
+        Ok(baked)
+    }
+}
