@@ -139,6 +139,28 @@ def test_the_fine_level_brings_the_render_closer_to_exact_mode(native) -> None:
     assert two > one + 2.0 and two > four - 0.5, (one, two, four)
 
 
+def test_a_two_level_bakes_progress_only_rises(native, fields) -> None:
+    """Until the fine bricks are known the bake counts every brick as fine, so its total falls once
+    and the share done never goes back (the viewer's `baking… 43%`); it ends at its total."""
+    seen: list[tuple[int, int]] = []
+    lp3d_render.bake(
+        native,
+        subdivisions=K,
+        fine_subdivisions=KF,
+        occupancy_epsilon=EPS,
+        depth_resolution=S,
+        progress=lambda d, t: seen.append((d, t)),
+    )
+    shares = [d / t for d, t in seen]
+    assert shares == sorted(shares) and seen[-1][0] == seen[-1][1]
+    one, two = fields
+    totals = sorted({t for _, t in seen}, reverse=True)
+    assert totals == [
+        one.bricks * ((K + 1) ** 3 + (KF + 1) ** 3),
+        one.bricks * (K + 1) ** 3 + two.fine_bricks * (KF + 1) ** 3,
+    ]
+
+
 def test_a_saved_two_level_field_renders_as_the_baked_one(head, native, fields, tmp_path) -> None:
     """save_baked writes both levels (format v3); load_baked puts them on a fresh copy of the triplane,
     which renders exactly as the baked field; a damaged fine level is refused by name, and a

@@ -129,7 +129,8 @@ impl Renderer {
     /// `progress(points done, points)` after each; returning false stops the bake (an error
     /// naming it). Other work on the device (a viewer's frames) runs between the dispatches. A
     /// two-level field bakes every brick coarse first, reads their densities back to find the
-    /// ones a surface crosses (`baked::crossed`), then bakes those fine (`points` grows then).
+    /// ones a surface crosses (`baked::crossed`), then bakes those fine (`points` counts every
+    /// brick as fine until then).
     pub fn bake_with_progress(
         &self,
         tri: &GpuTriplane,
@@ -174,7 +175,11 @@ impl Renderer {
         let data = field_buffer(&self.device, &layout.index, None, n_points * 2);
         let pass =
             BakePass { cells: &layout.brick_cells, cells_per_axis: layout.cells, k: spec.subdivisions };
-        self.run_bake(tri, &pass, index_words, &data, &mut |done| progress(done, n_points))?;
+        // Until the fine bricks are known, a two-level bake counts every brick as fine: its total
+        // only falls, so the share done only rises.
+        let at_most = n_points
+            + (fine_k > 0) as usize * layout.brick_cells.len() * BrickLayout::points_per_brick(fine_k);
+        self.run_bake(tri, &pass, index_words, &data, &mut |done| progress(done, at_most))?;
         if fine_k == 0 {
             return self.keep_baked(
                 tri,
