@@ -10,6 +10,7 @@ import numpy.typing as npt
 MAX_RESOLUTION: int
 MAX_SAMPLES: int
 BAKED_SUBDIVISIONS: int
+BAKED_FINE_SUBDIVISIONS: int
 BAKED_OCCUPANCY_EPSILON: float
 PLANE_AXES: list[tuple[int, int]]
 #: EG3D FFHQ conventions, the defaults of Triplane and look_at_camera
@@ -90,12 +91,15 @@ def render(
     occupancy_epsilon: float = 0.0,
     occupancy_coarse: bool = False,
     baked_subdivisions: int = 0,
+    baked_fine_subdivisions: int = 0,
     baked_guide: bool = False,
 ) -> dict[str, npt.NDArray[np.float32]]: ...
 
 class BakedField:
     @property
     def subdivisions(self) -> int: ...
+    @property
+    def fine_subdivisions(self) -> int: ...
     @property
     def occupancy_epsilon(self) -> float: ...
     @property
@@ -105,6 +109,8 @@ class BakedField:
     @property
     def bricks(self) -> int: ...
     @property
+    def fine_bricks(self) -> int: ...
+    @property
     def bake_seconds(self) -> float: ...
     @property
     def device_bytes(self) -> int: ...
@@ -112,6 +118,8 @@ class BakedField:
     def index(self) -> npt.NDArray[np.int64]: ...
     @property
     def values(self) -> npt.NDArray[np.float16]: ...
+    @property
+    def fine_values(self) -> npt.NDArray[np.float16]: ...
 
 def bake(
     triplane: Triplane,
@@ -120,6 +128,7 @@ def bake(
     depth_resolution: int = 48,
     deterministic: bool = True,
     progress: Callable[[int, int], object] | None = None,
+    fine_subdivisions: int = 0,
 ) -> BakedField: ...
 def attach_baked(
     triplane: Triplane,
@@ -129,6 +138,8 @@ def attach_baked(
     subdivisions: int,
     occupancy_epsilon: float,
     max_delta: float,
+    fine_subdivisions: int = 0,
+    fine_values: npt.NDArray[np.uint16] | None = None,
 ) -> BakedField: ...
 def adapter_info() -> dict[str, str]: ...
 def last_frame_device_bytes() -> int: ...
