@@ -156,11 +156,16 @@ def baked_lookup(
     return np.where(in_fine, sigma_f, sigma_c), np.where(in_fine[..., None], rgb_f, rgb_c)
 
 
+def _cells(g: int, box_warp: float, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where world ``points`` (..., 3) fall in a field of G³ cells: their position in cell units and
+    their cell (edge cells clamped, so they stand for everything beyond), both float (..., 3)."""
+    s = (np.asarray(points, np.float64) * (2.0 / box_warp) + 1.0) * (0.5 * g)
+    return s, np.clip(np.floor(s), 0, g - 1)
+
+
 def _brick_at(index: np.ndarray, box_warp: float, points: np.ndarray) -> np.ndarray:
     """The brick number (or -1) of the cell around each world point (...)."""
-    g = index.shape[0]
-    s = (np.asarray(points, np.float64) * (2.0 / box_warp) + 1.0) * (0.5 * g)
-    cell = np.clip(np.floor(s), 0, g - 1).astype(np.int64)
+    cell = _cells(index.shape[0], box_warp, points)[1].astype(np.int64)
     return index[cell[..., 0], cell[..., 1], cell[..., 2]]
 
 
@@ -168,9 +173,7 @@ def _lookup_level(
     index: np.ndarray, values: np.ndarray, k: int, box_warp: float, points: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`baked_lookup` in a one-level field."""
-    g = index.shape[0]
-    s = (np.asarray(points, np.float64) * (2.0 / box_warp) + 1.0) * (0.5 * g)
-    cell = np.clip(np.floor(s), 0, g - 1)
+    s, cell = _cells(index.shape[0], box_warp, points)
     local = np.clip((s - cell) * k, 0.0, k)
     i0 = np.minimum(np.floor(local), k - 1)
     f = local - i0
