@@ -26,16 +26,10 @@ impl BakedField {
     /// The points of one level, read back: (bricks, k + 1, k + 1, k + 1, 4) float16.
     fn level<'py>(&self, py: Python<'py>, fine: bool) -> PyResult<Bound<'py, PyAny>> {
         let g = gpu(py)?;
-        let mut halves = py.detach(|| g.renderer.read_baked_values(&self.inner)).map_err(to_py)?;
-        let spec = &self.inner.spec;
-        let n_coarse = self.inner.n_coarse();
-        let coarse_halves = n_coarse * BrickLayout::points_per_brick(spec.subdivisions) * 4;
-        let (k, n) = if fine {
-            halves.drain(..coarse_halves);
-            (spec.fine_subdivisions, self.inner.n_bricks - n_coarse)
-        } else {
-            halves.truncate(coarse_halves);
-            (spec.subdivisions, n_coarse)
+        let halves = py.detach(|| g.renderer.read_baked_values(&self.inner, fine)).map_err(to_py)?;
+        let (k, n) = match fine {
+            false => (self.inner.spec.subdivisions, self.inner.n_coarse()),
+            true => (self.inner.spec.fine_subdivisions, self.inner.n_bricks - self.inner.n_coarse()),
         };
         let k1 = k as usize + 1;
         let arr = PyArray1::from_vec(py, halves).reshape([n, k1, k1, k1, 4])?;

@@ -224,7 +224,7 @@ impl Renderer {
     ) -> Result<(Vec<u32>, usize, u32, wgpu::Buffer)> {
         let fine_k = spec.fine_subdivisions;
         let per_brick = BrickLayout::points_per_brick(spec.subdivisions);
-        let halves = self.read_baked_values(&one_level)?;
+        let halves = self.read_baked_values(&one_level, false)?;
         drop(one_level);
         let is_fine: Vec<bool> = halves
             .chunks(4 * per_brick)
@@ -386,11 +386,21 @@ impl Renderer {
         self.bake(tri, need).map(Some)
     }
 
-    /// The values of a baked field, read back: `n_bricks * (k + 1)³` points of four float16
-    /// bits (sigma_raw, r, g, b); a two-level field's coarse bricks', then its fine ones'.
-    pub fn read_baked_values(&self, baked: &GpuBaked) -> Result<Vec<u16>> {
-        let offset = baked.values_offset() as u64 * 4;
-        let size = baked.data.size() - offset;
+    /// The points of one level of a baked field, read back as float16 bits (sigma_raw, r, g, b):
+    /// the coarse bricks' `n_coarse() * (k + 1)³` (all of a one-level field's), or with `fine` a
+    /// two-level field's fine bricks' `(n_bricks - n_coarse()) * (k_f + 1)³`.
+    pub fn read_baked_values(&self, baked: &GpuBaked, fine: bool) -> Result<Vec<u16>> {
+        let spec = &baked.spec;
+        let coarse_points = baked.n_coarse() * BrickLayout::points_per_brick(spec.subdivisions);
+        let (first, points) = match fine {
+            false => (0, coarse_points),
+            true => (coarse_points, baked.n_points() - coarse_points),
+        };
+        let offset = (baked.values_offset() as u64 + 2 * first as u64) * 4;
+        let size = points as u64 * POINT_BYTES as u64;
+        if size == 0 {
+            return Ok(Vec::new());
+        }
         let read = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("lp3d baked values readback"),
             size,
@@ -404,12 +414,13 @@ impl Renderer {
         self.queue.submit([encoder.finish()]);
         let mut words = vec![0f32; (size / 4) as usize];
         self.read_back(&mut [(&read, size, &mut words)])?;
-        let n = baked.n_points() * 4;
-        let halves = words.iter().flat_map(|w| {
-            let b = w.to_bits();
-            [(b & 0xffff) as u16, (b >> 16) as u16]
-        });
-        Ok(halves.take(n).collect())
+        Ok(words
+            .iter()
+            .flat_map(|w| {
+                let b = w.to_bits();
+                [(b & 0xffff) as u16, (b >> 16) as u16]
+            })
+            .collect())
     }
 
     /// render_rays with the baked lookup (`BAKED`), built on first use; the rolled decoder,

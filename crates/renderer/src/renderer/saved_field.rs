@@ -74,7 +74,7 @@ fn check_saved_field(
 }
 
 impl Renderer {
-    /// Attaches a field baked earlier (its `index` and `values` as `read_baked_values` gave them,
+    /// Attaches a field baked earlier (its `index` and each level's `values` as `read_baked_values` gave them,
     /// e.g. saved and loaded; a two-level field's fine bricks' points in `fine_values`) to `tri`
     /// without baking again. Everything is checked: the caller vouches only that it was baked
     /// from these planes and decoder.
