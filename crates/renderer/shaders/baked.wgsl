@@ -5,10 +5,10 @@
 // away): the decoder is skipped. The RGB is stored premultiplied by each point's colour weight,
 // so that at a surface the corners in empty space (whose decoded colour is anything) do not
 // tint it.
-// needs: params, baked, halves_to_f32, plane_coords
-// provides: BAKED, GUIDED, GUIDE_RAW, GUIDE_TRANSMITTANCE, BAKED_EMPTY, BAKED_EMPTY_RAW,
+// needs: params, baked, baked_fine, halves_to_f32, plane_coords
+// provides: BAKED, GUIDED, GUIDE_RAW, GUIDE_TRANSMITTANCE, BAKED_EMPTY, BAKED_FINE, BAKED_EMPTY_RAW,
 // provides: BAKED_COLOUR_FLOOR, BAKED_COLOUR_RAMP, baked_colour_weight, baked_word, baked_point,
-// provides: BakedSpot, baked_spot, baked_corner, baked_sample, baked_raw, guide_decodes
+// provides: baked_point_raw, BakedSpot, baked_spot, baked_corner, baked_sample, baked_raw, guide_decodes
 
 // true: render_rays looks samples up in the baked field (a pipeline of its own).
 override BAKED: bool = false;
@@ -21,6 +21,8 @@ const GUIDE_TRANSMITTANCE: f32 = 1e-3;
 
 // baked_index of a cell without a brick.
 const BAKED_EMPTY: u32 = 0xffffffffu;
+// The flag of a fine brick's cell word (baked::atlas::FINE_FLAG).
+const BAKED_FINE: u32 = 0x80000000u;
 // The raw density of a point in a cell without a brick: no decoded interval reaches such a
 // cell, and its true raw density is below the occupancy threshold; softplus(-60 - 1) * delta
 // is ~1e-28.
@@ -39,47 +41,62 @@ fn baked_colour_weight(sigma_raw: f32) -> f32 {
     return BAKED_COLOUR_FLOOR + clamp(sigma_raw / BAKED_COLOUR_RAMP, 0.0, 1.0);
 }
 
-// Where a point falls in the baked field: the first word of its brick's points (BAKED_EMPTY if
-// its cell has no brick) and the brick's points per edge, k + 1; the first point of the sub-cell
-// around it and the point's place in that sub-cell (each in [0, 1]).
+// Where a point falls in the baked field: the first word of its (coarse) brick's points in
+// `baked` (BAKED_EMPTY if its cell has no brick), or for a fine brick the first texel of its
+// points in `baked_fine` (fine true); the brick's points per edge, k + 1; the first point of the
+// sub-cell around it and the point's place in that sub-cell (each in [0, 1]).
 struct BakedSpot {
     base: u32,
+    fine: bool,
+    texel: vec3<u32>,
     k1: u32,
     i0: vec3<u32>,
     f: vec3<f32>,
 }
 
-// The first of the two words of point i (each of i's components in 0..=k) of a spot's brick.
+// The first of the two words of point i (each of i's components in 0..=k) of a coarse spot's brick.
 fn baked_word(spot: BakedSpot, i: vec3<u32>) -> u32 {
     return spot.base + 2u * ((i.x * spot.k1 + i.y) * spot.k1 + i.z);
 }
 
 // Point i of a spot's brick: (sigma_raw, w r, w g, w b), w its colour weight.
 fn baked_point(spot: BakedSpot, i: vec3<u32>) -> vec4<f32> {
+    if (spot.fine) {
+        return textureLoad(baked_fine, spot.texel + i.zyx, 0);
+    }
     let w = baked_word(spot, i);
     return vec4<f32>(halves_to_f32(baked[w]), halves_to_f32(baked[w + 1u]));
 }
 
+// The raw density of point i of a spot's brick (half of baked_point's loads for a coarse one).
+fn baked_point_raw(spot: BakedSpot, i: vec3<u32>) -> f32 {
+    if (spot.fine) {
+        return textureLoad(baked_fine, spot.texel + i.zyx, 0).x;
+    }
+    return halves_to_f32(baked[baked_word(spot, i)]).x;
+}
+
 // Cells are the baked field's (G per axis over plane coordinates [-1, 1], the edge cells clamped
 // so they stand for everything beyond); inside a cell, k intervals per axis (k_f in a two-level
-// field's fine bricks, numbered from params.baked_fine_first on).
+// field's fine bricks). A cell's word in `baked` is its coarse brick's number, BAKED_EMPTY, or for
+// a fine brick BAKED_FINE and its slot in `baked_fine` (10 bits per axis: FineAtlas::index_word).
 fn baked_spot(pos: vec3<f32>) -> BakedSpot {
     let g = params.baked_cells;
     let gf = f32(g);
     let s = (plane_coords(pos) + 1.0) * (0.5 * gf);
     let cell_f = clamp(floor(s), vec3<f32>(0.0), vec3<f32>(gf - 1.0));
     let cell = vec3<u32>(cell_f);
-    let brick = baked[(cell.x * g + cell.y) * g + cell.z];
+    let word = baked[(cell.x * g + cell.y) * g + cell.z];
     let kc1 = params.baked_subdivisions + 1u;
-    let fine = brick != BAKED_EMPTY && brick >= params.baked_fine_first;
+    let fine = word != BAKED_EMPTY && (word & BAKED_FINE) != 0u;
     let k = select(params.baked_subdivisions, params.baked_fine_subdivisions, fine);
     let k1 = k + 1u;
-    let first = select(brick * kc1 * kc1 * kc1, params.baked_fine_first * kc1 * kc1 * kc1 + (brick - params.baked_fine_first) * k1 * k1 * k1, fine);
-    let base = select(params.baked_values_offset + 2u * first, BAKED_EMPTY, brick == BAKED_EMPTY);
+    let base = select(params.baked_values_offset + 2u * word * kc1 * kc1 * kc1, BAKED_EMPTY, word == BAKED_EMPTY);
+    let slot = vec3<u32>((word >> 20u) & 0x3ffu, (word >> 10u) & 0x3ffu, word & 0x3ffu);
     let kf = f32(k);
     let local = clamp((s - cell_f) * kf, vec3<f32>(0.0), vec3<f32>(kf));
     let i0_f = min(floor(local), vec3<f32>(kf - 1.0));
-    return BakedSpot(base, k1, vec3<u32>(i0_f), local - i0_f);
+    return BakedSpot(base, fine, slot * k1, k1, vec3<u32>(i0_f), local - i0_f);
 }
 
 // Corner c of a spot's sub-cell, + (c & 1, c >> 1 & 1, c >> 2): its offset and trilinear weight.
@@ -118,7 +135,7 @@ fn baked_raw(pos: vec3<f32>) -> f32 {
     var raw = 0.0;
     for (var c = 0u; c < 8u; c++) {
         let corner = baked_corner(spot.f, c);
-        raw += corner.w * halves_to_f32(baked[baked_word(spot, spot.i0 + vec3<u32>(corner.xyz))]).x;
+        raw += corner.w * baked_point_raw(spot, spot.i0 + vec3<u32>(corner.xyz));
     }
     return raw;
 }

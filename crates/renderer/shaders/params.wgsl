@@ -4,7 +4,7 @@
 // provides: MAX_SAMPLES, N_CHANNELS, HIDDEN, FLAG_JITTER, FLAG_WHITE_BACK, FLAG_HALF_PLANES,
 // provides: FLAG_OCCUPANCY_COARSE, Params, Decoder, params, cameras, planes, decoder,
 // provides: out_features, out_depth, out_weights_sum, depth_bounds, occupancy_bits, baked,
-// provides: bake_cells, bake_out
+// provides: baked_fine, bake_cells, bake_out
 
 // Largest coarse or fine sample count per ray (per-invocation scratch arrays).
 const MAX_SAMPLES: u32 = 256u;
@@ -55,10 +55,11 @@ struct Params {
     baked_cells: u32,
     // Where the points start in `baked` (u32 words: after the G^3 index).
     baked_values_offset: u32,
-    // Two-level fields (docs/baked.md, "Two levels"): bricks numbered from this one on are fine
-    // (0xffffffff: none), with this many points per cell edge; their points follow the coarse ones.
-    baked_fine_first: u32,
+    // Two-level fields (docs/baked.md, "Two levels"): the fine bricks' points per cell edge (their
+    // cells are flagged in `baked`, their points are in `baked_fine`).
     baked_fine_subdivisions: u32,
+    // A uniform's size is a multiple of 16 bytes.
+    pad: u32,
 }
 
 // EG3D OSGDecoder with effective weights, packed as vec4 rows for uniform layout.
@@ -86,10 +87,13 @@ struct Decoder {
 @group(0) @binding(8) var<storage, read> occupancy_bits: array<u32>;
 // The baked field (docs/baked.md), one buffer so that render_rays keeps to WebGPU's default of 8
 // storage buffers per stage: per baked cell the number of its brick or BAKED_EMPTY (G^3 words),
-// then from baked_values_offset per brick (k + 1)^3 points of two words, (sigma_raw, r) and
-// (g, b) as packed float16 pairs (a two-level field's fine bricks after the coarse ones, with
-// (k_f + 1)^3 points each).
+// then from baked_values_offset per (coarse) brick (k + 1)^3 points of two words, (sigma_raw, r)
+// and (g, b) as packed float16 pairs.
 @group(0) @binding(9) var<storage, read> baked: array<u32>;
+// A two-level field's fine bricks, (k_f + 1)^3 texels each, side by side in a 3D texture (no
+// storage binding is large enough for them; crates/renderer/src/baked/atlas.rs): a texel is a
+// point, (sigma_raw, r, g, b) as in `baked`.
+@group(0) @binding(10) var baked_fine: texture_3d<f32>;
 // The bake's own bindings: the cell of each brick, and the field it writes the points into.
 @group(0) @binding(11) var<storage, read> bake_cells: array<u32>;
 @group(0) @binding(12) var<storage, read_write> bake_out: array<u32>;

@@ -18,8 +18,11 @@
 //! A *two-level* field (`BakeSpec::fine_subdivisions` > 0) splits the bricks a surface crosses
 //! ([`crossed`], judged on their k-point values) finer, into k_f³ sub-cells: its bricks are numbered
 //! in cell order, first the N_c coarse ones, then the fine ones, whose (k_f + 1)³ points follow all
-//! the coarse points. A brick number n >= N_c is fine brick n - N_c (`baked_fine_first` in the
-//! shader's `Params`).
+//! the coarse points. A brick number n >= N_c is fine brick n - N_c. On the GPU the fine points
+//! live in a 3D texture ([`atlas`]), not after the coarse ones in the field's buffer (a storage
+//! binding is too small for them), and a fine brick's cell holds its place in that texture.
+
+pub mod atlas;
 
 use crate::error::{Error, Result};
 use crate::occupancy::Occupancy;

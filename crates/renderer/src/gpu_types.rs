@@ -41,10 +41,9 @@ pub struct Params {
     pub baked_subdivisions: u32,
     pub baked_cells: u32,
     pub baked_values_offset: u32,
-    /// Two-level fields: the first fine brick's number (`u32::MAX`: none) ...
-    pub baked_fine_first: u32,
-    /// ... and the fine bricks' points per cell edge.
+    /// Two-level fields: the fine bricks' points per cell edge.
     pub baked_fine_subdivisions: u32,
+    pub pad: u32,
 }
 
 impl Params {
@@ -86,8 +85,8 @@ impl Params {
             baked_subdivisions: 0,
             baked_cells: 0,
             baked_values_offset: 0,
-            baked_fine_first: u32::MAX,
             baked_fine_subdivisions: 0,
+            pad: 0,
         }
     }
 }

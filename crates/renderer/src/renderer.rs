@@ -4,6 +4,7 @@
 
 mod background;
 mod baking;
+mod fine_bricks;
 mod frame;
 mod layouts;
 mod saved_field;

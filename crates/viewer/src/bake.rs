@@ -29,7 +29,8 @@ use crate::quality::{FrameTimes, Ladder, Rung};
 /// sub-cell (`docs/baked.md`), so the finer field draws a closer image at the same frame time;
 /// two levels put the points where the error is: ~100 MiB and a bake of ~20 s on a teacher head
 /// (bench/RESULTS.md, "Two levels"), where a uniform k = 8 does not fit lavapipe's 128 MiB
-/// binding.
+/// binding. Finer fine bricks (k_f = 16: ~0.3 GiB, a bake of over a minute) would keep a user
+/// waiting longer than the drags they speed up.
 pub const BAKE_SUBDIVISIONS: u32 = Skips::BAKED.baked_subdivisions;
 /// Points per cell edge in the bricks a surface crosses (two levels; 0: one): `Skips::BAKED`'s.
 pub const BAKE_FINE_SUBDIVISIONS: u32 = Skips::BAKED.baked_fine_subdivisions;

@@ -98,6 +98,13 @@ class Gpu {
     this.depthBounds = buffer("lp3d depth bounds", 8, U.STORAGE | U.COPY_DST);
     this.noOccupancy = buffer("lp3d no occupancy", 4, U.STORAGE);
     this.noBaked = buffer("lp3d no baked field", 16, U.STORAGE); // the page decodes every sample
+    this.noFineBricks = device.createTexture({
+      label: "lp3d no fine bricks",
+      size: [1, 1, 1],
+      dimension: "3d",
+      format: "rgba16float",
+      usage: GPUTextureUsage.TEXTURE_BINDING,
+    });
     this.display = buffer("lp3d display", 16, U.UNIFORM | U.COPY_DST);
     device.queue.writeBuffer(this.display, 0, new Uint32Array([0, 0, 0, 0x3f800000])); // RGB, [0, 1]
     this.targets = new Map();
@@ -119,6 +126,7 @@ class Gpu {
         uniform(0), storage(1, true), storage(2, true), uniform(3),
         storage(4, false), storage(5, false), storage(6, false), storage(7, false), storage(8, true),
         storage(9, true),
+        { binding: 10, visibility: S, texture: { sampleType: "unfilterable-float", viewDimension: "3d" } },
       ],
     });
     this.presentLayout = d.createBindGroupLayout({
@@ -163,9 +171,12 @@ class Gpu {
       label: "lp3d render bind group",
       layout: this.renderLayout,
       entries: [
-        this.params, this.cameras, this.planes, this.decoder, this.features,
-        this.depth, this.weightsSum, this.depthBounds, this.noOccupancy, this.noBaked,
-      ].map((buffer, binding) => ({ binding, resource: { buffer } })),
+        ...[
+          this.params, this.cameras, this.planes, this.decoder, this.features,
+          this.depth, this.weightsSum, this.depthBounds, this.noOccupancy, this.noBaked,
+        ].map((buffer, binding) => ({ binding, resource: { buffer } })),
+        { binding: 10, resource: this.noFineBricks.createView() },
+      ],
     });
     this.kernel = "quick";
     this.pipeline = this.quick;
@@ -207,7 +218,7 @@ class Gpu {
     x[14] = n > 1 ? f(1 / (n - 1)) : 0; // u_step
     u[15] = 1; // n_cameras
     // 16, 17: transmittance_threshold, empty_threshold = 0; 18: occupancy_resolution = 0 (off);
-    // 19-23: the baked field's = 0 (off).
+    // 19-22: the baked field's = 0 (off); 23: padding.
     this.device.queue.writeBuffer(this.params, 0, buf);
   }
 

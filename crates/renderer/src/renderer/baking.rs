@@ -6,7 +6,10 @@
 
 use std::time::Instant;
 
+use super::fine_bricks::FineBricks;
+use super::layouts::fine_texture;
 use super::*;
+use crate::baked::atlas::FineAtlas;
 use crate::baked::{crossed, BakeSpec, BrickLayout, MAX_FINE_SUBDIVISIONS, POINT_BYTES};
 use crate::kernel::{build_render_variant, FieldUse};
 
@@ -14,11 +17,21 @@ use crate::kernel::{build_render_variant, FieldUse};
 /// that long for its frame.
 pub const BAKE_CHUNK: usize = 1 << 16;
 
+/// A bake's field as it goes to the GPU: the index, the bricks (N) and the first fine one (N_c;
+/// `u32::MAX` for one level), the buffer of index and coarse points, the fine bricks' texture.
+pub(super) struct Levels {
+    pub(super) index: Vec<u32>,
+    pub(super) n_bricks: usize,
+    pub(super) fine_first: u32,
+    pub(super) data: wgpu::Buffer,
+    pub(super) fine: Option<FineBricks>,
+}
+
 /// One level of a bake: the cells of its bricks (flat indices of the G³ grid) and their k.
-struct BakePass<'a> {
-    cells: &'a [u32],
-    cells_per_axis: usize,
-    k: u32,
+pub(super) struct BakePass<'a> {
+    pub(super) cells: &'a [u32],
+    pub(super) cells_per_axis: usize,
+    pub(super) k: u32,
 }
 
 /// The baked field's pipelines, each built on first use, and what the bake binds.
@@ -31,8 +44,9 @@ pub(super) struct BakedPipelines {
     bake: OnceLock<wgpu::ComputePipeline>,
     bake_layout: wgpu::BindGroupLayout,
     bake_pipeline_layout: wgpu::PipelineLayout,
-    /// Bound in place of a baked field when the render decodes.
+    /// Bound in place of a baked field when the render decodes, and of fine bricks when it has none.
     no_baked: wgpu::Buffer,
+    no_fine: wgpu::TextureView,
 }
 
 impl BakedPipelines {
@@ -48,6 +62,8 @@ impl BakedPipelines {
             bake_layout,
             bake_pipeline_layout,
             no_baked: super::layouts::placeholder(device, "lp3d no baked field"),
+            no_fine: fine_texture(device, [1, 1, 1], "lp3d no fine bricks")
+                .create_view(&wgpu::TextureViewDescriptor::default()),
         }
     }
 }
@@ -63,14 +79,16 @@ pub struct GpuBaked {
     pub fine_first: u32,
     /// Seconds the bake took (brick layout, upload, kernel, wait).
     pub bake_seconds: f64,
-    /// The index (G³ words), then the points (two words each): `baked` in `shaders/params.wgsl`.
+    /// The index (G³ words), then the coarse points (two words each): `baked` in `shaders/params.wgsl`.
     pub(super) data: wgpu::Buffer,
+    /// A two-level field's fine points (`baked::atlas`): `baked_fine`.
+    pub(super) fine: Option<FineBricks>,
 }
 
 impl GpuBaked {
     /// Device bytes: the index and the values.
     pub fn device_bytes(&self) -> u64 {
-        self.data.size()
+        self.data.size() + self.fine.as_ref().map_or(0, FineBricks::device_bytes)
     }
 
     /// Where the points start in `data`, in 4-byte words.
@@ -181,16 +199,14 @@ impl Renderer {
             + (fine_k > 0) as usize * layout.brick_cells.len() * BrickLayout::points_per_brick(fine_k);
         self.run_bake(tri, &pass, index_words, &data, &mut |done| progress(done, at_most))?;
         if fine_k == 0 {
-            return self.keep_baked(
-                tri,
-                spec,
-                layout.cells,
-                layout.index,
-                layout.brick_cells.len(),
-                u32::MAX,
+            let levels = Levels {
+                index: layout.index,
+                n_bricks: layout.brick_cells.len(),
+                fine_first: u32::MAX,
                 data,
-                start,
-            );
+                fine: None,
+            };
+            return self.keep_baked(tri, spec, layout.cells, levels, start);
         }
 
         let one_level = GpuBaked {
@@ -201,19 +217,18 @@ impl Renderer {
             fine_first: u32::MAX,
             bake_seconds: 0.0,
             data,
+            fine: None,
         };
         self.bake_second_level(tri, spec, &layout, one_level, &mut |done, fine_points| {
             progress(n_points + done, n_points + fine_points)
         })
-        .and_then(|(index, n_bricks, n_coarse, data)| {
-            self.keep_baked(tri, spec, layout.cells, index, n_bricks, n_coarse, data, start)
-        })
+        .and_then(|levels| self.keep_baked(tri, spec, layout.cells, levels, start))
     }
 
     /// A two-level field's second level: reads the coarse bake `one_level` back, finds the bricks a
-    /// surface crosses (`baked::crossed`) and bakes them at `spec.fine_subdivisions` into a new
-    /// buffer after the other bricks' coarse points. `progress(fine points done, fine points)`.
-    /// The new index, bricks, coarse bricks (N_c) and buffer.
+    /// surface crosses (`baked::crossed`), keeps the other bricks' coarse points in a new buffer
+    /// and bakes the crossed ones at `spec.fine_subdivisions` into a texture (`baked::atlas`).
+    /// `progress(fine points done, fine points)`.
     fn bake_second_level(
         &self,
         tri: &GpuTriplane,
@@ -221,8 +236,7 @@ impl Renderer {
         layout: &BrickLayout,
         one_level: GpuBaked,
         progress: &mut dyn FnMut(usize, usize) -> bool,
-    ) -> Result<(Vec<u32>, usize, u32, wgpu::Buffer)> {
-        let fine_k = spec.fine_subdivisions;
+    ) -> Result<Levels> {
         let per_brick = BrickLayout::points_per_brick(spec.subdivisions);
         let halves = self.read_baked_values(&one_level, false)?;
         drop(one_level);
@@ -232,7 +246,11 @@ impl Renderer {
             .collect();
         let two = layout.two_level(&is_fine);
         let n_coarse = two.coarse_bricks.len();
-        let fine_points = two.fine_cells.len() * BrickLayout::points_per_brick(fine_k);
+        let atlas = FineAtlas::new(
+            two.fine_cells.len(),
+            spec.fine_subdivisions,
+            self.limits.max_texture_dimension_3d,
+        )?;
         let coarse_words: Vec<u32> = two
             .coarse_bricks
             .iter()
@@ -241,42 +259,40 @@ impl Renderer {
                 halves[at..at + per_brick * 4].chunks(2).map(|h| h[0] as u32 | (h[1] as u32) << 16)
             })
             .collect();
-        let bytes = (two.index.len() * 4 + coarse_words.len() * 4 + fine_points * POINT_BYTES) as u64;
-        self.check_binding(
-            "baked_fine_subdivisions",
-            "the two-level baked field",
-            bytes,
-            ": use fewer fine subdivisions or a larger occupancy_epsilon",
-        )?;
-        let n_words = coarse_words.len() + fine_points * 2;
-        let data = field_buffer(&self.device, &two.index, Some(&coarse_words), n_words);
-        let fine_offset = (two.index.len() + coarse_words.len()) as u32;
-        let pass = BakePass { cells: &two.fine_cells, cells_per_axis: layout.cells, k: fine_k };
-        self.run_bake(tri, &pass, fine_offset, &data, &mut |done| progress(done, fine_points))?;
-        Ok((two.index, n_coarse + two.fine_cells.len(), n_coarse as u32, data))
+        drop(halves);
+        let gpu_index = atlas.gpu_index(&two.index, n_coarse as u32);
+        let data = field_buffer(&self.device, &gpu_index, Some(&coarse_words), coarse_words.len());
+        let pass =
+            BakePass { cells: &two.fine_cells, cells_per_axis: layout.cells, k: spec.fine_subdivisions };
+        let fine_values = self.bake_to_host(tri, &pass, progress)?;
+        let fine = self.upload_fine(atlas, &fine_values)?;
+        Ok(Levels {
+            n_bricks: n_coarse + two.fine_cells.len(),
+            fine_first: n_coarse as u32,
+            index: two.index,
+            data,
+            fine: Some(fine),
+        })
     }
 
     /// Records a finished bake with its triplane.
-    #[allow(clippy::too_many_arguments)]
     fn keep_baked(
         &self,
         tri: &GpuTriplane,
         spec: BakeSpec,
         cells: usize,
-        index: Vec<u32>,
-        n_bricks: usize,
-        fine_first: u32,
-        data: wgpu::Buffer,
+        levels: Levels,
         start: Instant,
     ) -> Result<Arc<GpuBaked>> {
         let baked = Arc::new(GpuBaked {
             spec,
             cells,
-            index,
-            n_bricks,
-            fine_first,
+            index: levels.index,
+            n_bricks: levels.n_bricks,
+            fine_first: levels.fine_first,
             bake_seconds: start.elapsed().as_secs_f64(),
-            data,
+            data: levels.data,
+            fine: levels.fine,
         });
         *tri.baked.lock().map_err(|_| Error::Gpu("baked field lock poisoned".into()))? = Some(baked.clone());
         Ok(baked)
@@ -286,7 +302,7 @@ impl Renderer {
     /// dispatches of [`BAKE_CHUNK`] points; `progress(points done)` after each (false stops).
     // Long because: one error scope covers every buffer and dispatch of the pass, so that a
     // device that runs out reports it once, as the bake's error.
-    fn run_bake(
+    pub(super) fn run_bake(
         &self,
         tri: &GpuTriplane,
         pass: &BakePass,
@@ -390,30 +406,32 @@ impl Renderer {
     /// the coarse bricks' `n_coarse() * (k + 1)³` (all of a one-level field's), or with `fine` a
     /// two-level field's fine bricks' `(n_bricks - n_coarse()) * (k_f + 1)³`.
     pub fn read_baked_values(&self, baked: &GpuBaked, fine: bool) -> Result<Vec<u16>> {
-        let spec = &baked.spec;
-        let coarse_points = baked.n_coarse() * BrickLayout::points_per_brick(spec.subdivisions);
-        let (first, points) = match fine {
-            false => (0, coarse_points),
-            true => (coarse_points, baked.n_points() - coarse_points),
-        };
-        let offset = (baked.values_offset() as u64 + 2 * first as u64) * 4;
-        let size = points as u64 * POINT_BYTES as u64;
-        if size == 0 {
+        if fine {
+            let n_fine = baked.n_bricks - baked.n_coarse();
+            return baked.fine.as_ref().map_or(Ok(Vec::new()), |f| self.read_fine(f, n_fine));
+        }
+        let points = baked.n_coarse() * BrickLayout::points_per_brick(baked.spec.subdivisions);
+        self.read_halves(&baked.data, baked.values_offset() as u64 * 4, (points * POINT_BYTES) as u64)
+    }
+
+    /// `bytes` of `buffer` from byte `offset` on, read back as float16 bits.
+    pub(super) fn read_halves(&self, buffer: &wgpu::Buffer, offset: u64, bytes: u64) -> Result<Vec<u16>> {
+        if bytes == 0 {
             return Ok(Vec::new());
         }
         let read = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("lp3d baked values readback"),
-            size,
+            size: bytes,
             usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
         let mut encoder = self
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("lp3d baked readback") });
-        encoder.copy_buffer_to_buffer(&baked.data, offset, &read, 0, size);
+        encoder.copy_buffer_to_buffer(buffer, offset, &read, 0, bytes);
         self.queue.submit([encoder.finish()]);
-        let mut words = vec![0f32; (size / 4) as usize];
-        self.read_back(&mut [(&read, size, &mut words)])?;
+        let mut words = vec![0f32; (bytes / 4) as usize];
+        self.read_back(&mut [(&read, bytes, &mut words)])?;
         Ok(words
             .iter()
             .flat_map(|w| {
@@ -464,8 +482,13 @@ impl Renderer {
         })
     }
 
-    /// The buffer bound at the baked field's binding (9): the field's, or a placeholder.
-    pub(super) fn baked_binding<'a>(&'a self, baked: Option<&'a GpuBaked>) -> &'a wgpu::Buffer {
-        baked.map_or(&self.baked.no_baked, |b| &b.data)
+    /// What is bound at the baked field's bindings (9, 10): the field's buffer and its fine
+    /// bricks' texture, or placeholders.
+    pub(super) fn baked_binding<'a>(
+        &'a self,
+        baked: Option<&'a GpuBaked>,
+    ) -> (&'a wgpu::Buffer, &'a wgpu::TextureView) {
+        let fine = baked.and_then(|b| b.fine.as_ref()).map_or(&self.baked.no_fine, |f| &f.view);
+        (baked.map_or(&self.baked.no_baked, |b| &b.data), fine)
     }
 }

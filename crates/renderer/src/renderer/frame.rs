@@ -60,12 +60,9 @@ impl Renderer {
             params.baked_subdivisions = b.spec.subdivisions;
             params.baked_cells = b.cells as u32;
             params.baked_values_offset = b.values_offset();
-            if b.spec.fine_subdivisions > 0 {
-                params.baked_fine_first = b.fine_first;
-                params.baked_fine_subdivisions = b.spec.fine_subdivisions;
-            }
+            params.baked_fine_subdivisions = b.spec.fine_subdivisions;
         }
-        let baked_buffer = self.baked_binding(baked.as_deref());
+        let (baked_buffer, baked_fine) = self.baked_binding(baked.as_deref());
 
         let chunk = self.cameras_per_dispatch(fc, n_pix, n_cam)?;
 
@@ -116,6 +113,10 @@ impl Renderer {
                     resource: occupancy.as_ref().map_or(&self.no_occupancy, |(_, b)| b).as_entire_binding(),
                 },
                 wgpu::BindGroupEntry { binding: 9, resource: baked_buffer.as_entire_binding() },
+                wgpu::BindGroupEntry {
+                    binding: 10,
+                    resource: wgpu::BindingResource::TextureView(baked_fine),
+                },
             ],
         });
         let bytes = [&camera_buf, &params_buf, &bounds_buf, &features, &depth, &weights_sum]

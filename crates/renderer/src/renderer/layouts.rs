@@ -55,6 +55,16 @@ impl Layouts {
                 storage_entry(7, false),
                 storage_entry(8, true),
                 storage_entry(9, true),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 10,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                        view_dimension: wgpu::TextureViewDimension::D3,
+                        multisampled: false,
+                    },
+                    count: None,
+                },
             ],
         });
         let render_pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -109,6 +119,10 @@ impl Layouts {
     }
 }
 
+/// The format of a two-level baked field's fine bricks (`baked::atlas`): a point per texel, its
+/// four float16 as the field's buffer stores them.
+pub(super) const FINE_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba16Float;
+
 /// A small storage buffer bound where a render uses no occupancy bits or baked field (a binding
 /// needs a buffer; 16 bytes covers the largest element the kernels declare there).
 pub(super) fn placeholder(device: &wgpu::Device, label: &str) -> wgpu::Buffer {
@@ -117,5 +131,22 @@ pub(super) fn placeholder(device: &wgpu::Device, label: &str) -> wgpu::Buffer {
         size: 16,
         usage: wgpu::BufferUsages::STORAGE,
         mapped_at_creation: false,
+    })
+}
+
+/// A 3D texture of `extent` texels for a two-level field's fine bricks (or, 1³, bound where a
+/// render has none).
+pub(super) fn fine_texture(device: &wgpu::Device, extent: [u32; 3], label: &str) -> wgpu::Texture {
+    device.create_texture(&wgpu::TextureDescriptor {
+        label: Some(label),
+        size: wgpu::Extent3d { width: extent[0], height: extent[1], depth_or_array_layers: extent[2] },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D3,
+        format: FINE_FORMAT,
+        usage: wgpu::TextureUsages::TEXTURE_BINDING
+            | wgpu::TextureUsages::COPY_DST
+            | wgpu::TextureUsages::COPY_SRC,
+        view_formats: &[],
     })
 }

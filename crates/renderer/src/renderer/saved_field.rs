@@ -3,6 +3,7 @@
 
 use super::baking::field_buffer;
 use super::*;
+use crate::baked::atlas::FineAtlas;
 use crate::baked::{BakeSpec, BrickLayout, MAX_FINE_SUBDIVISIONS};
 
 /// Checks a saved field before it is uploaded: `values` holds the coarse bricks' points,
@@ -88,20 +89,24 @@ impl Renderer {
         fine_values: &[u16],
     ) -> Result<Arc<GpuBaked>> {
         let (n_coarse, n_fine) = check_saved_field(&spec, cells, &index, values, fine_values)?;
-        let bytes = (index.len() * 4 + values.len() * 2 + fine_values.len() * 2) as u64;
-        self.check_binding("values", "the field", bytes, "")?;
-        let words: Vec<u32> = values
-            .chunks(2)
-            .chain(fine_values.chunks(2))
-            .map(|h| h[0] as u32 | (h[1] as u32) << 16)
-            .collect();
-        let fine_first = if spec.fine_subdivisions == 0 { u32::MAX } else { n_coarse as u32 };
+        self.check_binding("values", "the field", (index.len() * 4 + values.len() * 2) as u64, "")?;
+        let words: Vec<u32> = values.chunks(2).map(|h| h[0] as u32 | (h[1] as u32) << 16).collect();
+        let (fine_first, fine, data) = match spec.fine_subdivisions {
+            0 => (u32::MAX, None, field_buffer(&self.device, &index, Some(&words), words.len())),
+            k_f => {
+                let atlas = FineAtlas::new(n_fine, k_f, self.limits.max_texture_dimension_3d)?;
+                let gpu_index = atlas.gpu_index(&index, n_coarse as u32);
+                let data = field_buffer(&self.device, &gpu_index, Some(&words), words.len());
+                (n_coarse as u32, Some(self.upload_fine(atlas, fine_values)?), data)
+            }
+        };
         let baked = Arc::new(GpuBaked {
             spec,
             cells,
             n_bricks: n_coarse + n_fine,
             fine_first,
-            data: field_buffer(&self.device, &index, Some(&words), words.len()),
+            data,
+            fine,
             index,
             bake_seconds: 0.0,
         });
