@@ -79,15 +79,16 @@ SETTINGS = [
         for s in (24, 48)
         for t in (False, True)
     ),
-    # Two levels (docs/baked.md, "Two levels"): k 10 in the bricks a surface crosses, k 4 elsewhere.
+    # Two levels (docs/baked.md, "Two levels"): k_f in the bricks a surface crosses, k 4 elsewhere;
+    # k_f 16 also with 64+64 samples (a lookup costs the same at any k_f, so more samples are cheap).
     *(
         Setting(
-            f"baked k 4 / 10 {s}+{s}{', T + empty skips' if t else ''}",
+            f"baked k 4 / {kf} {s}+{s}{', T + empty skips' if t else ''}",
             s,
-            {"occupancy_epsilon": EPS, "baked_subdivisions": 4, "baked_fine_subdivisions": 10}
+            {"occupancy_epsilon": EPS, "baked_subdivisions": 4, "baked_fine_subdivisions": kf}
             | ({"transmittance_threshold": SKIP, "empty_threshold": SKIP} if t else {}),
         )
-        for s in (24, 48)
+        for kf, s in ((10, 24), (10, 48), (16, 48), (16, 64))
         for t in (False, True)
     ),
     # The field as the decoder's guide (docs/baked.md, "The guide"): exact where it finds density.

@@ -2,22 +2,27 @@
 k, a finer one in the bricks a surface crosses) scored without storing them.
 
     python bench/baked_resolution.py [--seeds 1000003 1000011] [--yaws 25 -30] [--resolution 64]
+        [--fields 6 8 4/10 ...] [--samples 48 64] [--scenes teacher encoder]
 
-A k = 16 field of a teacher head would take ~770 MiB, beyond lavapipe's 128 MiB storage binding, so it
-cannot be baked here. Its renders can still be computed exactly: a field's lookup is the trilinear
+A uniform k = 16 field of a teacher head would take ~770 MiB, beyond lavapipe's 128 MiB storage
+binding (a one-level field's points live in one), so it cannot be baked here. Its renders can still be
+computed exactly: a field's lookup is the trilinear
 mix of its sub-cell's eight corners (``lp3d.render.baked.baked_lookup``), and a corner's value is the
 decoder's at that point, rounded to float16 as the field stores it. This script decodes each
 sample's corners as the float64 reference renders, for k = 6 (the viewer's field, which this must
 match: ``bench/baked_error.py``'s "field" row) and finer, and for *two-level* fields: bricks at
 ``k_fine`` where the k = 4 corners' raw density rises above ``--dense`` and falls below ``--solid``
 inside the brick (a surface crosses it), ``k_coarse`` elsewhere. Memory is what such a field would
-store (8 bytes a point); PSNR is against exact 192+192 on the GPU, beside exact 48+48's.
+store (8 bytes a point); PSNR is against exact 192+192 on the GPU, beside exact 48+48's. With
+``--samples`` the fields are also rendered with more samples than 48+48 (each lookup costs the same, so
+a frame's time grows with the samples): does a finer sampler make up for a coarser field?
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Iterator
 
 import numpy as np
 
@@ -64,6 +69,27 @@ def virtual_lookup(
     return sigma.reshape(points.shape[:-1]), rgb.reshape(*points.shape[:-1], 3)
 
 
+def scenes(
+    seeds: list[int], yaws: list[float], kinds: list[str]
+) -> Iterator[tuple[int, float, str, TriplaneData]]:
+    """(seed, yaw, what, triplane): each teacher head (kind "teacher"), then (kind "encoder") the
+    shipped encoder's triplane of its frontal render (bench/baked.py's scenes)."""
+    teacher = ProceduralTeacher(resolution=64)
+    if "teacher" in kinds:
+        for seed, yaw in zip(seeds, yaws, strict=True):
+            yield seed, yaw, "teacher head", teacher.sample(seed)
+    if "encoder" not in kinds:
+        return
+    from lp3d.lift.inference import DEFAULT_MODEL, load_encoder
+
+    enc = load_encoder(DEFAULT_MODEL)
+    for seed, yaw in zip(seeds, yaws, strict=True):
+        head = teacher.sample(seed).to_native()
+        image = lp3d_render.render(head, look_at_camera(), resolution=enc.package.image_size)["rgb"]
+        planes = enc.run(image[None].astype(np.float32))[0]
+        yield seed, yaw, "encoder output of", enc.package.triplane(planes)
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--seeds", type=int, nargs="+", default=[1_000_003, 1_000_011], help="teacher heads")
@@ -71,40 +97,74 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--resolution", type=int, default=64, help="rays per side (default 64)")
     p.add_argument("--dense", type=float, default=10.0, help="fine bricks: raw density rises above this")
     p.add_argument("--solid", type=float, default=50.0, help="... and falls below this (default 50)")
+    p.add_argument(
+        "--fields",
+        nargs="+",
+        default=["6", "8", "12", "16", "4/10", "4/12", "4/16"],
+        help="fields to score: k (uniform) or k/k_fine (two levels)",
+    )
+    p.add_argument(
+        "--samples", type=int, nargs="+", default=[48], help="the baked renders' S (= N) samples (default 48)"
+    )
+    p.add_argument(
+        "--scenes",
+        nargs="+",
+        choices=["teacher", "encoder"],
+        default=["teacher"],
+        help="teacher heads and/or the shipped encoder's triplanes of them (default: teacher)",
+    )
     args = p.parse_args(argv)
     if len(args.yaws) != len(args.seeds):
         p.error("give one --yaws per --seeds")
-    uniform = (6, 8, 12, 16)
-    two_level = ((4, 10), (4, 12), (4, 16))
+    try:
+        levels = [tuple(int(k) for k in f.split("/")) for f in args.fields]
+    except ValueError:
+        p.error(f"--fields: each is k or k/k_fine, got {args.fields}")
+    if any(len(k) > 2 or min(k) < 1 for k in levels):
+        p.error(f"--fields: each is k or k/k_fine with k >= 1, got {args.fields}")
     seeds = " ".join(map(str, args.seeds))
     yaws = " ".join(f"{y:g}" for y in args.yaws)
     print(
         f"Command: `python bench/baked_resolution.py --seeds {seeds} --yaws {yaws} "
-        f"--resolution {args.resolution} --dense {args.dense:g} --solid {args.solid:g}`\n"
+        f"--resolution {args.resolution} --dense {args.dense:g} --solid {args.solid:g} "
+        f"--fields {' '.join(args.fields)} --samples {' '.join(map(str, args.samples))}"
+        f" --scenes {' '.join(args.scenes)}`\n"
     )
-    print("| head, view | field | fine bricks | MiB | points to bake | PSNR vs exact 192+192 | exact 48+48 |")
-    print("|---|---|---|---|---|---|---|")
+    print(
+        "| head, view | field | samples | fine bricks | MiB | points to bake | PSNR vs exact 192+192 "
+        "| exact, same samples | exact 48+48 |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|")
     r = args.resolution
-    for seed, yaw in zip(args.seeds, args.yaws, strict=True):
-        head = ProceduralTeacher(resolution=64).sample(seed)
+    for seed, yaw, kind, head in scenes(args.seeds, args.yaws, args.scenes):
         tri = head.to_native()
         index = lp3d_render.bake(tri, subdivisions=2, occupancy_epsilon=1e-4).index
         cam = look_at_camera(yaw_deg=yaw, pitch_deg=5)
         ref = lp3d_render.render(
             tri, cam, resolution=r, depth_resolution=192, depth_resolution_importance=192, outputs=["rgb"]
         )["rgb"]
-        exact = psnr_db(lp3d_render.render(tri, cam, resolution=r, outputs=["rgb"])["rgb"], ref)
+
+        def exact_db(n: int, tri: np.ndarray = tri, cam: np.ndarray = cam, ref: np.ndarray = ref) -> float:
+            out = lp3d_render.render(
+                tri, cam, resolution=r, depth_resolution=n, depth_resolution_importance=n, outputs=["rgb"]
+            )
+            return psnr_db(out["rgb"], ref)
+
+        exact = {n: exact_db(n) for n in {48, *args.samples}}
         gpu = lp3d_render.render(
             tri, cam, resolution=r, occupancy_epsilon=1e-4, baked_subdivisions=6, outputs=["rgb"]
         )["rgb"]
-        view = f"{seed}, yaw {yaw:g}"
-        print(f"| {view} | k 6, baked on the GPU | – | | | {psnr_db(gpu, ref):.2f} dB | {exact:.2f} dB |")
+        view = f"{kind} {seed}, yaw {yaw:g}"
+        print(
+            f"| {view} | k 6, baked on the GPU | 48+48 | – | | | {psnr_db(gpu, ref):.2f} dB "
+            f"| {exact[48]:.2f} dB | {exact[48]:.2f} dB |"
+        )
         corners = decode_brick_points(head, index, 4)[0].reshape(int((index >= 0).sum()), -1)
         crossed = (corners.max(-1) > args.dense) & (corners.min(-1) < args.solid)
         order = np.argsort(index.ravel())
         cells = order[index.ravel()[order] >= 0]  # brick order
-        fields = [(f"k {k}", k, k) for k in uniform] + [(f"k {a} / {b}", a, b) for a, b in two_level]
-        for name, k_coarse, k_fine in fields:
+        fields = [(f"k {k[0]}", k[0], k[0]) if len(k) == 1 else (f"k {k[0]} / {k[1]}", *k) for k in levels]
+        for (name, k_coarse, k_fine), n in ((f, n) for f in fields for n in args.samples):
             cell_k = np.zeros(index.shape, np.int64)
             cell_k.ravel()[cells] = np.where(crossed, k_fine, k_coarse)
             points = np.where(crossed, (k_fine + 1) ** 3, (k_coarse + 1) ** 3).sum()
@@ -118,11 +178,12 @@ def main(argv: list[str] | None = None) -> int:
             ) -> tuple[np.ndarray, np.ndarray]:
                 return virtual_lookup(head, cell_k, o[:, None, :] + t[..., None] * d[:, None, :])
 
-            out = render_with(head, cam, RenderSettings(resolution=r), evaluate)["rgb"]
+            settings = RenderSettings(resolution=r, depth_resolution=n, depth_resolution_importance=n)
+            out = render_with(head, cam, settings, evaluate)["rgb"]
             fine = f"{crossed.sum()} of {len(crossed)}" if k_fine != k_coarse else "–"
             print(
-                f"| {view} | {name} | {fine} | {points * 8 / 2**20:.0f} | {points / 1e6:.1f} M "
-                f"| {psnr_db(out, ref):.2f} dB | {exact:.2f} dB |",
+                f"| {view} | {name} | {n}+{n} | {fine} | {points * 8 / 2**20:.0f} | {points / 1e6:.1f} M "
+                f"| {psnr_db(out, ref):.2f} dB | {exact[n]:.2f} dB | {exact[48]:.2f} dB |",
                 flush=True,
             )
     return 0
