@@ -2,42 +2,18 @@
 //! passes, they must come out as one bake would make them. The device's limit is lowered to 1 MiB
 //! for one of two renderers on the same device, so that a small scene needs several passes.
 
+mod common;
+
 use lp3d_renderer::camera::{FFHQ_FOCAL, FFHQ_RADIUS};
 use lp3d_renderer::{
-    BakeSpec, Camera, Decoder, GpuContext, Occupancy, Outputs, PlaneDtype, RenderSettings, Renderer,
-    SceneBounds, Skips, Triplane,
+    BakeSpec, Camera, GpuContext, Occupancy, Outputs, RenderSettings, Renderer, Skips, Triplane,
 };
 
 /// A pseudo-random triplane whose raw density sits near 20, so that a surface "crosses" every brick
 /// (`baked::crossed`) and every brick is fine.
 fn dense_triplane() -> Triplane {
-    let mut state = 777u32;
-    let mut next = move || {
-        state ^= state << 13;
-        state ^= state >> 17;
-        state ^= state << 5;
-        (state as f32 / u32::MAX as f32) * 2.0 - 1.0
-    };
-    let (h, w) = (8, 8);
-    let planes = (0..3 * 32 * h * w).map(|_| next()).collect();
-    let mut decoder = Decoder {
-        w0: (0..64 * 32).map(|_| next() * 0.3).collect(),
-        b0: (0..64).map(|_| next() * 0.1).collect(),
-        w1: (0..33 * 64).map(|_| next() * 0.2).collect(),
-        b1: (0..33).map(|_| next() * 0.1).collect(),
-    };
-    decoder.b1[0] = 20.0;
-    let mut tri = Triplane {
-        planes,
-        height: h,
-        width: w,
-        plane_dtype: PlaneDtype::F32,
-        decoder,
-        bounds: SceneBounds::default(),
-        camera: None,
-        occupancy: None,
-        source: Some("baked_fine".into()),
-    };
+    let mut tri = common::random_triplane(777, 8, 8, 1.0, "baked_fine");
+    tri.decoder.b1[0] = 20.0;
     tri.occupancy = Some(Occupancy::bake(&tri, 8).unwrap());
     tri
 }

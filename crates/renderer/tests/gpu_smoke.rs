@@ -2,38 +2,13 @@
 //! documented shapes, and the file format round-trips. Numerical parity with the float64
 //! reference lives in the Python suite (tests/test_render_parity.py).
 
+mod common;
+
 use lp3d_renderer::camera::{FFHQ_FOCAL, FFHQ_RADIUS};
-use lp3d_renderer::{
-    Camera, Decoder, GpuContext, Outputs, PlaneDtype, RenderSettings, Renderer, SceneBounds, Triplane,
-};
+use lp3d_renderer::{Camera, GpuContext, Outputs, PlaneDtype, RenderSettings, Renderer, Triplane};
 
 fn test_triplane(h: usize, w: usize) -> Triplane {
-    // Deterministic pseudo-random values (no rand dependency).
-    let mut state = 12345u32;
-    let mut next = move || {
-        state ^= state << 13;
-        state ^= state >> 17;
-        state ^= state << 5;
-        (state as f32 / u32::MAX as f32) * 2.0 - 1.0
-    };
-    let planes = (0..3 * 32 * h * w).map(|_| next()).collect();
-    let decoder = Decoder {
-        w0: (0..64 * 32).map(|_| next() * 0.3).collect(),
-        b0: (0..64).map(|_| next() * 0.1).collect(),
-        w1: (0..33 * 64).map(|_| next() * 0.2).collect(),
-        b1: (0..33).map(|_| next() * 0.1).collect(),
-    };
-    Triplane {
-        planes,
-        height: h,
-        width: w,
-        plane_dtype: PlaneDtype::F32,
-        decoder,
-        bounds: SceneBounds::default(),
-        camera: None,
-        occupancy: None,
-        source: Some("gpu_smoke".into()),
-    }
+    common::random_triplane(12345, h, w, 1.0, "gpu_smoke")
 }
 
 #[test]

@@ -2,42 +2,21 @@
 //! decoders) give bit-identical outputs, and a renderer that starts with the quick kernel and
 //! switches to the fast one after its background compile changes no bit either.
 
+mod common;
+
 use lp3d_renderer::camera::{FFHQ_FOCAL, FFHQ_RADIUS};
 use lp3d_renderer::kernel::{Kernel, KernelChoice};
 use lp3d_renderer::{
-    Camera, Decoder, GpuContext, GpuTriplane, Outputs, PlaneDtype, RenderSettings, Renderer, SceneBounds,
-    Triplane,
+    Camera, GpuContext, GpuTriplane, Outputs, PlaneDtype, RenderSettings, Renderer, Triplane,
 };
 
 fn test_triplane(dtype: PlaneDtype) -> Triplane {
-    let mut state = 2024u32;
-    let mut next = move || {
-        state ^= state << 13;
-        state ^= state >> 17;
-        state ^= state << 5;
-        (state as f32 / u32::MAX as f32) * 2.0 - 1.0
-    };
-    let (h, w) = (12, 10);
-    let mut planes: Vec<f32> = (0..3 * 32 * h * w).map(|_| next() * 1.5).collect();
+    let mut tri = common::random_triplane(2024, 12, 10, 1.5, "kernels test");
     if dtype == PlaneDtype::F16 {
-        planes = planes.iter().map(|&v| half::f16::from_f32(v).to_f32()).collect();
+        tri.planes = tri.planes.iter().map(|&v| half::f16::from_f32(v).to_f32()).collect();
+        tri.plane_dtype = dtype;
     }
-    Triplane {
-        planes,
-        height: h,
-        width: w,
-        plane_dtype: dtype,
-        decoder: Decoder {
-            w0: (0..64 * 32).map(|_| next() * 0.3).collect(),
-            b0: (0..64).map(|_| next() * 0.1).collect(),
-            w1: (0..33 * 64).map(|_| next() * 0.2).collect(),
-            b1: (0..33).map(|_| next() * 0.1).collect(),
-        },
-        bounds: SceneBounds::default(),
-        camera: None,
-        occupancy: None,
-        source: Some("kernels test".into()),
-    }
+    tri
 }
 
 /// Every output of a few settings (exact, jittered over white, no importance pass; all
