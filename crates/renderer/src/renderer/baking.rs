@@ -86,7 +86,8 @@ pub struct GpuBaked {
 }
 
 impl GpuBaked {
-    /// Device bytes: the index and the values.
+    /// Device bytes: the buffer of index and coarse values, and the fine bricks' texture (its unused
+    /// slots included).
     pub fn device_bytes(&self) -> u64 {
         self.data.size() + self.fine.as_ref().map_or(0, FineBricks::device_bytes)
     }
