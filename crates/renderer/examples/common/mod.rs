@@ -2,35 +2,16 @@
 //! with an EG3D-scaled decoder (a fixed xorshift stream, the same every run), its camera and the
 //! settings from the command line.
 
-use lp3d_renderer::camera::{FFHQ_FOCAL, FFHQ_RADIUS};
-use lp3d_renderer::{Camera, Decoder, PlaneDtype, RenderSettings, SceneBounds, Triplane};
+#[path = "../../tests/common/mod.rs"]
+mod random;
 
-/// The random benchmark triplane of `frame_time` and `compile_time`.
+use lp3d_renderer::camera::{FFHQ_FOCAL, FFHQ_RADIUS};
+use lp3d_renderer::{Camera, RenderSettings, Triplane};
+
+/// The random benchmark triplane of `frame_time` and `compile_time`: the tests' generator
+/// (`tests/common`), 256², planes in ±1.7.
 pub fn random_triplane() -> Triplane {
-    let mut state = 7u32;
-    let mut rand = move || {
-        state ^= state << 13;
-        state ^= state >> 17;
-        state ^= state << 5;
-        (state as f32 / u32::MAX as f32) * 2.0 - 1.0
-    };
-    let size = 256;
-    Triplane {
-        planes: (0..3 * 32 * size * size).map(|_| rand() * 1.7).collect(),
-        height: size,
-        width: size,
-        plane_dtype: PlaneDtype::F32,
-        decoder: Decoder {
-            w0: (0..64 * 32).map(|_| rand() * 0.3).collect(),
-            b0: (0..64).map(|_| rand() * 0.1).collect(),
-            w1: (0..33 * 64).map(|_| rand() * 0.2).collect(),
-            b1: (0..33).map(|_| rand() * 0.1).collect(),
-        },
-        bounds: SceneBounds::default(),
-        camera: None,
-        occupancy: None,
-        source: None,
-    }
+    Triplane { source: None, ..random::random_triplane(7, 256, 256, 1.7, "") }
 }
 
 /// The frontal FFHQ camera the examples render the scene from.

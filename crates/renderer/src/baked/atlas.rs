@@ -55,18 +55,21 @@ impl FineAtlas {
         self.slots.map(|s| s * self.k1)
     }
 
+    /// The slot of fine brick `f`: x, then y, then z.
+    pub fn slot(&self, f: usize) -> [usize; 3] {
+        let [bx, by, _] = self.slots.map(|s| s as usize);
+        [f % bx, f / bx % by, f / (bx * by)]
+    }
+
     /// The first texel of fine brick `f`.
     pub fn origin(&self, f: usize) -> [usize; 3] {
-        let [bx, by, _] = self.slots.map(|s| s as usize);
-        let k1 = self.k1 as usize;
-        [f % bx * k1, f / bx % by * k1, f / (bx * by) * k1]
+        self.slot(f).map(|s| s * self.k1 as usize)
     }
 
     /// The GPU's index word of fine brick `f`: [`FINE_FLAG`] and its slot.
     pub fn index_word(&self, f: usize) -> u32 {
-        let [bx, by, _] = self.slots.map(|s| s as usize);
-        let slot = [f % bx, f / bx % by, f / (bx * by)].map(|s| s as u32);
-        FINE_FLAG | slot[0] << 20 | slot[1] << 10 | slot[2]
+        let [x, y, z] = self.slot(f).map(|s| s as u32);
+        FINE_FLAG | x << 20 | y << 10 | z
     }
 
     /// The index as the GPU reads it: the CPU's `index` with each fine brick's number (`fine_first`

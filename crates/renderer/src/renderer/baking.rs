@@ -417,6 +417,18 @@ impl Renderer {
 
     /// `bytes` of `buffer` from byte `offset` on, read back as float16 bits.
     pub(super) fn read_halves(&self, buffer: &wgpu::Buffer, offset: u64, bytes: u64) -> Result<Vec<u16>> {
+        self.read_back_halves(bytes, &mut |encoder, read| {
+            encoder.copy_buffer_to_buffer(buffer, offset, read, 0, bytes)
+        })
+    }
+
+    /// `bytes` that `record` copies into a mappable buffer (from a buffer or a texture), read back
+    /// as float16 bits.
+    pub(super) fn read_back_halves(
+        &self,
+        bytes: u64,
+        record: &mut dyn FnMut(&mut wgpu::CommandEncoder, &wgpu::Buffer),
+    ) -> Result<Vec<u16>> {
         if bytes == 0 {
             return Ok(Vec::new());
         }
@@ -429,7 +441,7 @@ impl Renderer {
         let mut encoder = self
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("lp3d baked readback") });
-        encoder.copy_buffer_to_buffer(buffer, offset, &read, 0, bytes);
+        record(&mut encoder, &read);
         self.queue.submit([encoder.finish()]);
         let mut words = vec![0f32; (bytes / 4) as usize];
         self.read_back(&mut [(&read, bytes, &mut words)])?;

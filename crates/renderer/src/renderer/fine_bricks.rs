@@ -81,29 +81,20 @@ impl Renderer {
         let [w, h, d] = fine.atlas.extent();
         let row_bytes = (w * POINT_BYTES as u32).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
         let bytes = row_bytes as u64 * h as u64 * d as u64;
-        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("lp3d fine bricks readback"),
-            size: bytes,
-            usage: wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let mut encoder = self
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("lp3d fine readback") });
-        encoder.copy_texture_to_buffer(
-            fine.texture.as_image_copy(),
-            wgpu::TexelCopyBufferInfo {
-                buffer: &staging,
-                layout: wgpu::TexelCopyBufferLayout {
-                    offset: 0,
-                    bytes_per_row: Some(row_bytes),
-                    rows_per_image: Some(h),
+        let texels = self.read_back_halves(bytes, &mut |encoder, read| {
+            encoder.copy_texture_to_buffer(
+                fine.texture.as_image_copy(),
+                wgpu::TexelCopyBufferInfo {
+                    buffer: read,
+                    layout: wgpu::TexelCopyBufferLayout {
+                        offset: 0,
+                        bytes_per_row: Some(row_bytes),
+                        rows_per_image: Some(h),
+                    },
                 },
-            },
-            wgpu::Extent3d { width: w, height: h, depth_or_array_layers: d },
-        );
-        self.queue.submit([encoder.finish()]);
-        let texels = self.read_halves(&staging, 0, bytes)?;
+                wgpu::Extent3d { width: w, height: h, depth_or_array_layers: d },
+            )
+        })?;
         Ok(fine.atlas.bricks_from_texels(&texels, row_bytes as usize / POINT_BYTES, n_bricks))
     }
 }
