@@ -1,10 +1,11 @@
-//! A baked field saved earlier, put back on the GPU (`lp3d.render.baked.load_baked` reads the file;
-//! `Renderer::attach_baked` checks every array again here before it reaches the GPU).
+//! A baked field read back to be saved (`Renderer::read_baked_values`), and one saved earlier put back
+//! on the GPU (`lp3d.render.baked.load_baked` reads the file; `Renderer::attach_baked` checks every
+//! array again here before it reaches the GPU).
 
 use super::baking::field_buffer;
 use super::*;
 use crate::baked::atlas::FineAtlas;
-use crate::baked::{BakeSpec, BrickLayout, MAX_FINE_SUBDIVISIONS};
+use crate::baked::{BakeSpec, BrickLayout, MAX_FINE_SUBDIVISIONS, POINT_BYTES};
 
 /// Checks a saved field before it is uploaded: `values` holds the coarse bricks' points,
 /// `fine_values` a two-level field's fine ones' (empty for one level). Its numbers of coarse and
@@ -112,5 +113,56 @@ impl Renderer {
         });
         *tri.baked.lock().map_err(|_| Error::Gpu("baked field lock poisoned".into()))? = Some(baked.clone());
         Ok(baked)
+    }
+
+    /// The points of one level of a baked field, read back as float16 bits (sigma_raw, r, g, b):
+    /// the coarse bricks' `n_coarse() * (k + 1)³` (all of a one-level field's), or with `fine` a
+    /// two-level field's fine bricks' `(n_bricks - n_coarse()) * (k_f + 1)³`.
+    pub fn read_baked_values(&self, baked: &GpuBaked, fine: bool) -> Result<Vec<u16>> {
+        if fine {
+            let n_fine = baked.n_bricks - baked.n_coarse();
+            return baked.fine.as_ref().map_or(Ok(Vec::new()), |f| self.read_fine(f, n_fine));
+        }
+        let points = baked.n_coarse() * BrickLayout::points_per_brick(baked.spec.subdivisions);
+        self.read_halves(&baked.data, baked.values_offset() as u64 * 4, (points * POINT_BYTES) as u64)
+    }
+
+    /// `bytes` of `buffer` from byte `offset` on, read back as float16 bits.
+    pub(super) fn read_halves(&self, buffer: &wgpu::Buffer, offset: u64, bytes: u64) -> Result<Vec<u16>> {
+        self.read_back_halves(bytes, &mut |encoder, read| {
+            encoder.copy_buffer_to_buffer(buffer, offset, read, 0, bytes)
+        })
+    }
+
+    /// `bytes` that `record` copies into a mappable buffer (from a buffer or a texture), read back
+    /// as float16 bits.
+    pub(super) fn read_back_halves(
+        &self,
+        bytes: u64,
+        record: &mut dyn FnMut(&mut wgpu::CommandEncoder, &wgpu::Buffer),
+    ) -> Result<Vec<u16>> {
+        if bytes == 0 {
+            return Ok(Vec::new());
+        }
+        let read = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("lp3d baked values readback"),
+            size: bytes,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut encoder = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("lp3d baked readback") });
+        record(&mut encoder, &read);
+        self.queue.submit([encoder.finish()]);
+        let mut words = vec![0f32; (bytes / 4) as usize];
+        self.read_back(&mut [(&read, bytes, &mut words)])?;
+        Ok(words
+            .iter()
+            .flat_map(|w| {
+                let b = w.to_bits();
+                [(b & 0xffff) as u16, (b >> 16) as u16]
+            })
+            .collect())
     }
 }
