@@ -11,8 +11,10 @@ mix of its sub-cell's eight corners (``lp3d.render.baked.baked_lookup``), and a 
 decoder's at that point, rounded to float16 as the field stores it. This script decodes each
 sample's corners as the float64 reference renders, for k = 6 (the viewer's field, which this must
 match: ``bench/baked_error.py``'s "field" row) and finer, and for *two-level* fields: bricks at
-``k_fine`` where the k = 4 corners' raw density rises above ``--dense`` and falls below ``--solid``
-inside the brick (a surface crosses it), ``k_coarse`` elsewhere. Memory is what such a field would
+``k_fine`` where ``lp3d.render.baked.needs_fine`` picks them from their k = 4 points (a surface
+crosses the brick, or a colour edge lies under one), ``k_coarse`` elsewhere; ``--rule crossed`` is the
+rule before the colour edges counted (raw density above ``--dense`` at one point, below ``--solid``
+at another). Memory is what such a field would
 store (8 bytes a point); PSNR is against exact 192+192 on the GPU, beside exact 48+48's. With
 ``--samples`` the fields are also rendered with more samples than 48+48 (each lookup costs the same, so
 a frame's time grows with the samples): does a finer sampler make up for a coarser field?
@@ -27,7 +29,14 @@ from collections.abc import Iterator
 import numpy as np
 
 import lp3d_render
-from lp3d.render.baked import EMPTY_RAW, colour_weight, decode_at, decode_brick_points, field_values
+from lp3d.render.baked import (
+    EMPTY_RAW,
+    bake_reference,
+    colour_weight,
+    decode_at,
+    field_values,
+    needs_fine,
+)
 from lp3d.render.camera import look_at_camera
 from lp3d.render.psnr import psnr_db
 from lp3d.render.reference import render_with
@@ -95,7 +104,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seeds", type=int, nargs="+", default=[1_000_003, 1_000_011], help="teacher heads")
     p.add_argument("--yaws", type=float, nargs="+", default=[25.0, -30.0], help="one view per head (deg)")
     p.add_argument("--resolution", type=int, default=64, help="rays per side (default 64)")
-    p.add_argument("--dense", type=float, default=10.0, help="fine bricks: raw density rises above this")
+    p.add_argument(
+        "--rule",
+        choices=["needs_fine", "crossed"],
+        default="needs_fine",
+        help="which bricks are fine: the product's rule (default) or density alone (--dense, --solid)",
+    )
+    p.add_argument("--dense", type=float, default=10.0, help="crossed: raw density rises above this")
     p.add_argument("--solid", type=float, default=50.0, help="... and falls below this (default 50)")
     p.add_argument(
         "--fields",
@@ -126,7 +141,9 @@ def main(argv: list[str] | None = None) -> int:
     yaws = " ".join(f"{y:g}" for y in args.yaws)
     print(
         f"Command: `python bench/baked_resolution.py --seeds {seeds} --yaws {yaws} "
-        f"--resolution {args.resolution} --dense {args.dense:g} --solid {args.solid:g} "
+        f"--resolution {args.resolution} --rule {args.rule}"
+        + (f" --dense {args.dense:g} --solid {args.solid:g}" if args.rule == "crossed" else "")
+        + " "
         f"--fields {' '.join(args.fields)} --samples {' '.join(map(str, args.samples))}"
         f" --scenes {' '.join(args.scenes)}`\n"
     )
@@ -159,8 +176,12 @@ def main(argv: list[str] | None = None) -> int:
             f"| {view} | k 6, baked on the GPU | 48+48 | – | | | {psnr_db(gpu, ref):.2f} dB "
             f"| {exact[48]:.2f} dB | {exact[48]:.2f} dB |"
         )
-        corners = decode_brick_points(head, index, 4)[0].reshape(int((index >= 0).sum()), -1)
-        crossed = (corners.max(-1) > args.dense) & (corners.min(-1) < args.solid)
+        values = bake_reference(head, index, 4).astype(np.float16)  # the k 4 points as stored
+        if args.rule == "needs_fine":
+            crossed = needs_fine(values)
+        else:
+            corners = values[..., 0].reshape(len(values), -1).astype(np.float64)
+            crossed = (corners.max(-1) > args.dense) & (corners.min(-1) < args.solid)
         order = np.argsort(index.ravel())
         cells = order[index.ravel()[order] >= 0]  # brick order
         fields = [(f"k {k[0]}", k[0], k[0]) if len(k) == 1 else (f"k {k[0]} / {k[1]}", *k) for k in levels]

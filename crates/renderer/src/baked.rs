@@ -15,8 +15,8 @@
 //! Point (a, b, c) of brick n is value `((n (k+1) + a)(k+1) + b)(k+1) + c`; its plane
 //! coordinates are `-1 + 2 (cell k + (a, b, c)) / (G k)`.
 //!
-//! A *two-level* field (`BakeSpec::fine_subdivisions` > 0) splits the bricks a surface crosses
-//! ([`crossed`], judged on their k-point values) finer, into k_f³ sub-cells: its bricks are numbered
+//! A *two-level* field (`BakeSpec::fine_subdivisions` > 0) splits the bricks a surface crosses,
+//! or whose colour changes just under one ([`needs_fine`], judged on their k-point values), finer, into k_f³ sub-cells: its bricks are numbered
 //! in cell order, first the N_c coarse ones, then the fine ones, whose (k_f + 1)³ points follow all
 //! the coarse points. A brick number n >= N_c is fine brick n - N_c. On the GPU the fine points
 //! live in a 3D texture ([`atlas`]), not after the coarse ones in the field's buffer (a storage
@@ -32,11 +32,24 @@ pub const MAX_SUBDIVISIONS: u32 = 8;
 /// Largest accepted points per cell edge of a two-level field's fine bricks, k_f.
 pub const MAX_FINE_SUBDIVISIONS: u32 = 16;
 /// A brick is crossed by a surface when its raw density rises above this at one of its points
-/// ([`crossed`]) ...
+/// ([`needs_fine`]) ...
 pub const CROSSED_DENSE: f32 = 10.0;
 /// ... and falls below this at another (`bench/baked_resolution.py` chose both: 38% of a teacher
 /// head's bricks, holding the error of a uniform field as fine, `bench/RESULTS.md`).
 pub const CROSSED_SOLID: f32 = 50.0;
+/// A brick whose raw density stays above [`CROSSED_SOLID`] but falls below this somewhere lies in
+/// the shell just under a surface, still seen through it (at 48+48 a ray's transmittance falls to
+/// 1e-3 over a few sub-cells there) ...
+pub const FINE_SHELL: f32 = 200.0;
+/// ... and is made fine too when the colour of its dense points (raw density above
+/// [`CROSSED_DENSE`]) spans more than this in one channel (of the decoder's [0, 1] RGB): an
+/// eyebrow's or a lip's edge under the skin, which k points per cell edge blur (`bench/RESULTS.md`,
+/// "Colour edges").
+pub const FINE_COLOUR_STEP: f32 = 0.1;
+/// Every point's colour weight is at least this (`BAKED_COLOUR_FLOOR` in `baked.wgsl`) ...
+pub const COLOUR_FLOOR: f32 = 0.03;
+/// ... and climbs linearly with its raw density above it, by 1 at this one (`BAKED_COLOUR_RAMP`).
+pub const COLOUR_RAMP: f32 = 50.0;
 /// `index` of a cell without a brick (`BAKED_EMPTY` in `shaders/baked.wgsl`).
 pub const EMPTY: u32 = u32::MAX;
 /// Bytes per baked point: four float16.
@@ -56,7 +69,7 @@ pub fn baked_cells(g: usize) -> usize {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct BakeSpec {
     pub subdivisions: u32,
-    /// Points per cell edge of the bricks a surface crosses; 0 = one level.
+    /// Points per cell edge of the bricks [`needs_fine`] picks; 0 = one level.
     pub fine_subdivisions: u32,
     pub epsilon: f32,
     pub max_delta: f64,
@@ -148,13 +161,35 @@ pub struct TwoLevelLayout {
     pub fine_cells: Vec<u32>,
 }
 
-/// Whether a surface crosses a brick, from its points' raw densities: one above [`CROSSED_DENSE`]
-/// and one below [`CROSSED_SOLID`]. A brick that stays below the first is empty or faint there;
-/// one that stays above the second is inside the head, where its colour is hidden.
-pub fn crossed(sigma_raw: impl IntoIterator<Item = f32>) -> bool {
-    let (lo, hi) =
-        sigma_raw.into_iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), s| (lo.min(s), hi.max(s)));
-    hi > CROSSED_DENSE && lo < CROSSED_SOLID
+/// Whether a two-level field makes a brick fine, from its points' stored values (sigma_raw,
+/// w r, w g, w b; [`colour_weight`]): when a surface crosses it (a raw density above
+/// [`CROSSED_DENSE`] and one below [`CROSSED_SOLID`]), or when it lies in the shell under one
+/// (one below [`FINE_SHELL`]) and its dense points' colour spans more than [`FINE_COLOUR_STEP`].
+/// A brick that stays below [`CROSSED_DENSE`] is empty or faint there; one that stays above
+/// [`FINE_SHELL`] is deep inside the head, where its colour is hidden.
+pub fn needs_fine(points: impl IntoIterator<Item = [f32; 4]>) -> bool {
+    let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+    let (mut rgb_lo, mut rgb_hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+    for [sigma, r, g, b] in points {
+        lo = lo.min(sigma);
+        hi = hi.max(sigma);
+        if sigma > CROSSED_DENSE {
+            let w = colour_weight(sigma);
+            for (c, v) in [r, g, b].into_iter().enumerate() {
+                rgb_lo[c] = rgb_lo[c].min(v / w);
+                rgb_hi[c] = rgb_hi[c].max(v / w);
+            }
+        }
+    }
+    let crossed = hi > CROSSED_DENSE && lo < CROSSED_SOLID;
+    let colour_edge = (0..3).any(|c| rgb_hi[c] - rgb_lo[c] > FINE_COLOUR_STEP);
+    crossed || (lo < FINE_SHELL && colour_edge)
+}
+
+/// A baked point's colour weight for its raw density (`baked_colour_weight` in `baked.wgsl`,
+/// `lp3d.render.baked.colour_weight`).
+pub fn colour_weight(sigma_raw: f32) -> f32 {
+    COLOUR_FLOOR + (sigma_raw / COLOUR_RAMP).clamp(0.0, 1.0)
 }
 
 /// The bound of each of `g`³ blocks of `grid`'s cells (`g` divides its resolution): the largest
@@ -278,10 +313,25 @@ mod tests {
     }
 
     #[test]
-    fn crossed_needs_a_point_above_dense_and_one_below_solid() {
-        assert!(crossed([-5.0, 20.0]));
-        assert!(crossed([0.0, 60.0]));
-        assert!(!crossed([-5.0, 9.0])); // faint
-        assert!(!crossed([60.0, 80.0])); // inside
+    fn the_colour_weight_is_the_lookups() {
+        let source = crate::shaders::BAKED.source;
+        for (name, value) in [("BAKED_COLOUR_FLOOR", COLOUR_FLOOR), ("BAKED_COLOUR_RAMP", COLOUR_RAMP)] {
+            let line = source.lines().find(|l| l.starts_with(&format!("const {name}: f32 = "))).unwrap();
+            let wgsl: f32 = line.rsplit(' ').next().unwrap().trim_end_matches(';').parse().unwrap();
+            assert_eq!(wgsl, value, "{name}");
+        }
+    }
+
+    #[test]
+    fn a_brick_is_fine_where_a_surface_crosses_it_or_its_colour_turns_under_one() {
+        let grey = |sigma: f32| [sigma, 0.5 * colour_weight(sigma), 0.5 * colour_weight(sigma), 0.0];
+        let red = |sigma: f32| [sigma, 0.9 * colour_weight(sigma), 0.5 * colour_weight(sigma), 0.0];
+        assert!(needs_fine([grey(-5.0), grey(20.0)]));
+        assert!(needs_fine([grey(0.0), grey(60.0)]));
+        assert!(!needs_fine([grey(-5.0), grey(9.0)])); // faint
+        assert!(!needs_fine([grey(60.0), grey(80.0)])); // under a surface, one colour
+        assert!(needs_fine([grey(60.0), red(80.0)])); // under a surface, a colour edge
+        assert!(!needs_fine([grey(250.0), red(300.0)])); // deep inside: hidden
+        assert!(!needs_fine([red(-5.0), grey(9.0)])); // the colour of faint points does not count
     }
 }

@@ -53,10 +53,10 @@ pub struct Skips {
     /// the occupancy skip keeps; RGB, depth and weights only. Needs `occupancy_epsilon` > 0 (the
     /// bake stores nothing where that skip takes the density as 0). 0 = off.
     pub baked_subdivisions: u32,
-    /// A two-level field: the bricks a surface crosses (`baked::crossed`) hold this many points
-    /// per cell edge instead, more than `baked_subdivisions`; the rest keep that many. The
-    /// error falls with the square of the sub-cell and the bricks a surface crosses are where it
-    /// is (`docs/baked.md`, "Two levels"). 0 = one level.
+    /// A two-level field: the bricks a surface crosses, or that hold a colour edge under one
+    /// (`baked::needs_fine`), hold this many points per cell edge instead, more than
+    /// `baked_subdivisions`; the rest keep that many. The error falls with the square of the
+    /// sub-cell and those bricks are where it is (`docs/baked.md`, "Two levels"). 0 = one level.
     pub baked_fine_subdivisions: u32,
     /// Use the baked field as a guide, not in place of the decoder: decode exactly the samples
     /// it finds dense (or next to a dense one along the ray) while the ray is still visible, and
@@ -78,8 +78,9 @@ impl Skips {
 
     /// The baked field as the viewer's moving frames and `lp3d orbit --baked` use it
     /// (`docs/baked.md`, `bench/RESULTS.md` "Baked field"): two levels, k = 10 in the bricks a
-    /// surface crosses and 4 elsewhere, 95-104 MiB on teacher heads and encoder outputs (within
-    /// lavapipe's 128 MiB storage binding, where a uniform k = 8 is not) and 5 dB closer to exact
+    /// surface crosses (or a colour edge under one) and 4 elsewhere, 99-112 MiB on teacher heads
+    /// and encoder outputs (the coarse ones within lavapipe's 128 MiB storage binding, where a
+    /// uniform k = 8 is not) and 5 dB closer to exact
     /// mode than the uniform k = 6 at the same frame time; the occupancy skip at 1e-4 per
     /// interval. `lp3d.render.settings.BAKED` is the same (a test).
     pub const BAKED: Skips =

@@ -10,7 +10,7 @@ use lp3d_renderer::{
 };
 
 /// A pseudo-random triplane whose raw density sits near 20, so that a surface "crosses" every brick
-/// (`baked::crossed`) and every brick is fine.
+/// (`baked::needs_fine`) and every brick is fine.
 fn dense_triplane() -> Triplane {
     let mut tri = common::random_triplane(777, 8, 8, 1.0, "baked_fine");
     tri.decoder.b1[0] = 20.0;

@@ -10,10 +10,11 @@ stored float16 raw density). ``index`` (G, G, G) gives each cell's brick number 
 coordinates ``-1 + 2 ((ix, iy, iz) k + (a, b, c)) / (G k)``. A point in a cell without a brick has raw
 density :data:`EMPTY_RAW` and RGB 0.
 
-A *two-level* field (``fine_subdivisions`` k_f > k) splits the bricks a surface crosses
-(:func:`crossed`, judged on their k-point values) into k_f³ sub-cells: ``index`` numbers the coarse
-bricks 0..N_c in cell order, then the fine ones N_c.. in cell order; ``values`` holds the N_c coarse
-bricks and ``fine_values`` (fine bricks, k_f+1, k_f+1, k_f+1, 4) the others (:func:`split_levels`).
+A *two-level* field (``fine_subdivisions`` k_f > k) splits the bricks a surface crosses, or a colour
+edge under one (:func:`needs_fine`, judged on their k-point values) into k_f³ sub-cells: ``index``
+numbers the coarse bricks 0..N_c in cell order, then the fine ones N_c.. in cell order; ``values``
+holds the N_c coarse bricks and ``fine_values`` (fine bricks, k_f+1, k_f+1, k_f+1, 4) the others
+(:func:`split_levels`).
 
 Why premultiplied: at a surface, half of a sample's corners may lie in empty space, where the
 decoder's colour is anything; weighting each corner's colour by a weight that grows with its density
@@ -57,13 +58,25 @@ COLOUR_RAMP = 50.0
 #: :data:`CROSSED_SOLID` (Rust's ``baked::CROSSED_DENSE`` / ``CROSSED_SOLID``).
 CROSSED_DENSE = 10.0
 CROSSED_SOLID = 50.0
+#: A brick whose raw density stays above ``CROSSED_SOLID`` but falls below this lies in the shell
+#: just under a surface, still seen through it; it is made fine too when its dense points' colour
+#: spans more than ``FINE_COLOUR_STEP`` in a channel of the decoder's [0, 1] RGB (an eyebrow's or a
+#: lip's edge, which k points per cell edge blur; Rust's ``FINE_SHELL`` / ``FINE_COLOUR_STEP``).
+FINE_SHELL = 200.0
+FINE_COLOUR_STEP = 0.1
 
 
-def crossed(values: np.ndarray) -> np.ndarray:
-    """(bricks,) bool: the bricks of ``values`` (bricks, k+1, k+1, k+1, 4) a surface crosses, the
-    ones a two-level field makes fine."""
-    sigma = values[..., 0].reshape(values.shape[0], -1).astype(np.float64)
-    return (sigma.max(axis=1) > CROSSED_DENSE) & (sigma.min(axis=1) < CROSSED_SOLID)
+def needs_fine(values: np.ndarray) -> np.ndarray:
+    """(bricks,) bool: the bricks of ``values`` (bricks, k+1, k+1, k+1, 4) a two-level field makes
+    fine: those a surface crosses, and those in the shell under one whose colour has an edge."""
+    v = values.reshape(values.shape[0], -1, 4).astype(np.float64)
+    sigma = v[..., 0]
+    crossed = (sigma.max(axis=1) > CROSSED_DENSE) & (sigma.min(axis=1) < CROSSED_SOLID)
+    dense = (sigma > CROSSED_DENSE)[..., None]
+    rgb = v[..., 1:] / colour_weight(sigma)[..., None]
+    span = np.where(dense, rgb, -np.inf).max(axis=1) - np.where(dense, rgb, np.inf).min(axis=1)
+    colour_edge = (np.nan_to_num(span, neginf=0.0) > FINE_COLOUR_STEP).any(axis=1)
+    return crossed | ((sigma.min(axis=1) < FINE_SHELL) & colour_edge)
 
 
 def two_level_index(index: np.ndarray, fine: np.ndarray) -> np.ndarray:

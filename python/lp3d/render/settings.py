@@ -54,8 +54,8 @@ class Skips:
     #: at k points per baked cell edge in the cells the occupancy skip keeps (density and RGB
     #: only; needs occupancy_epsilon > 0). 0 = off.
     baked_subdivisions: int = 0
-    #: A two-level field (docs/baked.md, "Two levels"): the bricks a surface crosses get this many
-    #: points per cell edge instead, more than baked_subdivisions. 0 = one level.
+    #: A two-level field (docs/baked.md, "Two levels"): the bricks a surface crosses (or a colour edge
+    #: under one) get this many points per cell edge instead, more than baked_subdivisions. 0 = one level.
     baked_fine_subdivisions: int = 0
     #: Use that field as a guide instead (docs/baked.md, "The guide"): decode exactly the samples it
     #: finds dense, or next to a dense one, while the ray is still visible; look up the rest. Needs

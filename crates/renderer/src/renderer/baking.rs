@@ -10,7 +10,7 @@ use super::fine_bricks::FineBricks;
 use super::layouts::fine_texture;
 use super::*;
 use crate::baked::atlas::FineAtlas;
-use crate::baked::{crossed, BakeSpec, BrickLayout, MAX_FINE_SUBDIVISIONS, POINT_BYTES};
+use crate::baked::{needs_fine, BakeSpec, BrickLayout, MAX_FINE_SUBDIVISIONS, POINT_BYTES};
 use crate::kernel::{build_render_variant, FieldUse};
 
 /// Points per bake dispatch: ~0.1 s each on lavapipe, so a viewer drawing meanwhile waits at most
@@ -147,9 +147,9 @@ impl Renderer {
     /// [`Renderer::bake`] in dispatches of [`BAKE_CHUNK`] points, each waited for, calling
     /// `progress(points done, points)` after each; returning false stops the bake (an error
     /// naming it). Other work on the device (a viewer's frames) runs between the dispatches. A
-    /// two-level field bakes every brick coarse first, reads their densities back to find the
-    /// ones a surface crosses (`baked::crossed`), then bakes those fine (`points` counts every
-    /// brick as fine until then).
+    /// two-level field bakes every brick coarse first, reads their values back to find the ones
+    /// a surface crosses or that hold a colour edge under one (`baked::needs_fine`), then bakes
+    /// those fine (`points` counts every brick as fine until then).
     pub fn bake_with_progress(
         &self,
         tri: &GpuTriplane,
@@ -227,8 +227,8 @@ impl Renderer {
     }
 
     /// A two-level field's second level: reads the coarse bake `one_level` back, finds the bricks a
-    /// surface crosses (`baked::crossed`), keeps the other bricks' coarse points in a new buffer
-    /// and bakes the crossed ones at `spec.fine_subdivisions` into a texture (`baked::atlas`).
+    /// surface crosses or that hold a colour edge under one (`baked::needs_fine`), keeps the other
+    /// bricks' coarse points in a new buffer and bakes those at `spec.fine_subdivisions` into a texture (`baked::atlas`).
     /// `progress(fine points done, fine points)`.
     fn bake_second_level(
         &self,
@@ -243,7 +243,11 @@ impl Renderer {
         drop(one_level);
         let is_fine: Vec<bool> = halves
             .chunks(4 * per_brick)
-            .map(|brick| crossed(brick.iter().step_by(4).map(|&h| half::f16::from_bits(h).to_f32())))
+            .map(|brick| {
+                needs_fine(
+                    brick.chunks(4).map(|p| std::array::from_fn(|c| half::f16::from_bits(p[c]).to_f32())),
+                )
+            })
             .collect();
         let two = layout.two_level(&is_fine);
         let n_coarse = two.coarse_bricks.len();
