@@ -16,11 +16,12 @@
 //! coordinates are `-1 + 2 (cell k + (a, b, c)) / (G k)`.
 //!
 //! A *two-level* field (`BakeSpec::fine_subdivisions` > 0) splits the bricks a surface crosses,
-//! or whose colour changes just under one ([`needs_fine`], judged on their k-point values), finer, into k_f³ sub-cells: its bricks are numbered
-//! in cell order, first the N_c coarse ones, then the fine ones, whose (k_f + 1)³ points follow all
-//! the coarse points. A brick number n >= N_c is fine brick n - N_c. On the GPU the fine points
-//! live in a 3D texture ([`atlas`]), not after the coarse ones in the field's buffer (a storage
-//! binding is too small for them), and a fine brick's cell holds its place in that texture.
+//! or whose colour changes just under one ([`needs_fine`], judged on their k-point values), finer,
+//! into k_f³ sub-cells: its bricks are numbered in cell order, first the N_c coarse ones, then the
+//! fine ones, whose (k_f + 1)³ points follow all the coarse points. A brick number n >= N_c is fine
+//! brick n - N_c. On the GPU the fine points live in a 3D texture ([`atlas`]), not after the
+//! coarse ones in the field's buffer (a storage binding is too small for them), and a fine brick's
+//! cell holds its place in that texture.
 
 pub mod atlas;
 
@@ -44,7 +45,7 @@ pub const FINE_SHELL: f32 = 200.0;
 /// ... and is made fine too when the colour of its dense points (raw density above
 /// [`CROSSED_DENSE`]) spans more than this in one channel (of the decoder's [0, 1] RGB): an
 /// eyebrow's or a lip's edge under the skin, which k points per cell edge blur (`bench/RESULTS.md`,
-/// "Colour edges").
+/// "Colour edges under a surface").
 pub const FINE_COLOUR_STEP: f32 = 0.1;
 /// Every point's colour weight is at least this (`BAKED_COLOUR_FLOOR` in `baked.wgsl`) ...
 pub const COLOUR_FLOOR: f32 = 0.03;
