@@ -7,7 +7,7 @@
 // tint it.
 // needs: params, baked, baked_fine, halves_to_f32, plane_coords
 // provides: BAKED, GUIDED, GUIDE_RAW, GUIDE_TRANSMITTANCE, BAKED_EMPTY, BAKED_FINE, BAKED_EMPTY_RAW,
-// provides: BAKED_COLOUR_FLOOR, BAKED_COLOUR_RAMP, baked_colour_weight, baked_word, baked_point,
+// provides: BAKED_COLOUR_FLOOR, BAKED_COLOUR_RAMP, baked_colour_weight, baked_word, baked_words,
 // provides: baked_point_raw, BakedSpot, baked_spot, baked_corner, baked_sample, baked_raw, guide_decodes
 
 // true: render_rays looks samples up in the baked field (a pipeline of its own).
@@ -59,16 +59,13 @@ fn baked_word(spot: BakedSpot, i: vec3<u32>) -> u32 {
     return spot.base + 2u * ((i.x * spot.k1 + i.y) * spot.k1 + i.z);
 }
 
-// Point i of a spot's brick: (sigma_raw, w r, w g, w b), w its colour weight.
-fn baked_point(spot: BakedSpot, i: vec3<u32>) -> vec4<f32> {
-    if (spot.fine) {
-        return textureLoad(baked_fine, spot.texel + i.zyx, 0);
-    }
-    let w = baked_word(spot, i);
+// The point stored at word w of `baked` and the next: (sigma_raw, w r, w g, w b),
+// w its colour weight.
+fn baked_words(w: u32) -> vec4<f32> {
     return vec4<f32>(halves_to_f32(baked[w]), halves_to_f32(baked[w + 1u]));
 }
 
-// The raw density of point i of a spot's brick (half of baked_point's loads for a coarse one).
+// The raw density of point i of a spot's brick (half of baked_words's loads for a coarse one).
 fn baked_point_raw(spot: BakedSpot, i: vec3<u32>) -> f32 {
     if (spot.fine) {
         return textureLoad(baked_fine, spot.texel + i.zyx, 0).x;
@@ -113,15 +110,64 @@ fn baked_sample(pos: vec3<f32>, dst: ptr<function, array<vec4<f32>, 8>>) -> f32 
         (*dst)[0] = vec4<f32>(0.0);
         return BAKED_EMPTY_RAW;
     }
-    var acc = vec4<f32>(0.0);
-    var weight = 0.0;
-    // The 8 corners as one loop, not eight copies: lavapipe inlines every call.
-    for (var c = 0u; c < 8u; c++) {
-        let corner = baked_corner(spot.f, c);
-        let point = baked_point(spot, spot.i0 + vec3<u32>(corner.xyz));
-        acc += corner.w * point;
-        weight += corner.w * baked_colour_weight(point.x);
+    // The sub-cell's eight points, p<x><y><z>, loaded with one branch for the level, each corner
+    // at a constant offset: lavapipe runs a divergent branch's both sides, once per sample here
+    // rather than once per corner.
+    var p000: vec4<f32>;
+    var p001: vec4<f32>;
+    var p010: vec4<f32>;
+    var p011: vec4<f32>;
+    var p100: vec4<f32>;
+    var p101: vec4<f32>;
+    var p110: vec4<f32>;
+    var p111: vec4<f32>;
+    if (spot.fine) {
+        // The atlas holds point i at texel + i.zyx.
+        let t = spot.texel + spot.i0.zyx;
+        p000 = textureLoad(baked_fine, t, 0);
+        p001 = textureLoad(baked_fine, t + vec3<u32>(1u, 0u, 0u), 0);
+        p010 = textureLoad(baked_fine, t + vec3<u32>(0u, 1u, 0u), 0);
+        p011 = textureLoad(baked_fine, t + vec3<u32>(1u, 1u, 0u), 0);
+        p100 = textureLoad(baked_fine, t + vec3<u32>(0u, 0u, 1u), 0);
+        p101 = textureLoad(baked_fine, t + vec3<u32>(1u, 0u, 1u), 0);
+        p110 = textureLoad(baked_fine, t + vec3<u32>(0u, 1u, 1u), 0);
+        p111 = textureLoad(baked_fine, t + vec3<u32>(1u, 1u, 1u), 0);
+    } else {
+        // Two words per point; z is the fastest axis (baked_word).
+        let w = baked_word(spot, spot.i0);
+        let dy = 2u * spot.k1;
+        let dx = dy * spot.k1;
+        p000 = baked_words(w);
+        p001 = baked_words(w + 2u);
+        p010 = baked_words(w + dy);
+        p011 = baked_words(w + dy + 2u);
+        p100 = baked_words(w + dx);
+        p101 = baked_words(w + dx + 2u);
+        p110 = baked_words(w + dx + dy);
+        p111 = baked_words(w + dx + dy + 2u);
     }
+    // Trilinear: z, then y, then x. The colour weights (baked_colour_weight) the same way.
+    let f = spot.f;
+    let acc = mix(
+        mix(mix(p000, p001, f.z), mix(p010, p011, f.z), f.y),
+        mix(mix(p100, p101, f.z), mix(p110, p111, f.z), f.y),
+        f.x,
+    );
+    let c0 = vec4<f32>(
+        baked_colour_weight(p000.x),
+        baked_colour_weight(p010.x),
+        baked_colour_weight(p100.x),
+        baked_colour_weight(p110.x),
+    );
+    let c1 = vec4<f32>(
+        baked_colour_weight(p001.x),
+        baked_colour_weight(p011.x),
+        baked_colour_weight(p101.x),
+        baked_colour_weight(p111.x),
+    );
+    let cz = mix(c0, c1, f.z); // (x0 y0, x0 y1, x1 y0, x1 y1)
+    let cy = mix(cz.xz, cz.yw, f.y);
+    let weight = mix(cy.x, cy.y, f.x);
     (*dst)[0] = vec4<f32>(acc.yzw / weight, 0.0); // un-premultiplied
     return acc.x;
 }

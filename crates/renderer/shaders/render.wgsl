@@ -40,7 +40,7 @@ fn composite_sample(
     sigma_raw: f32,
     cur_feat: ptr<function, array<vec4<f32>, 8>>,
     coarse: bool,
-    n_feat: u32,
+    wide: bool,
     scratch: ptr<function, array<f32, MAX_SAMPLES>>,
 ) {
     if (walk.i > 0u && (walk.occ_prev || walk.occ_cur)) {
@@ -53,7 +53,7 @@ fn composite_sample(
         } else {
             (*c).weights_sum += w;
             (*c).depth_acc += w * (((*c).prev_t + t) * 0.5);
-            if (n_feat == 32u) {
+            if (wide) {
                 for (var q = 0u; q < 8u; q++) {
                     (*c).acc[q] += w * (((*c).prev_feat[q] + (*cur_feat)[q]) * 0.5);
                 }
@@ -64,7 +64,11 @@ fn composite_sample(
     }
     (*c).prev_t = t;
     (*c).prev_sigma_raw = sigma_raw;
-    (*c).prev_feat = *cur_feat;
+    if (wide) {
+        (*c).prev_feat = *cur_feat;
+    } else {
+        (*c).prev_feat[0] = (*cur_feat)[0];
+    }
 }
 
 // Coarse samples the coarse walk keeps for the composite (the first ones, when a ray has more).
@@ -85,6 +89,9 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
     let ray = camera_ray(cam, pixel);
     let s = params.depth_resolution;
     let n_feat = params.feature_channels;
+    // All 32 decoded features per sample, or RGB in the first vec4 only. Never with the baked
+    // lookup or the guide (RGB only): a constant there, so the compiler drops the 32-feature copies.
+    let wide = !BAKED && !GUIDED && n_feat == 32u;
     let thr = params.transmittance_threshold;
     // Per-invocation scratch: coarse weights -> pdf -> cdf (importance_depths), and the fine
     // depths it draws.
@@ -94,7 +101,10 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
     // for the composite, so that each sample is decoded once, as in EG3D (a coarse sample the
     // occupancy grid skipped ends the run; the composite decodes the ones after it again).
     var cache_sigma_raw = array<f32, COARSE_CACHE>();
+    // All 32 features (wide) or RGB alone: two arrays, so that RGB-only pipelines (the baked
+    // lookup) keep and clear 1 KiB per ray, not 8.
     var cache_feat = array<array<vec4<f32>, 8>, COARSE_CACHE>();
+    var cache_rgb = array<vec4<f32>, COARSE_CACHE>();
     var n_cached = 0u;
 
     // The coarse walk (only with an importance pass): weights w_0..w_{S-2}
@@ -132,14 +142,14 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
                 let k = walk.k_cur;
                 let decodes = !GUIDED || guide_decodes(walk.dense_prev || walk.dense_cur || walk.dense_next, c.transmittance);
                 // A cached sample is reused unless the guide wants it decoded and the coarse walk
-                // only looked it up (cache_feat's w: 1 decoded, 0 looked up; RGB needs xyz only).
-                if (!coarse && k < n_cached && (!GUIDED || !decodes || cache_feat[k][0].w != 0.0)) {
-                    if (n_feat == 32u) {
+                // only looked it up (cache_rgb's w: 1 decoded, 0 looked up; RGB needs xyz only).
+                if (!coarse && k < n_cached && (!GUIDED || !decodes || cache_rgb[k].w != 0.0)) {
+                    if (wide) {
                         cur_feat = cache_feat[k];
                     } else {
-                        cur_feat[0] = cache_feat[k][0];
+                        cur_feat[0] = cache_rgb[k];
                     }
-                    composite_sample(&c, walk, walk.t_cur, cache_sigma_raw[k], &cur_feat, false, n_feat, &scratch);
+                    composite_sample(&c, walk, walk.t_cur, cache_sigma_raw[k], &cur_feat, false, wide, &scratch);
                 } else if (decodes) {
                     break;
                 } else {
@@ -147,10 +157,10 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
                     let sigma_raw = baked_sample(ray.origin + walk.t_cur * ray.dir, &cur_feat);
                     if (coarse && k == n_cached && n_cached < COARSE_CACHE) {
                         cache_sigma_raw[n_cached] = sigma_raw;
-                        cache_feat[n_cached][0] = cur_feat[0];
+                        cache_rgb[n_cached] = cur_feat[0];
                         n_cached++;
                     }
-                    composite_sample(&c, walk, walk.t_cur, sigma_raw, &cur_feat, coarse, n_feat, &scratch);
+                    composite_sample(&c, walk, walk.t_cur, sigma_raw, &cur_feat, coarse, wide, &scratch);
                 }
                 walk_advance(&walk, ray, ray_index, n, &t_fine);
             }
@@ -173,14 +183,14 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
             }
             if (coarse && walk.k_cur == n_cached && n_cached < COARSE_CACHE) {
                 cache_sigma_raw[n_cached] = sigma_raw;
-                if (n_feat == 32u) {
+                if (wide) {
                     cache_feat[n_cached] = cur_feat;
                 } else {
-                    cache_feat[n_cached][0] = cur_feat[0];
+                    cache_rgb[n_cached] = cur_feat[0];
                 }
                 n_cached++;
             }
-            composite_sample(&c, walk, t, sigma_raw, &cur_feat, coarse, n_feat, &scratch);
+            composite_sample(&c, walk, t, sigma_raw, &cur_feat, coarse, wide, &scratch);
             walk_advance(&walk, ray, ray_index, n, &t_fine);
         }
         if (!coarse) {
