@@ -77,14 +77,13 @@ SETTINGS = [
     Setting("exact 48+48, all skips (grid in both passes + T + empty)", 48, ALL_SKIPS),
     *(
         Setting(
-            f"baked k {k} {s}+{s}{', T + empty skips' if t else ''}",
+            f"baked k {k} {s}+{s}{skips}",
             s,
-            {"occupancy_epsilon": EPS, "baked_subdivisions": k}
-            | ({"transmittance_threshold": SKIP, "empty_threshold": SKIP} if t else {}),
+            {"occupancy_epsilon": EPS, "baked_subdivisions": k} | BAKED_SKIPS[skips],
         )
         for k in (2, 4, 6)
         for s in (24, 48)
-        for t in (False, True)
+        for skips in ("", ", T + empty skips")
     ),
     # Two levels (docs/baked.md, "Two levels"): k_f in the bricks a surface crosses, k 4 elsewhere;
     # k_f 16 also with 64+ samples (a lookup costs the same at any k_f, so more samples are cheap).
