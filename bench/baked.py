@@ -63,22 +63,23 @@ BAKED_SKIPS = {
 @dataclass(frozen=True)
 class Setting:
     name: str
-    samples: int
+    #: (coarse, fine) samples per ray: EG3D's depth_resolution and depth_resolution_importance.
+    samples: tuple[int, int]
     kwargs: dict
 
 
 SETTINGS = [
-    *(Setting(f"exact {s}+{s}", s, {}) for s in (12, 24, 48)),
+    *(Setting(f"exact {s}+{s}", (s, s), {}) for s in (12, 24, 48)),
     Setting(
         "exact 48+48, grid + T + empty skips",
-        48,
+        (48, 48),
         {"occupancy_epsilon": EPS, "transmittance_threshold": SKIP, "empty_threshold": SKIP},
     ),
-    Setting("exact 48+48, all skips (grid in both passes + T + empty)", 48, ALL_SKIPS),
+    Setting("exact 48+48, all skips (grid in both passes + T + empty)", (48, 48), ALL_SKIPS),
     *(
         Setting(
             f"baked k {k} {s}+{s}{skips}",
-            s,
+            (s, s),
             {"occupancy_epsilon": EPS, "baked_subdivisions": k} | BAKED_SKIPS[skips],
         )
         for k in (2, 4, 6)
@@ -86,23 +87,29 @@ SETTINGS = [
         for skips in ("", ", T + empty skips")
     ),
     # Two levels (docs/baked.md, "Two levels"): k_f in the bricks a surface crosses, k 4 elsewhere;
-    # k_f 16 also with 64+ samples (a lookup costs the same at any k_f, so more samples are cheap).
+    # k_f 16 also with more samples (a lookup costs the same at any k_f, so more samples are cheap),
+    # coarse ones first: at k_f 16 a coarse sample buys more of the error than a fine one
+    # (bench/RESULTS.md, "More coarse samples than fine").
     # "all skips" adds the grid to the coarse pass: the field's lookups in empty cells are nearly
     # transparent anyway (2.3e-4 at most on a pixel; bench/RESULTS.md, "A faster lookup").
     *(
         Setting(
-            f"baked k 4 / {kf} {s}+{s}{skips}",
-            s,
+            f"baked k 4 / {kf} {c}+{f}{skips}",
+            (c, f),
             {"occupancy_epsilon": EPS, "baked_subdivisions": 4, "baked_fine_subdivisions": kf}
             | BAKED_SKIPS[skips],
         )
-        for kf, s, variants in (
-            (10, 24, ("", ", T + empty skips")),
-            (10, 48, ("", ", T + empty skips", ", all skips")),
-            (16, 48, ("", ", T + empty skips", ", all skips")),
-            (16, 64, ("", ", T + empty skips", ", all skips")),
-            (16, 80, (", all skips",)),
-            (16, 96, (", all skips",)),
+        for kf, (c, f), variants in (
+            (10, (24, 24), ("", ", T + empty skips")),
+            (10, (48, 48), ("", ", T + empty skips", ", all skips")),
+            (16, (48, 48), ("", ", T + empty skips", ", all skips")),
+            (16, (56, 48), (", all skips",)),
+            (16, (64, 48), (", all skips",)),
+            (16, (56, 56), (", all skips",)),
+            (16, (64, 64), ("", ", T + empty skips", ", all skips")),
+            (16, (80, 80), (", all skips",)),
+            (16, (96, 64), (", all skips",)),
+            (16, (96, 96), (", all skips",)),
         )
         for skips in variants
     ),
@@ -110,7 +117,7 @@ SETTINGS = [
     *(
         Setting(
             f"guided k {k} 48+48{', all skips' if t else ''}",
-            48,
+            (48, 48),
             {"occupancy_epsilon": EPS, "baked_subdivisions": k, "baked_guide": True}
             | (ALL_SKIPS if t else {}),
         )
@@ -204,7 +211,8 @@ def measure(
             held = k
 
         def call(st: Setting = st) -> np.ndarray:
-            samples = {"depth_resolution": st.samples, "depth_resolution_importance": st.samples}
+            coarse, fine = st.samples
+            samples = {"depth_resolution": coarse, "depth_resolution_importance": fine}
             return lp3d_render.render(tri, cams, **common, **samples, **st.kwargs)["rgb"]
 
         rgb = call()
@@ -315,8 +323,23 @@ def plot(results: list[dict], path: Path) -> None:
         d.line([m - 6, y, m, y], fill="black")
         d.text((m - 40, y - 6), f"{db} dB", fill="black")
     colours = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e"]
+    # The legend goes in the inner corner with the fewest points under it.
+    lw, lh = 270, 16 * (len(results) + 1) + 8
+    corners = [(x, y) for x in (m + 10, w - m - lw) for y in (m + 10, h - m - lh)]
+
+    def covered(corner: tuple[float, float]) -> int:
+        x0, y0 = corner
+        return sum(x0 - 8 <= x <= x0 + lw and y0 - 8 <= y <= y0 + lh for x, y in map(xy, allrows))
+
+    lx, ly = min(corners, key=covered)
     for i, res in enumerate(results):
         c = colours[i % len(colours)]
+        # The bar a baked setting must reach: this scene's exact 48+48, dotted across the plot.
+        bar = next((r for r in res["rows"] if r["setting"] == "exact 48+48"), None)
+        if bar:
+            y = xy(bar)[1]
+            for x in range(m, w - m, 8):
+                d.line([x, y, x + 3, y], fill=c)
         for r in res["rows"]:
             x, y = xy(r)
             box = [x - 4, y - 4, x + 4, y + 4]
@@ -324,12 +347,13 @@ def plot(results: list[dict], path: Path) -> None:
                 d.polygon([(x, y - 6), (x + 6, y), (x, y + 6), (x - 6, y)], fill=c, outline=c)
             else:
                 (d.rectangle if r["baked"] else d.ellipse)(box, fill=c if r["baked"] else None, outline=c)
-        d.text((w - m - 260, h - m - 100 + 16 * i), res["scene"], fill=c)
+        d.text((lx, ly + 16 * i), res["scene"], fill=c)
     title = (
-        "baked field (squares), guided by it (diamonds), exact mode (circles): ms per 128x128 frame vs PSNR"
+        "baked field (squares), guided by it (diamonds), exact mode (circles; dotted: exact 48+48): "
+        "ms per 128x128 frame vs PSNR"
     )
     d.text((m, 20), title, fill="black")
-    d.text((w - m - 260, h - m - 100 + 16 * len(results)), "PSNR against exact 192+192", fill="black")
+    d.text((lx, ly + 16 * len(results)), "PSNR against exact 192+192", fill="black")
     img.save(path)
 
 
