@@ -8,7 +8,8 @@
 // needs: params, baked, baked_fine, halves_to_f32, plane_coords
 // provides: BAKED, GUIDED, GUIDE_RAW, GUIDE_TRANSMITTANCE, BAKED_EMPTY, BAKED_FINE, BAKED_EMPTY_RAW,
 // provides: BAKED_COLOUR_FLOOR, BAKED_COLOUR_RAMP, baked_colour_weight, baked_word, baked_words,
-// provides: baked_point_raw, BakedSpot, baked_spot, baked_corner, baked_sample, baked_raw, guide_decodes
+// provides: BakedSpot, baked_spot, BakedCorners, baked_corners, baked_trilinear, baked_sample,
+// provides: baked_raw, guide_decodes
 
 // true: render_rays looks samples up in the baked field (a pipeline of its own).
 override BAKED: bool = false;
@@ -65,14 +66,6 @@ fn baked_words(w: u32) -> vec4<f32> {
     return vec4<f32>(halves_to_f32(baked[w]), halves_to_f32(baked[w + 1u]));
 }
 
-// The raw density of point i of a spot's brick (half of baked_words's loads for a coarse one).
-fn baked_point_raw(spot: BakedSpot, i: vec3<u32>) -> f32 {
-    if (spot.fine) {
-        return textureLoad(baked_fine, spot.texel + i.zyx, 0).x;
-    }
-    return halves_to_f32(baked[baked_word(spot, i)]).x;
-}
-
 // Cells are the baked field's (G per axis over plane coordinates [-1, 1], the edge cells clamped
 // so they stand for everything beyond); inside a cell, k intervals per axis (k_f in a two-level
 // field's fine bricks). A cell's word in `baked` is its coarse brick's number, BAKED_EMPTY, or for
@@ -96,11 +89,58 @@ fn baked_spot(pos: vec3<f32>) -> BakedSpot {
     return BakedSpot(base, fine, slot * k1, k1, vec3<u32>(i0_f), local - i0_f);
 }
 
-// Corner c of a spot's sub-cell, + (c & 1, c >> 1 & 1, c >> 2): its offset and trilinear weight.
-fn baked_corner(f: vec3<f32>, c: u32) -> vec4<f32> {
-    let d = vec3<u32>(c & 1u, (c >> 1u) & 1u, c >> 2u);
-    let w3 = select(1.0 - f, f, d == vec3<u32>(1u));
-    return vec4<f32>(vec3<f32>(d), w3.x * w3.y * w3.z);
+// The eight points of a spot's sub-cell, p<x><y><z>: (sigma_raw, w r, w g, w b).
+struct BakedCorners {
+    p000: vec4<f32>,
+    p001: vec4<f32>,
+    p010: vec4<f32>,
+    p011: vec4<f32>,
+    p100: vec4<f32>,
+    p101: vec4<f32>,
+    p110: vec4<f32>,
+    p111: vec4<f32>,
+}
+
+// A spot's eight points (the spot has a brick), loaded with one branch for the level, each corner
+// at a constant offset: lavapipe runs a divergent branch's both sides, once per sample here rather
+// than once per corner.
+fn baked_corners(spot: BakedSpot) -> BakedCorners {
+    var q: BakedCorners;
+    if (spot.fine) {
+        // The atlas holds point i at texel + i.zyx.
+        let t = spot.texel + spot.i0.zyx;
+        q.p000 = textureLoad(baked_fine, t, 0);
+        q.p001 = textureLoad(baked_fine, t + vec3<u32>(1u, 0u, 0u), 0);
+        q.p010 = textureLoad(baked_fine, t + vec3<u32>(0u, 1u, 0u), 0);
+        q.p011 = textureLoad(baked_fine, t + vec3<u32>(1u, 1u, 0u), 0);
+        q.p100 = textureLoad(baked_fine, t + vec3<u32>(0u, 0u, 1u), 0);
+        q.p101 = textureLoad(baked_fine, t + vec3<u32>(1u, 0u, 1u), 0);
+        q.p110 = textureLoad(baked_fine, t + vec3<u32>(0u, 1u, 1u), 0);
+        q.p111 = textureLoad(baked_fine, t + vec3<u32>(1u, 1u, 1u), 0);
+    } else {
+        // Two words per point; z is the fastest axis (baked_word).
+        let w = baked_word(spot, spot.i0);
+        let dy = 2u * spot.k1;
+        let dx = dy * spot.k1;
+        q.p000 = baked_words(w);
+        q.p001 = baked_words(w + 2u);
+        q.p010 = baked_words(w + dy);
+        q.p011 = baked_words(w + dy + 2u);
+        q.p100 = baked_words(w + dx);
+        q.p101 = baked_words(w + dx + 2u);
+        q.p110 = baked_words(w + dx + dy);
+        q.p111 = baked_words(w + dx + dy + 2u);
+    }
+    return q;
+}
+
+// Trilinear mix of the eight points at `f` in the sub-cell: z, then y, then x.
+fn baked_trilinear(q: BakedCorners, f: vec3<f32>) -> vec4<f32> {
+    return mix(
+        mix(mix(q.p000, q.p001, f.z), mix(q.p010, q.p011, f.z), f.y),
+        mix(mix(q.p100, q.p101, f.z), mix(q.p110, q.p111, f.z), f.y),
+        f.x,
+    );
 }
 
 // The baked raw density at world point `pos` (returned) and its RGB into dst[0].xyz (w = 0).
@@ -110,60 +150,21 @@ fn baked_sample(pos: vec3<f32>, dst: ptr<function, array<vec4<f32>, 8>>) -> f32 
         (*dst)[0] = vec4<f32>(0.0);
         return BAKED_EMPTY_RAW;
     }
-    // The sub-cell's eight points, p<x><y><z>, loaded with one branch for the level, each corner
-    // at a constant offset: lavapipe runs a divergent branch's both sides, once per sample here
-    // rather than once per corner.
-    var p000: vec4<f32>;
-    var p001: vec4<f32>;
-    var p010: vec4<f32>;
-    var p011: vec4<f32>;
-    var p100: vec4<f32>;
-    var p101: vec4<f32>;
-    var p110: vec4<f32>;
-    var p111: vec4<f32>;
-    if (spot.fine) {
-        // The atlas holds point i at texel + i.zyx.
-        let t = spot.texel + spot.i0.zyx;
-        p000 = textureLoad(baked_fine, t, 0);
-        p001 = textureLoad(baked_fine, t + vec3<u32>(1u, 0u, 0u), 0);
-        p010 = textureLoad(baked_fine, t + vec3<u32>(0u, 1u, 0u), 0);
-        p011 = textureLoad(baked_fine, t + vec3<u32>(1u, 1u, 0u), 0);
-        p100 = textureLoad(baked_fine, t + vec3<u32>(0u, 0u, 1u), 0);
-        p101 = textureLoad(baked_fine, t + vec3<u32>(1u, 0u, 1u), 0);
-        p110 = textureLoad(baked_fine, t + vec3<u32>(0u, 1u, 1u), 0);
-        p111 = textureLoad(baked_fine, t + vec3<u32>(1u, 1u, 1u), 0);
-    } else {
-        // Two words per point; z is the fastest axis (baked_word).
-        let w = baked_word(spot, spot.i0);
-        let dy = 2u * spot.k1;
-        let dx = dy * spot.k1;
-        p000 = baked_words(w);
-        p001 = baked_words(w + 2u);
-        p010 = baked_words(w + dy);
-        p011 = baked_words(w + dy + 2u);
-        p100 = baked_words(w + dx);
-        p101 = baked_words(w + dx + 2u);
-        p110 = baked_words(w + dx + dy);
-        p111 = baked_words(w + dx + dy + 2u);
-    }
-    // Trilinear: z, then y, then x. The colour weights (baked_colour_weight) the same way.
+    let q = baked_corners(spot);
     let f = spot.f;
-    let acc = mix(
-        mix(mix(p000, p001, f.z), mix(p010, p011, f.z), f.y),
-        mix(mix(p100, p101, f.z), mix(p110, p111, f.z), f.y),
-        f.x,
-    );
+    let acc = baked_trilinear(q, f);
+    // The colour weights (baked_colour_weight) interpolated the same way.
     let c0 = vec4<f32>(
-        baked_colour_weight(p000.x),
-        baked_colour_weight(p010.x),
-        baked_colour_weight(p100.x),
-        baked_colour_weight(p110.x),
+        baked_colour_weight(q.p000.x),
+        baked_colour_weight(q.p010.x),
+        baked_colour_weight(q.p100.x),
+        baked_colour_weight(q.p110.x),
     );
     let c1 = vec4<f32>(
-        baked_colour_weight(p001.x),
-        baked_colour_weight(p011.x),
-        baked_colour_weight(p101.x),
-        baked_colour_weight(p111.x),
+        baked_colour_weight(q.p001.x),
+        baked_colour_weight(q.p011.x),
+        baked_colour_weight(q.p101.x),
+        baked_colour_weight(q.p111.x),
     );
     let cz = mix(c0, c1, f.z); // (x0 y0, x0 y1, x1 y0, x1 y1)
     let cy = mix(cz.xz, cz.yw, f.y);
@@ -172,18 +173,13 @@ fn baked_sample(pos: vec3<f32>, dst: ptr<function, array<vec4<f32>, 8>>) -> f32 
     return acc.x;
 }
 
-// baked_sample's raw density alone (half the loads): what the guide tests.
+// baked_sample's raw density alone: what the guide tests (the compiler drops the colour's math).
 fn baked_raw(pos: vec3<f32>) -> f32 {
     let spot = baked_spot(pos);
     if (spot.base == BAKED_EMPTY) {
         return BAKED_EMPTY_RAW;
     }
-    var raw = 0.0;
-    for (var c = 0u; c < 8u; c++) {
-        let corner = baked_corner(spot.f, c);
-        raw += corner.w * baked_point_raw(spot, spot.i0 + vec3<u32>(corner.xyz));
-    }
-    return raw;
+    return baked_trilinear(baked_corners(spot), spot.f).x;
 }
 
 // The guide (a render setting of its own, docs/baked.md): the baked field decides which samples
