@@ -180,6 +180,14 @@ def field_of(st: Setting) -> tuple[int, int] | None:
     return None if k is None else (k, st.kwargs.get("baked_fine_subdivisions", 0))
 
 
+def bake(tri: object, field: tuple[int, int]) -> object:
+    """Bakes the field (k, k_f) of `tri` as every row here uses it (for 24 samples and more); the
+    triplane holds it, and it is returned for its size."""
+    return lp3d_render.bake(
+        tri, subdivisions=field[0], fine_subdivisions=field[1], occupancy_epsilon=EPS, depth_resolution=24
+    )
+
+
 def measure(
     name: str, head: TriplaneData, repeats: int, eg3d_src: str | None, settings: list[Setting]
 ) -> dict:
@@ -191,9 +199,7 @@ def measure(
     bakes = {}
     for k in sorted({field_of(st) for st in settings if field_of(st)}):
         start = time.perf_counter()
-        field = lp3d_render.bake(
-            tri, subdivisions=k[0], fine_subdivisions=k[1], occupancy_epsilon=EPS, depth_resolution=24
-        )
+        field = bake(tri, k)
         bakes[k] = {
             "s": time.perf_counter() - start,
             "bricks": field.bricks,
@@ -204,10 +210,8 @@ def measure(
     held = max(bakes) if bakes else None  # the triplane holds one field, the last baked
     for st in settings:
         k = field_of(st)
-        if k is not None and k != held:  # the field for this k (baked for 24 samples and more)
-            lp3d_render.bake(
-                tri, subdivisions=k[0], fine_subdivisions=k[1], occupancy_epsilon=EPS, depth_resolution=24
-            )
+        if k is not None and k != held:  # the field for this k
+            bake(tri, k)
             held = k
 
         def call(st: Setting = st) -> np.ndarray:

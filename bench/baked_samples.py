@@ -14,7 +14,6 @@ picks, beside EG3D. About 3 minutes a scene (mostly the bake).
 from __future__ import annotations
 
 import argparse
-import re
 import statistics
 import sys
 import time
@@ -23,7 +22,8 @@ from pathlib import Path
 import numpy as np
 
 import lp3d_render
-from baked import ALL_SKIPS, EPS, PITCH, YAWS, R, scenes  # bench/ is on sys.path when run as a script
+from baked import ALL_SKIPS, PITCH, YAWS, R, bake, scenes  # bench/ is on sys.path when run as a script
+from lp3d.cli.common import parse_samples
 from lp3d.render.camera import look_at_camera
 from lp3d.render.psnr import psnr_db
 
@@ -31,20 +31,15 @@ DEFAULT_SPLITS = (
     "48+48 48+56 56+48 56+56 48+64 64+48 40+64 56+64 64+64 72+72 80+80 64+80 48+80 80+64 "
     "88+64 96+48 96+64 88+88 104+48 104+64 80+96 96+80 96+96 112+64 128+48"
 )
-FIELD = {"baked_subdivisions": 4, "baked_fine_subdivisions": 16}
-
-
-def split(text: str) -> tuple[int, int]:
-    """'56+48' -> (56, 48): coarse and fine samples per ray."""
-    m = re.fullmatch(r"(\d+)\+(\d+)", text)
-    if not m or int(m[1]) < 2 or int(m[1]) > 256 or int(m[2]) > 256:
-        raise argparse.ArgumentTypeError(f"a split is COARSE+FINE (coarse 2-256, fine 0-256): {text!r}")
-    return int(m[1]), int(m[2])
+#: The field: k 4, k_f 16.
+FIELD = (4, 16)
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--splits", type=split, nargs="+", default=[split(s) for s in DEFAULT_SPLITS.split()])
+    p.add_argument(
+        "--splits", type=parse_samples, nargs="+", default=[parse_samples(s) for s in DEFAULT_SPLITS.split()]
+    )
     p.add_argument("--out", type=Path, help="also write the markdown table here")
     args = p.parse_args(argv)
     cams = np.stack([look_at_camera(yaw_deg=y, pitch_deg=PITCH) for y in YAWS])
@@ -65,14 +60,9 @@ def main(argv: list[str] | None = None) -> int:
             "rgb"
         ]
         target = psnr(tri, ref, 48, 48)
-        lp3d_render.bake(
-            tri,
-            subdivisions=FIELD["baked_subdivisions"],
-            fine_subdivisions=FIELD["baked_fine_subdivisions"],
-            occupancy_epsilon=EPS,
-            depth_resolution=24,
-        )
-        columns.append((name, target, [psnr(tri, ref, c, f, **FIELD, **ALL_SKIPS) for c, f in args.splits]))
+        bake(tri, FIELD)
+        lookups = {"baked_subdivisions": FIELD[0], "baked_fine_subdivisions": FIELD[1]} | ALL_SKIPS
+        columns.append((name, target, [psnr(tri, ref, c, f, **lookups) for c, f in args.splits]))
     lines = [
         f"Command: `python bench/baked_samples.py` ({time.strftime('%Y-%m-%d')}): k 4 / 16, all skips, "
         "PSNR against exact 192+192 (dB); * at or above exact 48+48's",
