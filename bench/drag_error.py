@@ -2,13 +2,16 @@
 shows it: rendered at its rung's resolution, scaled to 128² with bilinear filtering, against exact
 192+192 at 128².
 
-    python bench/drag_error.py [--figure docs/viewer-drag-rungs.png]      # about 2 minutes
+    python bench/drag_error.py [--scene encoder] [--figure docs/viewer-drag-rungs.png]   # ~6 minutes
 
 The rungs are those of a 128² · 48+48 view (`crates/viewer/src/quality.rs`): the exact ladder's
-drag rungs, and the baked field's with the viewer's skips (`crates/viewer/src/bake.rs`: k 4 / 10,
-epsilon 1e-4, transmittance and empty-ray thresholds 1e-3, the occupancy grid in the coarse pass;
-the field baked for half the chosen samples, as the viewer bakes it). Scenes: the viewer bench's
-teacher head (seed 0) and two held-out ones, three novel views each (yaw -30/0/30, pitch 5).
+drag rungs, and the baked fields' with the viewer's skips (`crates/viewer/src/bake.rs`: epsilon
+1e-4, transmittance and empty-ray thresholds 1e-3, the occupancy grid in the coarse pass; each
+field baked for half the chosen samples, as the viewer bakes it): the quick field (k 4 / 10) at
+the rung's samples and the fine one (k 4 / 16) with a third more coarse samples. Scenes: the viewer
+bench's teacher head (seed 0) and two held-out ones (`--scene teacher`), or the shipped encoder's
+triplanes of frontal renders of them (`--scene encoder`, what `lp3d demo` makes and a user opens);
+three novel views each (yaw -30/0/30, pitch 5).
 """
 
 from __future__ import annotations
@@ -39,18 +42,21 @@ VIEWER_SKIPS = {
     "occupancy_coarse": True,
     "transmittance_threshold": 1e-3,
     "empty_threshold": 1e-3,
-    "baked_subdivisions": BAKED.baked_subdivisions,
-    "baked_fine_subdivisions": BAKED.baked_fine_subdivisions,
 }
-#: (label, resolution, samples per pass, baked).
+#: The viewer's fields (crates/viewer/src/bake.rs, `QUICK_FIELD`, `FINE_FIELD`): k, k_f.
+QUICK = (BAKED.baked_subdivisions, BAKED.baked_fine_subdivisions)
+FINE = (4, 16)
+#: (label, resolution, coarse samples, fine samples, field or None for exact).
 RUNGS = [
-    ("exact 128² · 48+48 (the still frame)", 128, 48, False),
-    ("baked 128² · 48+48", 128, 48, True),
-    ("baked 128² · 24+24 (baked-only rung)", 128, 24, True),
-    ("baked 64² · 48+48", 64, 48, True),
-    ("exact 64² · 48+48", 64, 48, False),
-    ("exact 64² · 12+12", 64, 12, False),
-    ("exact 32² · 12+12", 32, 12, False),
+    ("exact 128² · 48+48 (the still frame)", 128, 48, 48, None),
+    ("fine field, baked 128² · 64+48 (drag rung)", 128, 64, 48, FINE),
+    ("fine field, baked 128² · 32+24 (baked-only rung)", 128, 32, 24, FINE),
+    ("quick field, baked 128² · 48+48", 128, 48, 48, QUICK),
+    ("quick field, baked 128² · 24+24 (baked-only rung)", 128, 24, 24, QUICK),
+    ("quick field, baked 64² · 48+48", 64, 48, 48, QUICK),
+    ("exact 64² · 48+48", 64, 48, 48, None),
+    ("exact 64² · 12+12", 64, 12, 12, None),
+    ("exact 32² · 12+12", 32, 12, 12, None),
 ]
 
 
@@ -68,16 +74,32 @@ def shown(rgb: np.ndarray) -> np.ndarray:
     return rows[..., i0] * (1 - f) + rows[..., i1] * f
 
 
-def render(tri, cams: np.ndarray, res: int, samples: int, baked: bool) -> np.ndarray:
+def render(
+    tri, cams: np.ndarray, res: int, coarse: int, fine: int, field: tuple[int, int] | None
+) -> np.ndarray:
+    """The rung's frame; from `field` (baked on `tri` already) unless None."""
+    baked = {} if field is None else {"baked_subdivisions": field[0], "baked_fine_subdivisions": field[1]}
     return lp3d_render.render(
         tri,
         cams,
         resolution=res,
-        depth_resolution=samples,
-        depth_resolution_importance=samples,
+        depth_resolution=coarse,
+        depth_resolution_importance=fine,
         outputs=["rgb"],
-        **(VIEWER_SKIPS if baked else {}),
+        **(VIEWER_SKIPS | baked if field else {}),
     )["rgb"]
+
+
+def scene(seed: int, kind: str) -> object:
+    """Teacher head `seed`, or the shipped encoder's triplane of a frontal render of it."""
+    head = ProceduralTeacher().sample(seed)
+    if kind == "teacher":
+        return head.to_native()
+    from lp3d.lift.inference import DEFAULT_MODEL, load_encoder
+
+    enc = load_encoder(DEFAULT_MODEL)
+    image = lp3d_render.render(head.to_native(), look_at_camera(), resolution=enc.package.image_size)["rgb"]
+    return enc.package.triplane(enc.run(image[None].astype(np.float32))[0]).to_native()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -85,23 +107,30 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--figure", type=Path, help="write the rungs of the first scene's yaw 30° view here (PNG, 2× zoom)"
     )
+    p.add_argument("--scene", choices=("teacher", "encoder"), default="teacher")
     args = p.parse_args(argv)
-    teacher = ProceduralTeacher()
     cams = np.stack([look_at_camera(yaw_deg=y, pitch_deg=PITCH) for y in YAWS])
     psnr: dict[str, list[float]] = {name: [] for name, *_ in RUNGS}
     figure: list[np.ndarray] = []
     for seed in SEEDS:
-        tri = teacher.sample(seed).to_native()
-        ref = render(tri, cams, R, 192, False)
-        lp3d_render.bake(
-            tri,
-            subdivisions=BAKED.baked_subdivisions,
-            fine_subdivisions=BAKED.baked_fine_subdivisions,
-            occupancy_epsilon=BAKED.occupancy_epsilon,
-            depth_resolution=24,
-        )
-        for name, res, samples, baked in RUNGS:
-            img = shown(render(tri, cams, res, samples, baked))
+        tri = scene(seed, args.scene)
+        ref = render(tri, cams, R, 192, 192, None)
+        images: dict[str, np.ndarray] = {}
+        # One field on the triplane at a time: each rung of a field right after its bake.
+        for field in (None, FINE, QUICK):
+            if field is not None:
+                lp3d_render.bake(
+                    tri,
+                    subdivisions=field[0],
+                    fine_subdivisions=field[1],
+                    occupancy_epsilon=BAKED.occupancy_epsilon,
+                    depth_resolution=24,
+                )
+            for name, res, coarse, fine, rung_field in RUNGS:
+                if rung_field == field:
+                    images[name] = shown(render(tri, cams, res, coarse, fine, field))
+        for name, *_ in RUNGS:
+            img = images[name]
             scores = [psnr_db(img[i], ref[i]) for i in range(len(cams))]
             psnr[name].append(float(np.mean(scores)))
             print(f"  head {seed}: {name}: {psnr[name][-1]:.2f} dB", file=sys.stderr, flush=True)
@@ -110,7 +139,10 @@ def main(argv: list[str] | None = None) -> int:
         if seed == SEEDS[0]:
             figure.append(ref[-1])
     heads = ", ".join(map(str, SEEDS))
-    print(f"{platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}; heads {heads}")
+    print(
+        f"{platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}; "
+        f"{args.scene} scenes of heads {heads}"
+    )
     print()
     print("| frame (shown at 128²) | " + " | ".join(f"head {s}" for s in SEEDS) + " |")
     print("|---|" + "---|" * len(SEEDS))

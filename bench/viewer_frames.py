@@ -1,10 +1,13 @@
 """Viewer frame times while dragging: ``lp3d-view`` in a real window under Xvfb, at its default
 final quality (128², 48+48) and frame budget (100 ms), drives a scripted drag (``--drag-frames``,
 synthetic pointer events through egui, the same path as a mouse), then refines to the final image.
-Each budget runs in two modes: ``baked`` (the default viewer: the drag starts once the file's baked
-field is ready, and frames drawn while dragging look samples up in it at the final quality when
-that fits the budget) and ``ladder`` (``--no-bake``: every frame decodes, the drag drops down the
-quality ladder).
+Each budget runs in up to three modes: ``baked`` (the default viewer: the drag starts once the
+file's baked fields are ready, the quick one and then the fine one, and frames drawn while dragging
+look samples up in the fine one at the final quality when that fits the budget), ``quick``
+(``--no-fine-field``: the quick field only) and ``ladder`` (``--no-bake``: every frame decodes, the
+drag drops down the quality ladder). The scene is a procedural teacher head (``--scene teacher``)
+or the shipped encoder's triplane of a frontal render of it (``--scene encoder``, as ``lp3d demo``
+lifts its teacher portrait: what a user opens).
 
     python bench/viewer_frames.py --out /tmp/viewer_frames.md
     python bench/viewer_frames.py --runs 3 --drag-frames 30 --budgets 100 --modes baked,ladder --out /tmp/v.md
@@ -45,7 +48,10 @@ def _percentile(values: list[float], q: float) -> float:
     return float(np.percentile(np.asarray(values, dtype=float), q))
 
 
-MODES = ("baked", "ladder")
+MODES = ("baked", "quick", "ladder")
+#: The viewer's flags for each mode.
+MODE_FLAGS = {"baked": [], "quick": ["--no-fine-field"], "ladder": ["--no-bake"]}
+SCENES = ("teacher", "encoder")
 
 
 def _rung(f: dict) -> str:
@@ -64,7 +70,7 @@ def run_once(scene: Path, work: Path, budget: float, mode: str, drag_frames: int
         "view",
         *("--screenshot", str(shot), "--drag-frames", str(drag_frames)),
         *("--frame-budget-ms", str(budget), str(scene)),
-        *(["--no-bake"] if mode == "ladder" else []),
+        *MODE_FLAGS[mode],
     ]
     env = {**os.environ, "OMP_WAIT_POLICY": "PASSIVE"}
     load = os.getloadavg()[0]
@@ -83,7 +89,7 @@ def run_once(scene: Path, work: Path, budget: float, mode: str, drag_frames: int
     # The first drag frame's interval includes the wait before the drag started.
     interval = [f["interval_ms"] for f in drag[1:]] or [drag[0]["interval_ms"]]
     bake = meta["bake"]
-    if mode == "baked" and bake["state"] != "ready":
+    if mode != "ladder" and bake["state"] != "ready":
         raise RuntimeError(f"the bake did not finish: {bake}")
     return {
         "budget": budget,
@@ -102,6 +108,23 @@ def run_once(scene: Path, work: Path, budget: float, mode: str, drag_frames: int
         "final_ms": frames[-1]["render_ms"],
         "frames": frames,
     }
+
+
+SCENE_NAMES = {
+    "teacher": "procedural teacher head",
+    "encoder": "the shipped encoder's triplane of a frontal render of the procedural teacher head",
+}
+
+
+def encoded(head: object) -> object:
+    """The shipped encoder's triplane of a frontal render of `head` (as ``lp3d demo`` makes it)."""
+    import lp3d_render
+    from lp3d.lift.inference import DEFAULT_MODEL, load_encoder
+    from lp3d.render.camera import look_at_camera
+
+    enc = load_encoder(DEFAULT_MODEL)
+    image = lp3d_render.render(head.to_native(), look_at_camera(), resolution=enc.package.image_size)["rgb"]
+    return enc.package.triplane(enc.run(image[None].astype(np.float32))[0])
 
 
 def first_vs_later(frames: list[dict]) -> list[tuple[str, float, float | None, int]]:
@@ -123,6 +146,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--budgets", default="100", help="comma list of frame budgets in ms (default 100)")
     p.add_argument("--modes", default="baked,ladder", help="comma list of baked, ladder (default both)")
     p.add_argument("--seed", type=int, default=0, help="procedural teacher head to show (default 0)")
+    p.add_argument(
+        "--scene",
+        choices=SCENES,
+        default="teacher",
+        help="the teacher head itself, or the shipped encoder's triplane of a frontal render of it",
+    )
     p.add_argument("--timeout", type=float, default=1800.0, help="seconds per run before giving up")
     args = p.parse_args(argv)
     try:
@@ -144,7 +173,8 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="lp3d-viewer-frames-") as tmp:
         work = Path(tmp)
         scene = work / "head.npz"
-        save_triplane(scene, ProceduralTeacher().sample(args.seed))
+        head = ProceduralTeacher().sample(args.seed)
+        save_triplane(scene, head if args.scene == "teacher" else encoded(head))
         for mode in modes:  # warm the shader cache (untimed)
             run_once(scene, work, budgets[0], mode, 2, args.timeout)
         # Modes alternate run by run, so that a change in the machine's load hits both alike.
@@ -163,13 +193,14 @@ def main(argv: list[str] | None = None) -> int:
 
     command = (
         f"python bench/viewer_frames.py --runs {args.runs} --drag-frames {args.drag_frames} "
-        f"--budgets {args.budgets} --modes {args.modes} --out {args.out}"
+        f"--budgets {args.budgets} --modes {args.modes} --scene {args.scene} --out {args.out}"
     )
     lines = [
         f"Command: `{command}`  ",
         f"{platform.machine()}, {os.cpu_count()} CPUs, {time.strftime('%Y-%m-%d')}; "
         f"{results[0]['adapter']}; final quality {results[0]['quality'].removesuffix(' (final)')}; "
-        f"procedural teacher head, seed {args.seed}; LP3D_KERNEL={os.environ.get('LP3D_KERNEL', '(unset)')}",
+        f"{SCENE_NAMES[args.scene]}, seed {args.seed}; "
+        f"LP3D_KERNEL={os.environ.get('LP3D_KERNEL', '(unset)')}",
         "",
         "| budget ms | mode | rungs drawn while dragging (frames) | render ms median / p90 | frame interval "
         "ms median / p90 | drag frames / s | release → final ms | final render ms | bake s | load (1 min) |",
@@ -183,15 +214,17 @@ def main(argv: list[str] | None = None) -> int:
             f"{r['interval_median']:.1f} / {r['interval_p90']:.1f} | {1e3 / r['interval_median']:.1f} | "
             f"{r['release_to_final']:.0f} | {r['final_ms']:.0f} | {bake} | {r['load']:.1f} |"
         )
-    fields = [r["field"] for r in results if r["field"]]
-    if fields:
+    for mode in modes:
+        fields = [r["field"] for r in results if r["field"] and r["mode"] == mode]
+        if not fields:
+            continue
         f = fields[0]
         k = f"{f['subdivisions']}" + (f" / {f['fine_subdivisions']}" if f.get("fine_subdivisions") else "")
         fine = f" ({f['fine_bricks']} fine)" if f.get("fine_subdivisions") else ""
         lines += [
             "",
-            f"Baked field: k {k}, epsilon {f['epsilon']:.0e}, {f['bricks']} bricks{fine} of "
-            f"{f['cells']}³ cells, {f['device_bytes'] / 2**20:.0f} MiB; the GPU part of the bake "
+            f"Baked field ({mode}): k {k}, epsilon {f['epsilon']:.0e}, {f['bricks']} bricks{fine} of "
+            f"{f['cells']}³ cells, {f['device_bytes'] / 2**20:.0f} MiB; the GPU part of its bake "
             f"{statistics.median(x['bake_seconds'] for x in fields):.1f} s (median).",
         ]
     lines += [

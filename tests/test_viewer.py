@@ -134,9 +134,10 @@ def test_drag_then_refined_image_matches_render(gpu, sphere_file: Path, tmp_path
 
 
 def test_drag_draws_from_the_baked_field_once_it_is_ready(gpu, sphere_file: Path, tmp_path: Path) -> None:
-    """The viewer bakes the file's field in the background; the scripted drag starts once it is
-    ready and every drag frame is drawn from it at the chosen resolution and samples (not a lower
-    rung of the ladder); after the release the still image is exact at the same quality."""
+    """The viewer bakes the file's fields in the background (the quick one, then the fine one that
+    replaces it); the scripted drag starts once both are done and every drag frame is drawn from
+    the fine field at the chosen resolution and fine samples with a third more coarse ones (not a
+    lower rung of the ladder); after the release the still image is exact at the chosen quality."""
     shot = tmp_path / "baked.png"
     # 48 coarse samples: intervals under one baked cell, so few cells around the sphere are baked.
     res, coarse, fine, drag = 32, 48, 8, 4
@@ -149,15 +150,15 @@ def test_drag_draws_from_the_baked_field_once_it_is_ready(gpu, sphere_file: Path
     meta = json.loads(shot.with_suffix(".json").read_text())
     bake, field = meta["bake"], meta["bake"]["field"]
     assert bake["state"] == "ready" and bake["error"] is None, bake
-    assert (field["subdivisions"], field["fine_subdivisions"]) == (4, 10), field
+    assert (field["subdivisions"], field["fine_subdivisions"]) == (4, 16), field
     assert field["epsilon"] == pytest.approx(1e-4), field
     # The index (4 bytes per cell) and (k + 1)³ points of 8 bytes per brick: 5³ in the coarse
-    # bricks, 11³ in the fine ones (the sphere's surface crosses some of its bricks), which sit in
+    # bricks, 17³ in the fine ones (the sphere's surface crosses some of its bricks), which sit in
     # whole slots of a 3D texture (baked::atlas), fewer of them unused than used.
     coarse_bricks, fine_bricks = field["bricks"] - field["fine_bricks"], field["fine_bricks"]
     assert coarse_bricks > 0 and fine_bricks > 0
     fine_bytes = field["device_bytes"] - (4 * field["cells"] ** 3 + 8 * 5**3 * coarse_bricks)
-    slot = 8 * 11**3
+    slot = 8 * 17**3
     assert fine_bytes % slot == 0 and fine_bricks <= fine_bytes // slot < 2 * fine_bricks, fine_bytes
     assert 0 < field["bake_seconds"] <= bake["job_seconds"]
     frames = meta["frames"]
@@ -166,7 +167,7 @@ def test_drag_draws_from_the_baked_field_once_it_is_ready(gpu, sphere_file: Path
     for f in dragging:
         assert (f["baked"], f["bake"], f["phase"]) == (True, "ready", "moving"), f
         samples = (f["depth_resolution"], f["depth_resolution_importance"])
-        assert (f["resolution"], *samples) == (res, coarse, fine), f
+        assert (f["resolution"], *samples) == (res, coarse * 4 // 3, fine), f
     # Before the drag, and after the release: exact frames (the still image never comes from the field).
     before = frames[: frames.index(dragging[0])]
     assert before and not any(f["baked"] for f in before)
@@ -222,9 +223,11 @@ def test_viewer_flags_are_parsed_in_one_place() -> None:
         "frames": 2,
         "drag_frames": 0,
         "bake": True,
+        "fine_field": True,
     }
     assert lp3d_render.view_options(["-h"])["help"] is True
     assert lp3d_render.view_options(["--no-bake", "h.npz"])["bake"] is False
+    assert lp3d_render.view_options(["--no-fine-field", "h.npz"])["fine_field"] is False
     with pytest.raises(ValueError, match="unknown option --nope"):
         lp3d_render.view_options(["--nope"])
     shown = subprocess.run(

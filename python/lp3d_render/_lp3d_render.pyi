@@ -168,5 +168,6 @@ def view(
     frames: int = 3,
     drag_frames: int = 0,
     bake: bool = True,
+    fine_field: bool = True,
 ) -> None: ...
 def view_options(argv: list[str]) -> dict[str, Any]: ...

@@ -19,15 +19,17 @@ use crate::error::invalid;
 /// and a JSON sidecar (the 3D view's pixel rectangle, every frame's render time and quality) and
 /// returns. While the camera moves, frames render at the quality predicted to fit
 /// ``frame_budget_ms``; with ``bake`` (the default), once the file's baked field is made (in the
-/// background), at the final quality from the field when that fits. Call from the main thread,
+/// background), at the final quality from the field when that fits; with ``fine_field`` (the
+/// default) a finer field follows the quick one and replaces it (``lp3d-view --help``). Call from the main thread,
 /// once per process (a windowing limitation).
 #[pyfunction]
 #[pyo3(
     signature = (path=None, *, screenshot=None, yaw=Arg::Default(0.0), pitch=Arg::Default(0.0),
                  resolution=Arg::Default(128), depth_resolution=Arg::Default(48),
                  depth_resolution_importance=Arg::Default(48), frame_budget_ms=Arg::Default(100.0),
-                 frames=Arg::Default(3), drag_frames=Arg::Default(0), bake=Arg::Default(true)),
-    text_signature = "(path=None, *, screenshot=None, yaw=0.0, pitch=0.0, resolution=128, depth_resolution=48, depth_resolution_importance=48, frame_budget_ms=100.0, frames=3, drag_frames=0, bake=True)"
+                 frames=Arg::Default(3), drag_frames=Arg::Default(0), bake=Arg::Default(true),
+                 fine_field=Arg::Default(true)),
+    text_signature = "(path=None, *, screenshot=None, yaw=0.0, pitch=0.0, resolution=128, depth_resolution=48, depth_resolution_importance=48, frame_budget_ms=100.0, frames=3, drag_frames=0, bake=True, fine_field=True)"
 )]
 #[allow(clippy::too_many_arguments)]
 pub fn view<'py>(
@@ -43,6 +45,7 @@ pub fn view<'py>(
     frames: Arg<'py, i64>,
     drag_frames: Arg<'py, i64>,
     bake: Arg<'py, bool>,
+    fine_field: Arg<'py, bool>,
 ) -> PyResult<()> {
     let samples = MAX_SAMPLES as i64;
     let options = lp3d_viewer::ViewerOptions {
@@ -62,6 +65,7 @@ pub fn view<'py>(
         frames: int_arg(&frames, "frames", 1, 10_000)? as u32,
         drag_frames: int_arg(&drag_frames, "drag_frames", 0, 10_000)? as u32,
         bake: bool_arg(&bake, "bake")?,
+        fine_field: bool_arg(&fine_field, "fine_field")?,
         help: false,
     };
     options.validate().map_err(|e| invalid("view", e))?;
@@ -89,5 +93,6 @@ pub fn view_options<'py>(py: Python<'py>, argv: Vec<String>) -> PyResult<Bound<'
     dict.set_item("frames", o.frames)?;
     dict.set_item("drag_frames", o.drag_frames)?;
     dict.set_item("bake", o.bake)?;
+    dict.set_item("fine_field", o.fine_field)?;
     Ok(dict)
 }

@@ -108,6 +108,11 @@ pub struct ViewerApp {
     times: FrameTimes,
     /// Render times of baked frames (apart: they are far cheaper than exact ones of a rung).
     baked_times: FrameTimes,
+    /// The field `baked_times` were measured with: a new field (the fine one replacing the quick
+    /// one) starts them again.
+    baked_times_field: Option<lp3d_renderer::BakeSpec>,
+    /// Bake the fine field after the quick one (`--no-fine-field`: false).
+    bake_fine: bool,
     /// The phase of the last rendered frame (a move starts when it was not `Moving`).
     last_phase: Option<Phase>,
     targets: Vec<Target>,
@@ -186,6 +191,8 @@ impl ViewerApp {
             frame_budget_ms: options.frame_budget_ms,
             times: FrameTimes::default(),
             baked_times: FrameTimes::default(),
+            baked_times_field: None,
+            bake_fine: options.fine_field,
             last_phase: None,
             targets: Vec::new(),
             shown: None,
@@ -380,7 +387,16 @@ impl ViewerApp {
         };
         let rung = ladder.rungs[index];
         let exact = rung.apply(&key.settings);
-        let settings = if baked { bake::baked_settings(&exact) } else { exact };
+        let field = self.loaded.as_ref().and_then(|l| l.gpu.baked());
+        let settings = match (&field, baked) {
+            (Some(f), true) => bake::baked_settings(&exact, bake::Field::of(&f.spec)),
+            _ => exact,
+        };
+        let field_spec = field.map(|f| f.spec);
+        if baked && self.baked_times_field != field_spec {
+            self.baked_times = FrameTimes::default();
+            self.baked_times_field = field_spec;
+        }
         let sizes: Vec<u32> = ladder.rungs.iter().map(|r| r.resolution).collect();
         let t = self.target_for(settings.resolution, &sizes);
         let Some(loaded) = self.loaded.as_ref() else { return };
@@ -402,7 +418,9 @@ impl ViewerApp {
                 times.record(rung, render_ms);
                 let top = ladder.top();
                 let ui_frame = ctx.cumulative_frame_nr();
-                let shown = Shown { key, rung, index, top, baked, render_ms, at: end, ui_frame };
+                // What was drawn: a baked frame may take more coarse samples than its rung.
+                let drawn = Rung::of(&settings);
+                let shown = Shown { key, rung: drawn, index, top, baked, render_ms, at: end, ui_frame };
                 let phase = if shown.is_final() {
                     Phase::Final
                 } else if self.moving {
@@ -420,7 +438,7 @@ impl ViewerApp {
                         ui_frame,
                         render_ms,
                         interval_ms: self.interval_ms,
-                        rung,
+                        rung: drawn,
                         index,
                         rungs: ladder.rungs.len(),
                         phase,

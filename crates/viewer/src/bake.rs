@@ -1,11 +1,13 @@
 //! The baked field in the viewer (issue 23, `docs/baked.md`). After a file is opened, a background
-//! thread bakes its occupancy grid (CPU) and then its baked field (GPU, in dispatches of
-//! `BAKE_CHUNK` points, so the UI keeps drawing between them). Once the field is ready, frames
-//! drawn while the view moves look samples up in it at the chosen resolution and samples (or, when
-//! that does not fit the frame budget, the chosen resolution with half the samples, the ladder's
-//! baked-only rung, then lower rungs with the chosen coarse samples), instead of decoding every
-//! sample at a much lower rung; the settled frame is always exact (it decodes every sample), the
-//! reference the baked field only approximates.
+//! thread bakes its occupancy grid (CPU) and then its baked fields (GPU, in dispatches of
+//! `BAKE_CHUNK` points, so the UI keeps drawing between them): a quick one (`QUICK_FIELD`, ~20 s),
+//! then a fine one (`FINE_FIELD`, ~1 minute more) that replaces it. Once a field is ready, frames
+//! drawn while the view moves look samples up in it at the chosen resolution and samples (the fine
+//! field with a third more coarse samples, which brings its frames to the exact frame's error), or,
+//! when that does not fit the frame budget, the chosen resolution with half the samples (the
+//! ladder's baked-only rung), then lower rungs with the chosen coarse samples, instead of decoding
+//! every sample at a much lower rung; the settled frame is always exact (it decodes every sample),
+//! the reference the baked field only approximates.
 //!
 //! The field lives with its `GpuTriplane` (`GpuTriplane::baked`), so a field can never serve
 //! another file's frames; opening another file drops this file's job, which stops its bake.
@@ -17,6 +19,7 @@ use std::time::Instant;
 
 use eframe::egui;
 use lp3d_renderer::occupancy::{Occupancy, DEFAULT_RESOLUTION};
+use lp3d_renderer::settings::MAX_SAMPLES;
 use lp3d_renderer::{
     BakeSpec, Display, GpuBaked, GpuTriplane, Outputs, RenderSettings, Renderer, Skips, Triplane,
 };
@@ -24,17 +27,57 @@ use lp3d_renderer::{
 use crate::orbit::Orbit;
 use crate::quality::{FrameTimes, Ladder, Rung};
 
-/// Points per baked cell edge, k: `Skips::BAKED`'s (4, and 10 in the bricks a surface crosses).
-/// A lookup costs the same whatever k, and the field's error falls with the square of the
-/// sub-cell (`docs/baked.md`), so the finer field draws a closer image at the same frame time;
-/// two levels put the points where the error is: ~100 MiB and a bake of ~20 s on a teacher head
-/// (bench/RESULTS.md, "Two levels"), where a uniform k = 8 does not fit lavapipe's 128 MiB
-/// binding. Finer fine bricks (k_f = 16: ~0.3 GiB, a bake of over a minute) would keep a user
-/// waiting longer than the drags they speed up.
-pub const BAKE_SUBDIVISIONS: u32 = Skips::BAKED.baked_subdivisions;
-/// Points per cell edge in the bricks a surface crosses (two levels; 0: one): `Skips::BAKED`'s.
-pub const BAKE_FINE_SUBDIVISIONS: u32 = Skips::BAKED.baked_fine_subdivisions;
-/// The occupancy skip's epsilon the field is baked for: `Skips::BAKED`'s (1e-4), invisible in an
+/// A field the viewer bakes: points per cell edge, k (k_f in the bricks a surface crosses), and
+/// the coarse samples its frames take for each coarse sample of the rung they stand in for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Field {
+    pub subdivisions: u32,
+    pub fine_subdivisions: u32,
+    /// (numerator, denominator): a baked frame of a rung with C coarse samples takes
+    /// ceil(C · n / d), so that its error matches the rung's exact frame.
+    pub coarse_scale: (u32, u32),
+}
+
+/// The field baked first: `Skips::BAKED`'s (k 4, and 10 in the bricks a surface crosses), ~100
+/// MiB and a bake of ~20 s on a teacher head (bench/RESULTS.md, "Two levels"); a lookup costs the
+/// same whatever k, and the field's error falls with the square of the sub-cell (`docs/baked.md`).
+/// Its frames take the rung's samples: 46–48 dB from exact 192+192 at 128² · 48+48, 8–10 dB short
+/// of the exact frame.
+pub const QUICK_FIELD: Field = Field {
+    subdivisions: Skips::BAKED.baked_subdivisions,
+    fine_subdivisions: Skips::BAKED.baked_fine_subdivisions,
+    coarse_scale: (1, 1),
+};
+
+/// The field baked next, replacing the quick one when ready: k 4 / 16, ~0.3 GiB and a bake of ~1
+/// minute on this CPU. With a third more coarse samples than the rung (64+48 for 48+48) its frames
+/// are as close to exact 192+192 as the rung's exact frame on the shipped encoder's triplanes
+/// (bench/RESULTS.md, "The viewer's fine field"): at the samples a baked lookup costs what it
+/// does, the coarse pass buys the error (bench/RESULTS.md, "More coarse samples than fine").
+pub const FINE_FIELD: Field = Field { subdivisions: 4, fine_subdivisions: 16, coarse_scale: (4, 3) };
+
+impl Field {
+    /// The viewer's field a bake spec was made for (the quick one's rules for any other).
+    pub fn of(spec: &BakeSpec) -> Field {
+        let same =
+            |f: &Field| (f.subdivisions, f.fine_subdivisions) == (spec.subdivisions, spec.fine_subdivisions);
+        [QUICK_FIELD, FINE_FIELD].into_iter().find(same).unwrap_or(Field {
+            subdivisions: spec.subdivisions,
+            fine_subdivisions: spec.fine_subdivisions,
+            coarse_scale: (1, 1),
+        })
+    }
+
+    /// `k 4 / 16`.
+    pub fn label(&self) -> String {
+        match self.fine_subdivisions {
+            0 => format!("k {}", self.subdivisions),
+            fine => format!("k {} / {fine}", self.subdivisions),
+        }
+    }
+}
+
+/// The occupancy skip's epsilon the fields are baked for: `Skips::BAKED`'s (1e-4), invisible in an
 /// 8-bit image.
 pub const BAKE_EPSILON: f32 = Skips::BAKED.occupancy_epsilon;
 /// Transmittance and empty-ray thresholds of a baked frame, which also skips empty cells in the
@@ -44,44 +87,46 @@ pub const BAKE_EPSILON: f32 = Skips::BAKED.occupancy_epsilon;
 /// views): the field's own error is far larger.
 pub const BAKED_THRESHOLD: f32 = 1e-3;
 
-/// The settings of a frame drawn from the baked field: the chosen resolution and samples, with
-/// samples looked up instead of decoded.
-pub fn baked_settings(chosen: &RenderSettings) -> RenderSettings {
+/// The settings of a frame drawn from `field` in place of the rung `chosen`: its resolution and
+/// fine samples, the field's coarse samples for it, samples looked up instead of decoded.
+pub fn baked_settings(chosen: &RenderSettings, field: Field) -> RenderSettings {
+    let (n, d) = field.coarse_scale;
     RenderSettings {
+        depth_resolution: (chosen.depth_resolution * n).div_ceil(d).min(MAX_SAMPLES),
         skips: Skips {
             transmittance_threshold: BAKED_THRESHOLD,
             empty_threshold: BAKED_THRESHOLD,
             occupancy_epsilon: BAKE_EPSILON,
             occupancy_coarse: true,
-            baked_subdivisions: BAKE_SUBDIVISIONS,
-            baked_fine_subdivisions: BAKE_FINE_SUBDIVISIONS,
+            baked_subdivisions: field.subdivisions,
+            baked_fine_subdivisions: field.fine_subdivisions,
             baked_guide: false,
         },
         ..*chosen
     }
 }
 
-/// What a field must cover for baked frames of `settings` (`BakeSpec::covers`), for a scene whose
-/// rays run from `ray_start` to `ray_end`.
-pub fn spec_for(settings: &RenderSettings, (ray_start, ray_end): (f32, f32)) -> BakeSpec {
-    let s = baked_settings(settings);
+/// What `field` must cover to draw baked frames for the rung `settings` (`BakeSpec::covers`), for
+/// a scene whose rays run from `ray_start` to `ray_end`.
+pub fn spec_for(settings: &RenderSettings, field: Field, (ray_start, ray_end): (f32, f32)) -> BakeSpec {
     BakeSpec {
-        subdivisions: BAKE_SUBDIVISIONS,
-        fine_subdivisions: BAKE_FINE_SUBDIVISIONS,
+        subdivisions: field.subdivisions,
+        fine_subdivisions: field.fine_subdivisions,
         epsilon: BAKE_EPSILON,
-        max_delta: s.max_interval(ray_start, ray_end),
+        max_delta: baked_settings(settings, field).max_interval(ray_start, ray_end),
     }
 }
 
-/// The spec the viewer bakes for `chosen`: one that serves every rung of its ladder with the
-/// chosen coarse samples or half of them (the baked-only rung), i.e. `spec_for` the rung with the
-/// fewest. Half the samples mean intervals twice as long, so the occupancy skip keeps more cells:
-/// on the viewer bench's teacher head at 128² · 48+48, 26,022 bricks and 68 MiB instead of 22,204
-/// and 58 MiB (k 6; bench/RESULTS.md, "A baked-only rung").
-pub fn bake_spec(chosen: &RenderSettings, rays: (f32, f32)) -> BakeSpec {
+/// The specs the viewer bakes for `chosen`, in order: the quick field, then (with `fine`) the fine
+/// one. Each serves every rung of the ladder with the chosen coarse samples or half of them (the
+/// baked-only rung), i.e. is `spec_for` the rung with the fewest. Half the samples mean intervals
+/// twice as long, so the occupancy skip keeps more cells: on the viewer bench's teacher head at
+/// 128² · 48+48, 26,022 bricks instead of 22,204 (bench/RESULTS.md, "A baked-only rung").
+pub fn bake_specs(chosen: &RenderSettings, rays: (f32, f32), fine: bool) -> Vec<BakeSpec> {
     let ladder = Ladder::new(chosen);
-    let rung = ladder.baked_only.map_or(Rung::of(chosen), |i| ladder.rungs[i]);
-    spec_for(&rung.apply(chosen), rays)
+    let rung = ladder.baked_only.map_or(Rung::of(chosen), |i| ladder.rungs[i]).apply(chosen);
+    let fields: &[Field] = if fine { &[QUICK_FIELD, FINE_FIELD] } else { &[QUICK_FIELD] };
+    fields.iter().map(|&f| spec_for(&rung, f, rays)).collect()
 }
 
 /// Whether a baked field can draw `display`: it holds density and RGB, so feature channels 3..31
@@ -132,12 +177,14 @@ pub fn moving_frame(
 pub enum BakeState {
     /// Bounding the decoder's density over the occupancy grid's cells (CPU).
     Occupancy,
-    /// Baking on the GPU: points done of all.
+    /// Baking `field` on the GPU: points done of all (the field before it, if any, draws
+    /// meanwhile).
     Baking {
+        field: Field,
         done: usize,
         total: usize,
     },
-    /// The field is on the triplane (`GpuTriplane::baked`).
+    /// The last field is on the triplane (`GpuTriplane::baked`).
     Ready,
     Failed(String),
 }
@@ -157,36 +204,35 @@ impl BakeState {
         matches!(self, BakeState::Occupancy | BakeState::Baking { .. })
     }
 
-    /// `baking… 43%`, for the panel (None when ready: the field's own label says it).
+    /// `baking k 4 / 16… 43%`, for the panel (None when ready: the field's own label says it).
     pub fn progress_label(&self) -> Option<String> {
         match self {
             BakeState::Occupancy => Some("baking… occupancy grid".into()),
-            BakeState::Baking { done, total } => {
-                Some(format!("baking… {:.0}%", 100.0 * *done as f64 / (*total).max(1) as f64))
-            }
+            BakeState::Baking { field, done, total } => Some(format!(
+                "baking {}… {:.0}%",
+                field.label(),
+                100.0 * *done as f64 / (*total).max(1) as f64
+            )),
             BakeState::Ready => None,
-            BakeState::Failed(e) => Some(format!("bake failed (exact mode only): {e}")),
+            BakeState::Failed(e) => Some(format!("bake failed: {e}")),
         }
     }
 }
 
 /// `baked field (k 4 / 10, 98 MiB, baked in 17.5 s)`.
 pub fn field_label(field: &GpuBaked) -> String {
-    let k = match field.spec.fine_subdivisions {
-        0 => format!("{}", field.spec.subdivisions),
-        fine => format!("{} / {fine}", field.spec.subdivisions),
-    };
     format!(
-        "baked field (k {k}, {:.0} MiB, baked in {:.1} s)",
+        "baked field ({}, {:.0} MiB, baked in {:.1} s)",
+        Field::of(&field.spec).label(),
         field.device_bytes() as f64 / (1 << 20) as f64,
         field.bake_seconds
     )
 }
 
-/// A background bake of one file's field.
+/// A background bake of one file's fields, one after the other (`bake_specs`).
 pub struct BakeJob {
-    /// What it bakes.
-    pub spec: BakeSpec,
+    /// What it bakes, in order.
+    pub specs: Vec<BakeSpec>,
     state: Arc<Mutex<BakeState>>,
     cancel: Arc<AtomicBool>,
     handle: Option<JoinHandle<()>>,
@@ -195,27 +241,30 @@ pub struct BakeJob {
 }
 
 impl BakeJob {
-    /// Starts baking `gpu`'s field for `spec` on a thread of its own. `cpu` is the triplane
-    /// `gpu` was uploaded from when its occupancy grid is still to be made; None when it has
-    /// one. Each step requests a repaint of `ctx`. Once the field is ready, one baked frame of
-    /// `warm` (settings `spec` covers) builds the baked render pipeline and touches the field off
-    /// the UI thread, so that the first baked frame on screen takes its usual time.
+    /// Starts baking `gpu`'s fields for `specs`, in order, on a thread of its own; each replaces
+    /// the one before when ready. `cpu` is the triplane `gpu` was uploaded from when its occupancy
+    /// grid is still to be made; None when it has one. Each step requests a repaint of `ctx`. Once
+    /// a field is ready, one baked frame of `warm` (settings the specs cover) builds its render
+    /// pipeline and touches the field off the UI thread, so that its first frame on screen takes
+    /// its usual time.
     pub fn start(
         renderer: Arc<Renderer>,
         gpu: Arc<GpuTriplane>,
         cpu: Option<Triplane>,
-        spec: BakeSpec,
+        specs: Vec<BakeSpec>,
         warm: RenderSettings,
         ctx: egui::Context,
     ) -> BakeJob {
+        let first = specs.first().map_or(QUICK_FIELD, Field::of);
         let state = Arc::new(Mutex::new(if cpu.is_some() {
             BakeState::Occupancy
         } else {
-            BakeState::Baking { done: 0, total: 1 }
+            BakeState::Baking { field: first, done: 0, total: 1 }
         }));
         let cancel = Arc::new(AtomicBool::new(false));
         let seconds = Arc::new(Mutex::new(None));
         let (t_state, t_cancel, t_seconds) = (state.clone(), cancel.clone(), seconds.clone());
+        let t_specs = specs.clone();
         let handle = std::thread::Builder::new().name("lp3d-view bake".into()).spawn(move || {
             let start = Instant::now();
             let set = |s: BakeState| {
@@ -224,7 +273,7 @@ impl BakeJob {
                 }
                 ctx.request_repaint();
             };
-            match bake(&renderer, &gpu, cpu, spec, &warm, &t_cancel, &set) {
+            match bake(&renderer, &gpu, cpu, &t_specs, &warm, &t_cancel, &set) {
                 Ok(()) => {
                     if let Ok(mut s) = t_seconds.lock() {
                         *s = Some(start.elapsed().as_secs_f64());
@@ -243,14 +292,14 @@ impl BakeJob {
                 (None, Arc::new(Mutex::new(failed)))
             }
         };
-        BakeJob { spec, state, cancel, handle, seconds }
+        BakeJob { specs, state, cancel, handle, seconds }
     }
 
     pub fn state(&self) -> BakeState {
         self.state.lock().map(|s| s.clone()).unwrap_or_else(|_| BakeState::Failed("bake state lock".into()))
     }
 
-    /// Seconds from the job's start to the field being ready (occupancy grid included).
+    /// Seconds from the job's start to the last field being ready (occupancy grid included).
     pub fn seconds(&self) -> Option<f64> {
         self.seconds.lock().ok().and_then(|s| *s)
     }
@@ -271,12 +320,13 @@ impl Drop for BakeJob {
     }
 }
 
-/// The job's work: the occupancy grid (when `cpu` is given), the field, a warm-up frame.
+/// The job's work: the occupancy grid (when `cpu` is given), then each field and a warm-up frame
+/// from it. A field that fails after an earlier one is ready leaves the earlier one drawing.
 fn bake(
     renderer: &Renderer,
     gpu: &GpuTriplane,
     cpu: Option<Triplane>,
-    spec: BakeSpec,
+    specs: &[BakeSpec],
     warm: &RenderSettings,
     cancel: &AtomicBool,
     set: &dyn Fn(BakeState),
@@ -287,18 +337,27 @@ fn bake(
         if cancel.load(Ordering::Relaxed) {
             return Err("stopped".into());
         }
-        renderer.set_occupancy(gpu, grid).map_err(|e| e.to_string())?;
+        renderer.set_occupancy(gpu, grid).map_err(|e| format!("{e} (exact frames only)"))?;
     }
-    set(BakeState::Baking { done: 0, total: 1 });
-    let mut progress = |done: usize, total: usize| {
-        set(BakeState::Baking { done, total });
-        !cancel.load(Ordering::Relaxed)
-    };
-    renderer.bake_with_progress(gpu, spec, &mut progress).map_err(|e| e.to_string())?;
     let rgb = Outputs { features: false, rgb: true, depth: false, weights_sum: false };
-    renderer
-        .render(gpu, &[Orbit::new(0.0, 0.0).camera()], &baked_settings(warm), rgb)
-        .map_err(|e| format!("the first baked frame failed: {e}"))?;
+    for (i, &spec) in specs.iter().enumerate() {
+        let field = Field::of(&spec);
+        // What the panel says if this one fails: the field before it still draws.
+        let fallback = match i {
+            0 => " (exact frames only)".to_string(),
+            _ => format!(" (frames from the {} field)", Field::of(&specs[i - 1]).label()),
+        };
+        let failed = |e: String| format!("{}: {e}{fallback}", field.label());
+        set(BakeState::Baking { field, done: 0, total: 1 });
+        let mut progress = |done: usize, total: usize| {
+            set(BakeState::Baking { field, done, total });
+            !cancel.load(Ordering::Relaxed)
+        };
+        renderer.bake_with_progress(gpu, spec, &mut progress).map_err(|e| failed(e.to_string()))?;
+        renderer
+            .render(gpu, &[Orbit::new(0.0, 0.0).camera()], &baked_settings(warm, field), rgb)
+            .map_err(|e| failed(format!("its first frame failed: {e}")))?;
+    }
     Ok(())
 }
 
@@ -312,13 +371,17 @@ mod tests {
         let chosen = RenderSettings { resolution: 128, depth_resolution: 48, ..Default::default() };
         let ladder = Ladder::new(&chosen);
         // 32² · 12+12, 64² · 12+12, 64² · 48+48, 128² · 24+24 (baked only), 128² · 48+48: the
-        // viewer's field, baked for 24 coarse samples, serves the last three.
-        let field = bake_spec(&chosen, (2.25, 3.3));
-        let serves = |r: &Rung| field.covers(&spec_for(&r.apply(&chosen), (2.25, 3.3)));
-        assert_eq!(
-            (0..5).map(|i| serves(&ladder.rungs[i])).collect::<Vec<_>>(),
-            [false, false, true, true, true]
-        );
+        // viewer's fields, baked for 24 coarse samples, serve the last three.
+        let specs = bake_specs(&chosen, (2.25, 3.3), true);
+        for (spec, field) in specs.iter().zip([QUICK_FIELD, FINE_FIELD]) {
+            let serves = |r: &Rung| spec.covers(&spec_for(&r.apply(&chosen), field, (2.25, 3.3)));
+            assert_eq!(
+                (0..5).map(|i| serves(&ladder.rungs[i])).collect::<Vec<_>>(),
+                [false, false, true, true, true]
+            );
+        }
+        let (field, quick) = (specs[0], QUICK_FIELD);
+        let serves = |r: &Rung| field.covers(&spec_for(&r.apply(&chosen), quick, (2.25, 3.3)));
         let none = |_: &Rung| false;
         let mut t = FrameTimes::default();
         // No field (or one that does not cover the settings or the display): the exact ladder.
@@ -346,26 +409,41 @@ mod tests {
     #[test]
     fn baked_frames_use_the_chosen_quality_and_a_field_that_covers_them() {
         let chosen = RenderSettings { resolution: 128, depth_resolution: 48, ..Default::default() };
-        let s = baked_settings(&chosen);
+        let s = baked_settings(&chosen, QUICK_FIELD);
         assert_eq!((s.resolution, s.depth_resolution, s.depth_resolution_importance), (128, 48, 48));
         assert_eq!(
-            (s.skips.baked_subdivisions, s.skips.occupancy_epsilon),
-            (BAKE_SUBDIVISIONS, BAKE_EPSILON)
+            (s.skips.baked_subdivisions, s.skips.baked_fine_subdivisions, s.skips.occupancy_epsilon),
+            (4, 10, BAKE_EPSILON)
         );
         s.validate().unwrap();
+        // The fine field's frames take a third more coarse samples (bench/RESULTS.md).
+        let f = baked_settings(&chosen, FINE_FIELD);
+        assert_eq!((f.resolution, f.depth_resolution, f.depth_resolution_importance), (128, 64, 48));
+        assert_eq!((f.skips.baked_subdivisions, f.skips.baked_fine_subdivisions), (4, 16));
+        f.validate().unwrap();
+        let most = RenderSettings { depth_resolution: MAX_SAMPLES, ..chosen };
+        assert_eq!(baked_settings(&most, FINE_FIELD).depth_resolution, MAX_SAMPLES);
         assert_eq!(chosen.skips, Skips::EXACT, "the chosen (final) settings stay exact");
         let rays = (2.25, 3.3);
-        let spec = bake_spec(&chosen, rays);
-        assert!(spec.covers(&spec_for(&chosen, rays)));
-        // The baked field also serves half the chosen coarse samples (the baked-only rung).
-        let half = RenderSettings { depth_resolution: 24, depth_resolution_importance: 24, ..chosen };
-        assert_eq!(spec, spec_for(&half, rays));
-        // More coarse samples: shorter intervals, covered; fewer than half: a new bake.
-        let more = RenderSettings { depth_resolution: 64, ..chosen };
-        let fewer = RenderSettings { depth_resolution: 12, ..chosen };
-        assert!(spec.covers(&spec_for(&more, rays)));
-        assert!(!spec.covers(&spec_for(&fewer, rays)));
-        assert!(bake_spec(&fewer, rays).covers(&spec));
+        let specs = bake_specs(&chosen, rays, true);
+        assert_eq!(specs.len(), 2);
+        assert_eq!(bake_specs(&chosen, rays, false), specs[..1]);
+        for (spec, field) in specs.iter().zip([QUICK_FIELD, FINE_FIELD]) {
+            assert_eq!(Field::of(spec), field);
+            assert!(spec.covers(&spec_for(&chosen, field, rays)));
+            // Each field also serves half the chosen coarse samples (the baked-only rung).
+            let half = RenderSettings { depth_resolution: 24, depth_resolution_importance: 24, ..chosen };
+            assert_eq!(*spec, spec_for(&half, field, rays));
+            // More coarse samples: shorter intervals, covered; fewer than half: a new bake.
+            let more = RenderSettings { depth_resolution: 64, ..chosen };
+            let fewer = RenderSettings { depth_resolution: 12, ..chosen };
+            assert!(spec.covers(&spec_for(&more, field, rays)));
+            assert!(!spec.covers(&spec_for(&fewer, field, rays)));
+            assert!(spec_for(&fewer, field, rays).covers(spec));
+        }
+        // A field serves only its own frames.
+        assert!(!specs[0].covers(&spec_for(&chosen, FINE_FIELD, rays)));
+        assert!(!specs[1].covers(&spec_for(&chosen, QUICK_FIELD, rays)));
     }
 
     #[test]
@@ -424,13 +502,13 @@ mod tests {
         let gpu = Arc::new(renderer.upload(&tri).unwrap());
         assert!(gpu.has_occupancy(), "uploaded with its grid: the job needs no triplane");
         let settings = RenderSettings { resolution: 8, depth_resolution: 48, ..Default::default() };
-        let spec = spec_for(&settings, rays);
-        let job = BakeJob::start(renderer, gpu.clone(), None, spec, settings, egui::Context::default());
+        let spec = spec_for(&settings, QUICK_FIELD, rays);
+        let job = BakeJob::start(renderer, gpu.clone(), None, vec![spec], settings, egui::Context::default());
         // Stop it once its first dispatches are done (as opening another file does).
         let start = Instant::now();
         let (done, total) = loop {
             match job.state() {
-                BakeState::Baking { done, total } if done > 0 => break (done, total),
+                BakeState::Baking { done, total, .. } if done > 0 => break (done, total),
                 BakeState::Failed(e) => panic!("the bake failed: {e}"),
                 s => assert!(start.elapsed().as_secs() < 120, "no progress: {s:?}"),
             }
@@ -445,13 +523,14 @@ mod tests {
 
     #[test]
     fn progress_and_field_labels() {
-        assert_eq!(BakeState::Baking { done: 43, total: 100 }.progress_label().unwrap(), "baking… 43%");
+        let baking = |done, total| BakeState::Baking { field: FINE_FIELD, done, total };
+        assert_eq!(baking(43, 100).progress_label().unwrap(), "baking k 4 / 16… 43%");
         assert_eq!(BakeState::Ready.progress_label(), None);
         assert!(BakeState::Failed("out of memory".into())
             .progress_label()
             .unwrap()
             .contains("out of memory"));
         assert!(BakeState::Occupancy.running() && !BakeState::Ready.running());
-        assert_eq!(BakeState::Baking { done: 0, total: 0 }.name(), "baking");
+        assert_eq!(baking(0, 0).name(), "baking");
     }
 }

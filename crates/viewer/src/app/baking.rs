@@ -17,7 +17,7 @@ impl ViewerApp {
             self.renderer.clone(),
             gpu.clone(),
             cpu,
-            bake::bake_spec(&self.settings, ray_range),
+            bake::bake_specs(&self.settings, ray_range, self.bake_fine),
             self.settings,
             self.egui_ctx.clone(),
         )
@@ -29,9 +29,10 @@ impl ViewerApp {
     pub(super) fn rebake_if_needed(&mut self) {
         let Some(l) = &self.loaded else { return };
         let Some(job) = &l.bake else { return };
-        let need = bake::bake_spec(&self.settings, l.ray_range);
-        let covered = l.gpu.baked().is_some_and(|f| f.spec.covers(&need));
-        if covered || job.spec == need || job.state().running() {
+        let need = bake::bake_specs(&self.settings, l.ray_range, self.bake_fine);
+        let last = need.last().expect("at least the quick field");
+        let covered = l.gpu.baked().is_some_and(|f| f.spec.covers(last));
+        if covered || job.specs == need || job.state().running() {
             return;
         }
         // The first job made the occupancy grid (or failed to, and so will this one, saying so).
@@ -45,10 +46,11 @@ impl ViewerApp {
     /// is ready, covers the settings and can show the display (RGB, depth, weights, channels 0-2).
     pub(super) fn field_serves(&self, key: &FrameKey) -> bool {
         let Some(l) = &self.loaded else { return false };
-        let need = bake::spec_for(&key.settings, l.ray_range);
         !self.baked_broken
             && bake::display_supported(key.display)
-            && l.gpu.baked().is_some_and(|f| f.spec.covers(&need))
+            && l.gpu.baked().is_some_and(|f| {
+                f.spec.covers(&bake::spec_for(&key.settings, bake::Field::of(&f.spec), l.ray_range))
+            })
     }
 
     /// The loaded file's bake, None without a file or with `--no-bake`.

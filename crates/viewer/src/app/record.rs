@@ -7,6 +7,8 @@ use super::*;
 #[derive(Debug, Clone, Copy)]
 pub(super) struct Shown {
     pub key: FrameKey,
+    /// The resolution and samples drawn (a baked frame may take more coarse samples than its
+    /// ladder rung, `bake::Field::coarse_scale`).
     pub rung: Rung,
     /// Index in the key's ladder, and the ladder's top index (a baked frame is at the top's
     /// resolution and samples).
@@ -56,6 +58,7 @@ pub(super) struct FrameRecord {
     pub render_ms: f64,
     /// Time since the previous UI frame began: what the user sees as the frame time.
     pub interval_ms: f64,
+    /// The resolution and samples drawn (`Shown::rung`); `index` is the ladder rung.
     pub rung: Rung,
     pub index: usize,
     pub rungs: usize,
