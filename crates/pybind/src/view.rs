@@ -20,8 +20,8 @@ use crate::error::invalid;
 /// returns. While the camera moves, frames render at the quality predicted to fit
 /// ``frame_budget_ms``; with ``bake`` (the default), once the file's baked field is made (in the
 /// background), at the final quality from the field when that fits; with ``fine_field`` (the
-/// default) a finer field follows the quick one and replaces it (``lp3d-view --help``). Call from the main thread,
-/// once per process (a windowing limitation).
+/// default) a finer field follows the quick one and replaces it (``lp3d-view --help``). Call from
+/// the main thread, once per process (a windowing limitation).
 #[pyfunction]
 #[pyo3(
     signature = (path=None, *, screenshot=None, yaw=Arg::Default(0.0), pitch=Arg::Default(0.0),
