@@ -387,16 +387,7 @@ impl ViewerApp {
         };
         let rung = ladder.rungs[index];
         let exact = rung.apply(&key.settings);
-        let field = self.loaded.as_ref().and_then(|l| l.gpu.baked());
-        let settings = match (&field, baked) {
-            (Some(f), true) => bake::baked_settings(&exact, bake::Field::of(&f.spec)),
-            _ => exact,
-        };
-        let field_spec = field.map(|f| f.spec);
-        if baked && self.baked_times_field != field_spec {
-            self.baked_times = FrameTimes::default();
-            self.baked_times_field = field_spec;
-        }
+        let settings = if baked { self.baked_frame_settings(&exact) } else { exact };
         let sizes: Vec<u32> = ladder.rungs.iter().map(|r| r.resolution).collect();
         let t = self.target_for(settings.resolution, &sizes);
         let Some(loaded) = self.loaded.as_ref() else { return };

@@ -53,6 +53,18 @@ impl ViewerApp {
             })
     }
 
+    /// The settings of a frame drawn from the loaded file's field in place of the rung `exact`
+    /// (`bake::baked_settings`). A field other than the one the baked frame times were measured
+    /// with (the fine one replacing the quick one) starts those times again.
+    pub(super) fn baked_frame_settings(&mut self, exact: &RenderSettings) -> RenderSettings {
+        let Some(field) = self.loaded.as_ref().and_then(|l| l.gpu.baked()) else { return *exact };
+        if self.baked_times_field != Some(field.spec) {
+            self.baked_times = FrameTimes::default();
+            self.baked_times_field = Some(field.spec);
+        }
+        bake::baked_settings(exact, bake::Field::of(&field.spec))
+    }
+
     /// The loaded file's bake, None without a file or with `--no-bake`.
     pub(super) fn bake_state(&self) -> Option<BakeState> {
         self.loaded.as_ref()?.bake.as_ref().map(BakeJob::state)
