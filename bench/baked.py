@@ -29,11 +29,12 @@ from pathlib import Path
 import numpy as np
 
 import lp3d_render
+from encoded import encoder_outputs  # bench/ is on sys.path when run as a script
 from lp3d.render.camera import look_at_camera
 from lp3d.render.psnr import psnr_db
 from lp3d.render.triplane import TriplaneData
 from lp3d.teachers import ProceduralTeacher
-from render_bench import median_ms  # bench/ is on sys.path when run as a script
+from render_bench import median_ms
 
 os.environ.setdefault("LP3D_KERNEL", "fast")
 
@@ -129,18 +130,14 @@ SETTINGS = [
 
 def scenes() -> list[tuple[str, TriplaneData]]:
     """Teacher heads and the shipped encoder's triplanes of frontal renders of them."""
-    from lp3d.lift.inference import DEFAULT_MODEL, load_encoder
+    from lp3d.lift.inference import DEFAULT_MODEL
 
     teacher = ProceduralTeacher(resolution=64)
-    heads = [(f"teacher head {s}", teacher.sample(s)) for s in SEEDS]
-    out = list(heads)
+    heads = [teacher.sample(s) for s in SEEDS]
+    out = [(f"teacher head {s}", head) for s, head in zip(SEEDS, heads, strict=True)]
     if DEFAULT_MODEL.exists():
-        enc = load_encoder(DEFAULT_MODEL)
-        front = look_at_camera()
-        for name, head in heads:
-            image = lp3d_render.render(head.to_native(), front, resolution=enc.package.image_size)["rgb"]
-            planes = enc.run(image[None].astype(np.float32))[0]
-            out.append((f"encoder output of {name.split()[-1]}", enc.package.triplane(planes)))
+        encoded = encoder_outputs(heads)
+        out += [(f"encoder output of {s}", tri) for s, tri in zip(SEEDS, encoded, strict=True)]
     return out
 
 

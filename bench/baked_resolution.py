@@ -29,6 +29,7 @@ from collections.abc import Iterator
 import numpy as np
 
 import lp3d_render
+from encoded import encoder_outputs  # bench/ is on sys.path when run as a script
 from lp3d.render.baked import (
     EMPTY_RAW,
     bake_reference,
@@ -89,14 +90,9 @@ def scenes(
             yield seed, yaw, "teacher head", teacher.sample(seed)
     if "encoder" not in kinds:
         return
-    from lp3d.lift.inference import DEFAULT_MODEL, load_encoder
-
-    enc = load_encoder(DEFAULT_MODEL)
-    for seed, yaw in zip(seeds, yaws, strict=True):
-        head = teacher.sample(seed).to_native()
-        image = lp3d_render.render(head, look_at_camera(), resolution=enc.package.image_size)["rgb"]
-        planes = enc.run(image[None].astype(np.float32))[0]
-        yield seed, yaw, "encoder output of", enc.package.triplane(planes)
+    encoded = encoder_outputs(teacher.sample(seed) for seed in seeds)
+    for seed, yaw, tri in zip(seeds, yaws, encoded, strict=True):
+        yield seed, yaw, "encoder output of", tri
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 import lp3d_render
+from encoded import encoder_output  # bench/ is on sys.path when run as a script
 from lp3d.render.camera import look_at_camera
 from lp3d.render.psnr import psnr_db
 from lp3d.render.settings import BAKED
@@ -93,13 +94,7 @@ def render(
 def scene(seed: int, kind: str) -> object:
     """Teacher head `seed`, or the shipped encoder's triplane of a frontal render of it."""
     head = ProceduralTeacher().sample(seed)
-    if kind == "teacher":
-        return head.to_native()
-    from lp3d.lift.inference import DEFAULT_MODEL, load_encoder
-
-    enc = load_encoder(DEFAULT_MODEL)
-    image = lp3d_render.render(head.to_native(), look_at_camera(), resolution=enc.package.image_size)["rgb"]
-    return enc.package.triplane(enc.run(image[None].astype(np.float32))[0]).to_native()
+    return (head if kind == "teacher" else encoder_output(head)).to_native()
 
 
 def main(argv: list[str] | None = None) -> int:

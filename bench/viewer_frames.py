@@ -116,17 +116,6 @@ SCENE_NAMES = {
 }
 
 
-def encoded(head: object) -> object:
-    """The shipped encoder's triplane of a frontal render of `head` (as ``lp3d demo`` makes it)."""
-    import lp3d_render
-    from lp3d.lift.inference import DEFAULT_MODEL, load_encoder
-    from lp3d.render.camera import look_at_camera
-
-    enc = load_encoder(DEFAULT_MODEL)
-    image = lp3d_render.render(head.to_native(), look_at_camera(), resolution=enc.package.image_size)["rgb"]
-    return enc.package.triplane(enc.run(image[None].astype(np.float32))[0])
-
-
 def first_vs_later(frames: list[dict]) -> list[tuple[str, float, float | None, int]]:
     """(rung, first render ms, median of later renders or None, number of later renders)."""
     by_rung: dict[str, list[float]] = {}
@@ -166,6 +155,7 @@ def main(argv: list[str] | None = None) -> int:
     if shutil.which("xvfb-run") is None:
         p.error("xvfb-run is missing: run scripts/install-system-deps.sh")
 
+    from encoded import encoder_output  # bench/ is on sys.path when run as a script
     from lp3d.render.triplane_io import save_triplane
     from lp3d.teachers.procedural import ProceduralTeacher
 
@@ -174,7 +164,7 @@ def main(argv: list[str] | None = None) -> int:
         work = Path(tmp)
         scene = work / "head.npz"
         head = ProceduralTeacher().sample(args.seed)
-        save_triplane(scene, head if args.scene == "teacher" else encoded(head))
+        save_triplane(scene, head if args.scene == "teacher" else encoder_output(head))
         for mode in modes:  # warm the shader cache (untimed)
             run_once(scene, work, budgets[0], mode, 2, args.timeout)
         # Modes alternate run by run, so that a change in the machine's load hits both alike.
