@@ -115,6 +115,8 @@ pub struct ViewerApp {
     bake_fine: bool,
     /// The phase of the last rendered frame (a move starts when it was not `Moving`).
     last_phase: Option<Phase>,
+    /// Frames rendered since the current move started (`bake::PROBE_EVERY`).
+    move_frames: u32,
     targets: Vec<Target>,
     shown: Option<Shown>,
     /// The key whose render failed (not retried until something changes).
@@ -194,6 +196,7 @@ impl ViewerApp {
             baked_times_field: None,
             bake_fine: options.fine_field,
             last_phase: None,
+            move_frames: 0,
             targets: Vec::new(),
             shown: None,
             failed: None,
@@ -375,9 +378,10 @@ impl ViewerApp {
     fn moving_frame(&self, key: &FrameKey, ladder: &Ladder) -> Draw {
         let exact = ladder.interactive(&self.times, self.frame_budget_ms);
         let fresh_move = self.last_phase != Some(Phase::Moving);
+        let probe = fresh_move || self.move_frames % bake::PROBE_EVERY == 0;
         let serves =
             |rung: &Rung| self.field_serves(&FrameKey { settings: rung.apply(&key.settings), ..*key });
-        bake::moving_frame(ladder, serves, &self.baked_times, fresh_move, self.frame_budget_ms, exact)
+        bake::moving_frame(ladder, serves, &self.baked_times, probe, self.frame_budget_ms, exact)
     }
 
     fn render(&mut self, ctx: &egui::Context, key: FrameKey, ladder: &Ladder, frame: Draw, dragging: bool) {
@@ -420,6 +424,11 @@ impl ViewerApp {
                     Phase::Refining
                 };
                 self.shown = Some(shown);
+                self.move_frames = match (phase, self.last_phase) {
+                    (Phase::Moving, Some(Phase::Moving)) => self.move_frames + 1,
+                    (Phase::Moving, _) => 1,
+                    _ => 0,
+                };
                 self.last_phase = Some(phase);
                 self.failed = None;
                 self.render_error = None;

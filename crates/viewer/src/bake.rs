@@ -138,6 +138,11 @@ pub fn display_supported(display: Display) -> bool {
     }
 }
 
+/// While a move lasts, every this many frames is a probe (`moving_frame`): one frame of up to
+/// twice the budget about once a second at ten frames a second, so a drag climbs back within a
+/// second of a slow spell's end.
+pub const PROBE_EVERY: u32 = 10;
+
 /// How a frame is drawn: a rung of the quality ladder, exact or from the baked field.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Draw {
@@ -150,22 +155,28 @@ pub enum Draw {
 /// The frame to draw while the view moves. From the baked field, the most expensive rung it serves
 /// (`serves`: ready, covering the rung's samples, and a display it can draw: in practice the rungs
 /// with the chosen coarse samples) whose predicted time (`baked_times`) fits `budget_ms`; a rung
-/// not measured yet (nor any baked frame) is tried. At the first frame of a move (`fresh_move`)
-/// the most expensive rung served is tried again when predicted within twice the budget, so that
-/// one slow frame (a load spike) does not rule it out for good. When no baked rung fits: the
-/// exact ladder's `exact_rung`, as without a field.
+/// not measured yet (nor any baked frame) is tried. On a `probe` frame (the first of a move and
+/// every [`PROBE_EVERY`]th after it) the most expensive rung served is tried again when hoped to
+/// take at most twice the budget (`FrameTimes::hopeful`), so that a slow spell that has passed
+/// does not keep the rest of a drag at a lower rung. When no baked rung fits: the exact ladder's
+/// `exact_rung`, as without a field.
 pub fn moving_frame(
     ladder: &Ladder,
     serves: impl Fn(&Rung) -> bool,
     baked_times: &FrameTimes,
-    fresh_move: bool,
+    probe: bool,
     budget_ms: f64,
     exact_rung: usize,
 ) -> Draw {
     let served: Vec<usize> = (0..ladder.rungs.len()).rev().filter(|&i| serves(&ladder.rungs[i])).collect();
     for (n, &i) in served.iter().enumerate() {
-        let limit = if fresh_move && n == 0 { 2.0 * budget_ms } else { budget_ms };
-        if baked_times.predict(&ladder.rungs[i]).is_none_or(|ms| ms <= limit) {
+        let rung = &ladder.rungs[i];
+        let fits = if probe && n == 0 {
+            baked_times.hopeful(rung).is_none_or(|ms| ms <= 2.0 * budget_ms)
+        } else {
+            baked_times.predict(rung).is_none_or(|ms| ms <= budget_ms)
+        };
+        if fits {
             return Draw::Baked(i);
         }
     }
@@ -390,17 +401,28 @@ mod tests {
         assert_eq!(moving_frame(&ladder, serves, &t, false, 100.0, 1), Baked(4));
         t.record(ladder.rungs[4], 60.0);
         assert_eq!(moving_frame(&ladder, serves, &t, false, 100.0, 1), Baked(4));
-        // Over the budget (a moving average of 200 ms): the full resolution with half the
-        // samples, predicted at half the cost, 100 ms.
-        t.record(ladder.rungs[4], 340.0);
+        // One slow frame does not move it; two of three over the budget (200 ms) do: the full
+        // resolution with half the samples, predicted at half the cost, 100 ms.
+        t.record(ladder.rungs[4], 200.0);
+        assert_eq!(moving_frame(&ladder, serves, &t, false, 100.0, 1), Baked(4));
+        t.record(ladder.rungs[4], 200.0);
         assert_eq!(moving_frame(&ladder, serves, &t, false, 100.0, 1), Baked(3));
         // Over it too: the next rung the field serves, 64² · 48+48, predicted at 70 ms (half the
         // cost of 128² · 24+24, measured at 140 ms).
         t.record(ladder.rungs[3], 140.0);
         assert_eq!(moving_frame(&ladder, serves, &t, false, 100.0, 1), Baked(2));
-        // The first frame of a move tries the top again when within twice the budget.
+        // A probe (the first frame of a move, then every PROBE_EVERY) tries the top again when
+        // within twice the budget.
         assert_eq!(moving_frame(&ladder, serves, &t, true, 100.0, 1), Baked(4));
         assert_eq!(moving_frame(&ladder, serves, &t, true, 90.0, 1), Baked(2));
+        // A drag whose first frame was slow (400 ms) goes down to 64² · 48+48; once frames there
+        // say the machine is fast again (30 ms: the top at about 120), a probe tries the top.
+        let mut slow_start = FrameTimes::default();
+        slow_start.record(ladder.rungs[4], 400.0);
+        assert_eq!(moving_frame(&ladder, serves, &slow_start, true, 100.0, 1), Baked(2));
+        slow_start.record(ladder.rungs[2], 30.0);
+        assert_eq!(moving_frame(&ladder, serves, &slow_start, false, 100.0, 1), Baked(2));
+        assert_eq!(moving_frame(&ladder, serves, &slow_start, true, 100.0, 1), Baked(4));
         // No baked rung fits: the exact ladder's rung.
         assert_eq!(moving_frame(&ladder, serves, &t, false, 40.0, 0), Exact(0));
         assert_eq!(moving_frame(&ladder, serves, &t, true, 40.0, 0), Exact(0));

@@ -140,37 +140,53 @@ impl Ladder {
     }
 }
 
-/// Measured render times per rung (a moving average, so a load spike fades), and predictions
-/// for rungs not measured yet.
+/// Measured render times per rung: the last [`RECENT`] frames of each, predicted by their lower
+/// median, so that one slow frame (a load spike) does not move a drag to a lower rung and two of
+/// three do; and predictions for rungs not measured yet.
 #[derive(Debug, Clone, Default)]
 pub struct FrameTimes {
-    measured: Vec<(Rung, f64)>,
+    /// Each rung's recent times, oldest first; the rung measured last is last.
+    measured: Vec<(Rung, Vec<f64>)>,
 }
 
 /// Rungs remembered (the oldest is forgotten first).
 const REMEMBERED: usize = 64;
+/// Frames remembered per rung.
+const RECENT: usize = 3;
+
+/// The lower median of `times` (not empty): the middle of three, the smaller of two.
+fn lower_median(times: &[f64]) -> f64 {
+    let mut sorted = times.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    sorted[(sorted.len() - 1) / 2]
+}
 
 impl FrameTimes {
     pub fn record(&mut self, rung: Rung, ms: f64) {
         if !ms.is_finite() || ms < 0.0 {
             return;
         }
-        if let Some(i) = self.measured.iter().position(|(r, _)| *r == rung) {
-            let (_, old) = self.measured.remove(i);
-            self.measured.push((rung, 0.5 * old + 0.5 * ms));
-        } else {
-            if self.measured.len() == REMEMBERED {
-                self.measured.remove(0);
+        let mut recent = match self.measured.iter().position(|(r, _)| *r == rung) {
+            Some(i) => self.measured.remove(i).1,
+            None => {
+                if self.measured.len() == REMEMBERED {
+                    self.measured.remove(0);
+                }
+                Vec::with_capacity(RECENT)
             }
-            self.measured.push((rung, ms));
+        };
+        if recent.len() == RECENT {
+            recent.remove(0);
         }
+        recent.push(ms);
+        self.measured.push((rung, recent));
     }
 
     /// The rung's measured time, else the time of the measured rung closest in cost, scaled by
     /// the ratio of costs; `None` before any measurement.
     pub fn predict(&self, rung: &Rung) -> Option<f64> {
-        if let Some((_, ms)) = self.measured.iter().find(|(r, _)| r == rung) {
-            return Some(*ms);
+        if let Some((_, times)) = self.measured.iter().find(|(r, _)| r == rung) {
+            return Some(lower_median(times));
         }
         let cost = rung.cost().max(1.0);
         self.measured
@@ -180,7 +196,16 @@ impl FrameTimes {
                 let db = (b.cost().max(1.0) / cost).ln().abs();
                 da.total_cmp(&db)
             })
-            .map(|(r, ms)| ms * cost / r.cost().max(1.0))
+            .map(|(r, times)| lower_median(times) * cost / r.cost().max(1.0))
+    }
+
+    /// What a probe (`bake::moving_frame`) expects of `rung`: the lesser of its prediction and the
+    /// time of the rung measured last, scaled by the ratio of costs. So a rung whose only frames
+    /// were slowed by a spike is tried again once the frames drawn since say the machine is fast.
+    pub fn hopeful(&self, rung: &Rung) -> Option<f64> {
+        let (last, times) = self.measured.last()?;
+        let scaled = lower_median(times) * rung.cost().max(1.0) / last.cost().max(1.0);
+        Some(self.predict(rung).map_or(scaled, |ms| ms.min(scaled)))
     }
 }
 
@@ -265,13 +290,55 @@ mod tests {
         // 128² · 24+24 (predicted 600 ms) fits 700 ms but is for baked frames: 64² · 48+48.
         assert_eq!(l.interactive(&t, 700.0), 2);
         assert_eq!(l.interactive(&t, 1.0), 0, "nothing fits: the cheapest");
-        // A measurement overrides the prediction (and is averaged with later ones).
+        // A measurement overrides the prediction.
         t.record(l.rungs[1], 180.0);
         assert_eq!(l.interactive(&t, 100.0), 0);
         t.record(l.rungs[1], 20.0);
-        assert_eq!(t.predict(&l.rungs[1]), Some(100.0));
+        assert_eq!(t.predict(&l.rungs[1]), Some(20.0), "the smaller of two");
         assert_eq!(l.interactive(&t, 100.0), 1);
         t.record(l.rungs[1], f64::NAN);
-        assert_eq!(t.predict(&l.rungs[1]), Some(100.0));
+        t.record(l.rungs[1], -1.0);
+        assert_eq!(t.predict(&l.rungs[1]), Some(20.0), "not a time: ignored");
+    }
+
+    #[test]
+    fn one_slow_frame_does_not_demote_a_rung_two_of_three_do() {
+        let l = Ladder::new(&settings(128, 48, 48));
+        let top = l.rungs[4];
+        let mut t = FrameTimes::default();
+        for ms in [90.0, 95.0, 300.0] {
+            t.record(top, ms);
+        }
+        assert_eq!(t.predict(&top), Some(95.0), "a spike among three");
+        assert_eq!(l.interactive(&t, 100.0), 4);
+        t.record(top, 130.0);
+        assert_eq!(t.predict(&top), Some(130.0), "95, 300, 130: a slow spell");
+        assert_eq!(l.interactive(&t, 100.0), 2);
+        // The oldest drops out: back under the budget after two fast frames.
+        t.record(top, 80.0);
+        assert_eq!(t.predict(&top), Some(130.0));
+        t.record(top, 85.0);
+        assert_eq!(t.predict(&top), Some(85.0));
+        // Predictions for other rungs scale the same median.
+        assert_eq!(t.predict(&l.rungs[2]), Some(85.0 / 4.0));
+    }
+
+    #[test]
+    fn a_probe_hopes_from_the_rung_measured_last() {
+        let l = Ladder::new(&settings(128, 48, 48));
+        let (top, quarter) = (l.rungs[4], l.rungs[2]);
+        let mut t = FrameTimes::default();
+        assert_eq!(t.hopeful(&top), None);
+        t.record(top, 400.0);
+        assert_eq!(t.hopeful(&top), Some(400.0));
+        // Frames at a quarter of the cost since: 30 ms says the top would take about 120.
+        t.record(quarter, 30.0);
+        assert_eq!(t.predict(&top), Some(400.0));
+        assert_eq!(t.hopeful(&top), Some(120.0));
+        // Its own time when that is less.
+        t.record(top, 90.0);
+        t.record(top, 95.0);
+        t.record(quarter, 40.0);
+        assert_eq!(t.hopeful(&top), Some(95.0));
     }
 }

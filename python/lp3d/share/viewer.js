@@ -166,21 +166,26 @@ const rungCost = (r) => r.resolution * r.resolution * (r.depth_resolution + r.de
 const rungLabel = (r) =>
   r.resolution + "² · " + r.depth_resolution + (r.depth_resolution_importance ? "+" + r.depth_resolution_importance : "");
 
-// Measured times per rung (moving average); unmeasured rungs scaled from the nearest in cost.
+// Measured times per rung: the last three of each, read by their lower median (as lp3d-view's
+// quality::FrameTimes: one slow frame does not demote a rung, two of three do); unmeasured rungs
+// scaled from the nearest in cost.
+const RECENT = 3;
+const lowerMedian = (times) => [...times].sort((a, b) => a - b)[(times.length - 1) >> 1];
 class FrameTimes {
   constructor() {
     this.ms = new Map();
   }
   record(rung, ms) {
+    if (!Number.isFinite(ms) || ms < 0) return;
     const key = rungLabel(rung);
-    const old = this.ms.get(key);
-    this.ms.set(key, old === undefined ? { rung, ms } : { rung, ms: 0.5 * old.ms + 0.5 * ms });
+    const recent = [...(this.ms.get(key)?.recent ?? []), ms].slice(-RECENT);
+    this.ms.set(key, { rung, recent });
   }
   predict(rung) {
     let best = null;
     for (const m of this.ms.values()) {
       const d = Math.abs(Math.log(rungCost(m.rung) / rungCost(rung)));
-      if (best === null || d < best.d) best = { d, ms: (m.ms * rungCost(rung)) / rungCost(m.rung) };
+      if (best === null || d < best.d) best = { d, ms: (lowerMedian(m.recent) * rungCost(rung)) / rungCost(m.rung) };
     }
     return best === null ? null : best.ms;
   }
