@@ -113,9 +113,8 @@ pub struct ViewerApp {
     baked_times_field: Option<lp3d_renderer::BakeSpec>,
     /// Bake the fine field after the quick one (`--no-fine-field`: false).
     bake_fine: bool,
-    /// The phase of the last rendered frame (a move starts when it was not `Moving`).
-    last_phase: Option<Phase>,
-    /// Frames rendered since the current move started (`bake::PROBE_EVERY`).
+    /// Frames rendered since the current move started (`bake::PROBE_EVERY`); 0 when the last
+    /// frame was not a moving one, so a move starts when it is 0.
     move_frames: u32,
     targets: Vec<Target>,
     shown: Option<Shown>,
@@ -195,7 +194,6 @@ impl ViewerApp {
             baked_times: FrameTimes::default(),
             baked_times_field: None,
             bake_fine: options.fine_field,
-            last_phase: None,
             move_frames: 0,
             targets: Vec::new(),
             shown: None,
@@ -377,8 +375,8 @@ impl ViewerApp {
     /// that fits the budget (`bake::moving_frame`), else the exact ladder's interactive rung.
     fn moving_frame(&self, key: &FrameKey, ladder: &Ladder) -> Draw {
         let exact = ladder.interactive(&self.times, self.frame_budget_ms);
-        let fresh_move = self.last_phase != Some(Phase::Moving);
-        let probe = fresh_move || self.move_frames % bake::PROBE_EVERY == 0;
+        // The first frame of a move is a probe too: `move_frames` is 0 until a move's first frame.
+        let probe = self.move_frames % bake::PROBE_EVERY == 0;
         let serves =
             |rung: &Rung| self.field_serves(&FrameKey { settings: rung.apply(&key.settings), ..*key });
         bake::moving_frame(ladder, serves, &self.baked_times, probe, self.frame_budget_ms, exact)
@@ -424,12 +422,7 @@ impl ViewerApp {
                     Phase::Refining
                 };
                 self.shown = Some(shown);
-                self.move_frames = match (phase, self.last_phase) {
-                    (Phase::Moving, Some(Phase::Moving)) => self.move_frames + 1,
-                    (Phase::Moving, _) => 1,
-                    _ => 0,
-                };
-                self.last_phase = Some(phase);
+                self.move_frames = if phase == Phase::Moving { self.move_frames + 1 } else { 0 };
                 self.failed = None;
                 self.render_error = None;
                 if self.log.len() < LOG_CAP {
