@@ -217,7 +217,7 @@ def test_lpips_loads_backbone_weights_from_an_explicit_path(no_hub):
     y = (x + 0.3 * torch.randn(x.shape, generator=g)).clamp(-1, 1).requires_grad_(True)
     assert torch.allclose(lp.distance(x, x), torch.zeros(2), atol=1e-6)
     d = lp(y, x)
-    assert float(d) > 0
+    assert d.item() > 0
     d.backward()
     assert y.grad is not None and torch.isfinite(y.grad).all() and y.grad.abs().sum() > 0
 
