@@ -25,7 +25,7 @@ from lp3d.training import distributed
 from lp3d.training.checkpoint import CheckpointError, load_shared_checkpoint
 from lp3d.training.config import TRAIN_CONFIGS, TrainConfig, scaled_schedule
 from lp3d.training.losses import build_perceptual
-from lp3d.training.resume import extended_schedule, with_ray_phase
+from lp3d.training.resume import extended_schedule, refuse_weights_only, with_ray_phase
 from lp3d.training.run_dir import latest_checkpoint
 from lp3d.training.teacher_factory import build_teacher, recordable_teacher_args, resolve_teacher_args
 from lp3d.training.trainer import Trainer
@@ -82,7 +82,8 @@ def train(
     try:
         _check_arguments(dist_timeout_minutes, resume, init_from)
         run_device = distributed.setup(device, timeout_minutes=dist_timeout_minutes).device
-        ckpt = load_shared_checkpoint(str(resume)) if resume is not None else None
+        # A weights-only checkpoint is refused here, before the teacher is built.
+        ckpt = refuse_weights_only(load_shared_checkpoint(str(resume))) if resume is not None else None
         cfg, teacher_name, out_dir = _run_of(config, teacher, out, ckpt, resume)
         cfg = _with_overrides(
             cfg,

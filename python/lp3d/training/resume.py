@@ -47,10 +47,23 @@ def with_ray_phase(cfg: TrainConfig, ray_from: int, step: int = 0) -> TrainConfi
     return dataclasses.replace(cfg, regression_steps=ray_from)
 
 
+def refuse_weights_only(ckpt: dict[str, Any]) -> dict[str, Any]:
+    """``ckpt``, or :class:`CheckpointError` when it holds the student's weights alone
+    (``scripts/checkpoint_parts.py``): nothing for ``--resume`` to continue."""
+    if ckpt.get("weights_only"):
+        raise CheckpointError(
+            f"checkpoint {ckpt['path']!r} holds the student's weights alone, without the optimiser's "
+            "state that --resume continues: evaluate or export it, or start a new run from it with "
+            "--init-from"
+        )
+    return ckpt
+
+
 def check_resumable(ckpt: dict[str, Any], cfg: TrainConfig, teacher_name: str) -> None:
     """Raise :class:`CheckpointError` when the loaded checkpoint ``ckpt`` (its ``train_config``,
     ``teacher`` and ``path``) was trained with another configuration than ``cfg`` or another teacher
-    than ``teacher_name``."""
+    than ``teacher_name``, or holds the student's weights alone (``scripts/checkpoint_parts.py``)."""
+    refuse_weights_only(ckpt)
     recorded: TrainConfig = ckpt["train_config"]
     if cfg.total_steps > recorded.total_steps:
         recorded = extended_schedule(recorded, cfg.total_steps)

@@ -1,0 +1,191 @@
+"""A training run's student weights in parts no larger than a limit, and the parts joined back.
+
+Why: a lent GPU machine returns files of at most 16 MiB each (docs/training.md, "Continuing the
+shipped model on one GPU"), while a ``small-colour`` checkpoint is ~190 MB: 63 MB of weights and
+twice that of Adam's state. The weights alone are what ``lp3d eval``, ``lp3d export`` and
+``--init-from`` read; ``--resume`` needs the optimiser's state and refuses such a checkpoint.
+
+    python scripts/checkpoint_parts.py split RUN_OR_CHECKPOINT OUT_DIR [--part-mib 15]
+    python scripts/checkpoint_parts.py join OUT_DIR/step-NNNNNN.parts.json runs/x/checkpoints/step-NNNNNN.pt
+
+``split`` reads the checkpoint as ``lp3d eval`` does (a run folder: its newest readable one), keeps
+what rebuilding the student needs (its configuration, teacher, scene bounds, step and weights; marked
+``weights_only``) and writes ``step-NNNNNN.part00``, ``.part01``, ... and, last, the manifest
+``step-NNNNNN.parts.json`` with every part's size and SHA-256 and the whole file's. ``join`` checks
+each part and the whole against the manifest before anything is written, and publishes the
+checkpoint only once it loads as one (atomically: never half a file under its name).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import io
+import json
+import re
+import sys
+from pathlib import Path
+
+PARTS_FORMAT = "lp3d-checkpoint-parts-v1"
+#: What a weights-only checkpoint keeps: enough for ``load_checkpoint`` and ``student_from_checkpoint``.
+KEPT = ("format", "config", "teacher", "teacher_args", "scene", "step", "student")
+#: The device tool returns files named in letters, digits, '.', '_' and '-' alone.
+SAFE_NAME = re.compile(r"^[A-Za-z0-9._-]{1,100}$")
+MAX_PARTS = 256
+
+
+class PartsError(ValueError):
+    """Parts or a manifest that cannot be joined (named in the message)."""
+
+
+def _sha256(data: bytes | memoryview) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def weights_only(ckpt: dict) -> dict:
+    """The parts of a loaded checkpoint that rebuild its student, tensors on the CPU, marked
+    ``weights_only`` (``--resume`` refuses it, naming why)."""
+    slim = {k: ckpt[k] for k in KEPT if k in ckpt}
+    slim["student"] = {k: v.detach().to("cpu", copy=True).contiguous() for k, v in ckpt["student"].items()}
+    slim["weights_only"] = True
+    return slim
+
+
+def split(source: Path, out_dir: Path, part_bytes: int) -> Path:
+    """Write the weights of ``source`` (a checkpoint or a run folder) as parts of at most
+    ``part_bytes`` into ``out_dir``; returns the manifest's path."""
+    import torch
+
+    from lp3d.atomic import atomic_path, atomic_write_text
+    from lp3d.training.checkpoint import load_checkpoint
+
+    if part_bytes < 1:
+        raise PartsError(f"the part size must be at least 1 byte, got {part_bytes}")
+    ckpt = load_checkpoint(source)
+    step = int(ckpt["step"])
+    buf = io.BytesIO()
+    torch.save(weights_only(ckpt), buf)
+    data = buf.getbuffer()
+    n_parts = -(-len(data) // part_bytes)
+    if n_parts > MAX_PARTS:
+        raise PartsError(f"{n_parts} parts of {part_bytes} bytes: more than {MAX_PARTS}; choose larger parts")
+    stem = f"step-{step:06d}"
+    parts = []
+    for i in range(n_parts):
+        chunk = data[i * part_bytes : (i + 1) * part_bytes]
+        name = f"{stem}.part{i:02d}"
+        with atomic_path(out_dir / name) as tmp:
+            tmp.write_bytes(chunk)
+        parts.append({"name": name, "bytes": len(chunk), "sha256": _sha256(chunk)})
+    manifest = {
+        "format": PARTS_FORMAT,
+        "file": f"{stem}.pt",
+        "bytes": len(data),
+        "sha256": _sha256(data),
+        "step": step,
+        "config": ckpt["train_config"].name,
+        "source": str(ckpt["path"]),
+        "parts": parts,
+    }
+    path = out_dir / f"{stem}.parts.json"
+    atomic_write_text(path, json.dumps(manifest, indent=2) + "\n")  # last: a manifest means all parts
+    return path
+
+
+def _read_manifest(path: Path) -> dict:
+    try:
+        manifest = json.loads(path.read_text())
+    except OSError as e:
+        raise PartsError(f"manifest {str(path)!r} cannot be read: {e.strerror or e}") from None
+    except (ValueError, UnicodeDecodeError) as e:
+        raise PartsError(f"manifest {str(path)!r} is not JSON: {e}") from None
+    if not isinstance(manifest, dict) or manifest.get("format") != PARTS_FORMAT:
+        raise PartsError(f"{str(path)!r} is not a manifest of format {PARTS_FORMAT!r}")
+    parts = manifest.get("parts")
+    if not isinstance(parts, list) or not 1 <= len(parts) <= MAX_PARTS:
+        raise PartsError(f"manifest {str(path)!r}: 'parts' must list 1 to {MAX_PARTS} parts")
+    for i, p in enumerate(parts):
+        ok = (
+            isinstance(p, dict)
+            and isinstance(p.get("name"), str)
+            and SAFE_NAME.match(p["name"]) is not None
+            and type(p.get("bytes")) is int
+            and p["bytes"] >= 0
+            and isinstance(p.get("sha256"), str)
+        )
+        if not ok:
+            raise PartsError(f"manifest {str(path)!r}: part {i} needs a plain file name, bytes and sha256")
+    if type(manifest.get("bytes")) is not int or not isinstance(manifest.get("sha256"), str):
+        raise PartsError(f"manifest {str(path)!r}: the whole file's 'bytes' and 'sha256' are missing")
+    if sum(p["bytes"] for p in parts) != manifest["bytes"]:
+        raise PartsError(f"manifest {str(path)!r}: its parts' sizes do not add up to 'bytes'")
+    return manifest
+
+
+def join(manifest_path: Path, dest: Path) -> Path:
+    """Check the parts listed in ``manifest_path`` (beside it) and write the checkpoint they make
+    to ``dest``; returns ``dest``."""
+    from lp3d.atomic import atomic_path
+    from lp3d.training.checkpoint import CheckpointError, load_checkpoint
+
+    manifest = _read_manifest(manifest_path)
+    folder = manifest_path.parent
+    inputs = {manifest_path.resolve(), *((folder / p["name"]).resolve() for p in manifest["parts"])}
+    if dest.resolve() in inputs:
+        raise PartsError(f"the output {str(dest)!r} is one of the parts or the manifest: choose another path")
+    chunks = []
+    for p in manifest["parts"]:
+        part = folder / p["name"]
+        try:
+            data = part.read_bytes()
+        except OSError as e:
+            raise PartsError(f"part {str(part)!r} cannot be read: {e.strerror or e}") from None
+        if len(data) != p["bytes"] or _sha256(data) != p["sha256"]:
+            raise PartsError(f"part {str(part)!r} is not the one the manifest lists (size or SHA-256 differ)")
+        chunks.append(data)
+    whole = b"".join(chunks)
+    if _sha256(whole) != manifest["sha256"]:
+        raise PartsError(f"the parts of {str(manifest_path)!r} join to another file than the manifest's")
+    with atomic_path(dest) as tmp:
+        tmp.write_bytes(whole)
+        try:
+            ckpt = load_checkpoint(tmp)
+        except CheckpointError as e:
+            raise PartsError(f"the joined file is not a readable checkpoint: {e}") from None
+        if "student" not in ckpt:
+            raise PartsError("the joined checkpoint holds no student weights")
+    return dest
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = p.add_subparsers(dest="command", required=True)
+    s = sub.add_parser("split", help="a checkpoint's weights in parts, with a manifest")
+    s.add_argument("source", type=Path, help="a checkpoint file or a run folder (its newest checkpoint)")
+    s.add_argument("out_dir", type=Path, help="folder for the parts and the manifest")
+    s.add_argument("--part-mib", type=float, default=15.0, help="largest part in MiB (default 15)")
+    j = sub.add_parser("join", help="the parts a manifest lists, checked, as one checkpoint")
+    j.add_argument("manifest", type=Path, help="the .parts.json written by split (its parts beside it)")
+    j.add_argument("dest", type=Path, help="the checkpoint file to write")
+    args = p.parse_args(argv)
+    from lp3d.training.checkpoint import CheckpointError
+
+    try:
+        if args.command == "split":
+            if not 0 < args.part_mib <= 4096:
+                p.error("--part-mib must be in (0, 4096]")
+            path = split(args.source, args.out_dir, int(args.part_mib * 2**20))
+            manifest = json.loads(path.read_text())
+            n, size = len(manifest["parts"]), manifest["bytes"]
+            print(f"{n} parts, {size} bytes of step {manifest['step']}: {path}")
+        else:
+            join(args.manifest, args.dest)
+            print(f"wrote {args.dest}")
+    except (PartsError, CheckpointError) as e:
+        print(f"checkpoint_parts: error: {e}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
