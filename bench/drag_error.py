@@ -51,8 +51,10 @@ FINE = (4, 16)
 RUNGS = [
     ("exact 128² · 48+48 (the still frame)", 128, 48, 48, None),
     ("fine field, baked 128² · 64+48 (drag rung)", 128, 64, 48, FINE),
-    ("fine field, baked 128² · 32+24 (baked-only rung)", 128, 32, 24, FINE),
+    ("fine field, baked 128² · 48+24 (baked-only rung 36+24)", 128, 48, 24, FINE),
+    ("fine field, baked 128² · 32+24 (baked-only rung 24+24)", 128, 32, 24, FINE),
     ("quick field, baked 128² · 48+48", 128, 48, 48, QUICK),
+    ("quick field, baked 128² · 36+24 (baked-only rung)", 128, 36, 24, QUICK),
     ("quick field, baked 128² · 24+24 (baked-only rung)", 128, 24, 24, QUICK),
     ("quick field, baked 64² · 48+48", 64, 48, 48, QUICK),
     ("exact 64² · 48+48", 64, 48, 48, None),

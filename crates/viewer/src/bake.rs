@@ -4,8 +4,8 @@
 //! then a fine one (`FINE_FIELD`, ~1 minute more) that replaces it. Once a field is ready, frames
 //! drawn while the view moves look samples up in it at the chosen resolution and samples (the fine
 //! field with a third more coarse samples, which brings its frames to the exact frame's error), or,
-//! when that does not fit the frame budget, the chosen resolution with half the samples (the
-//! ladder's baked-only rung), then lower rungs with the chosen coarse samples, instead of decoding
+//! when that does not fit the frame budget, the chosen resolution with fewer samples (the ladder's
+//! two baked-only rungs), then lower rungs with the chosen coarse samples, instead of decoding
 //! every sample at a much lower rung; the settled frame is always exact (it decodes every sample),
 //! the reference the baked field only approximates.
 //!
@@ -118,13 +118,16 @@ pub fn spec_for(settings: &RenderSettings, field: Field, (ray_start, ray_end): (
 }
 
 /// The specs the viewer bakes for `chosen`, in order: the quick field, then (with `fine`) the fine
-/// one. Each serves every rung of the ladder with the chosen coarse samples or half of them (the
-/// baked-only rung), i.e. is `spec_for` the rung with the fewest. Half the samples mean intervals
-/// twice as long, so the occupancy skip keeps more cells: on the viewer bench's teacher head at
-/// 128² · 48+48, 26,022 bricks instead of 22,204 (bench/RESULTS.md, "A baked-only rung").
+/// one. Each serves every rung of the ladder with the chosen coarse samples or fewer, down to the
+/// baked-only rungs' (half of them), i.e. is `spec_for` the rung with the fewest. Half the samples
+/// mean intervals twice as long, so the occupancy skip keeps more cells: on the viewer bench's
+/// teacher head at 128² · 48+48, 26,022 bricks instead of 22,204 (bench/RESULTS.md, "A baked-only
+/// rung").
 pub fn bake_specs(chosen: &RenderSettings, rays: (f32, f32), fine: bool) -> Vec<BakeSpec> {
     let ladder = Ladder::new(chosen);
-    let rung = ladder.baked_only.map_or(Rung::of(chosen), |i| ladder.rungs[i]).apply(chosen);
+    let baked_only = ladder.baked_only.clone().map(|i| ladder.rungs[i]);
+    let fewest = baked_only.chain([Rung::of(chosen)]).min_by_key(|r| r.depth_resolution);
+    let rung = fewest.expect("the chosen rung at least").apply(chosen);
     let fields: &[Field] = if fine { &[QUICK_FIELD, FINE_FIELD] } else { &[QUICK_FIELD] };
     fields.iter().map(|&f| spec_for(&rung, f, rays)).collect()
 }
@@ -381,14 +384,14 @@ mod tests {
         use Draw::{Baked, Ladder as Exact};
         let chosen = RenderSettings { resolution: 128, depth_resolution: 48, ..Default::default() };
         let ladder = Ladder::new(&chosen);
-        // 32² · 12+12, 64² · 12+12, 64² · 48+48, 128² · 24+24 (baked only), 128² · 48+48: the
-        // viewer's fields, baked for 24 coarse samples, serve the last three.
+        // 32² · 12+12, 64² · 12+12, 64² · 48+48, 128² · 24+24 and 36+24 (baked only), 128² ·
+        // 48+48: the viewer's fields, baked for 24 coarse samples, serve the last four.
         let specs = bake_specs(&chosen, (2.25, 3.3), true);
         for (spec, field) in specs.iter().zip([QUICK_FIELD, FINE_FIELD]) {
             let serves = |r: &Rung| spec.covers(&spec_for(&r.apply(&chosen), field, (2.25, 3.3)));
             assert_eq!(
-                (0..5).map(|i| serves(&ladder.rungs[i])).collect::<Vec<_>>(),
-                [false, false, true, true, true]
+                (0..6).map(|i| serves(&ladder.rungs[i])).collect::<Vec<_>>(),
+                [false, false, true, true, true, true]
             );
         }
         let (field, quick) = (specs[0], QUICK_FIELD);
@@ -398,31 +401,35 @@ mod tests {
         // No field (or one that does not cover the settings or the display): the exact ladder.
         assert_eq!(moving_frame(&ladder, none, &t, true, 100.0, 1), Exact(1));
         // A field: the top rung, tried before any measurement, kept while it fits.
+        let top = ladder.top();
+        assert_eq!(moving_frame(&ladder, serves, &t, false, 100.0, 1), Baked(top));
+        t.record(ladder.rungs[top], 60.0);
+        assert_eq!(moving_frame(&ladder, serves, &t, false, 100.0, 1), Baked(top));
+        // One slow frame does not move it; two of three over the budget (150 ms) do: the full
+        // resolution with 36+24 samples, predicted at 0.625 of the cost, 94 ms.
+        t.record(ladder.rungs[top], 150.0);
+        assert_eq!(moving_frame(&ladder, serves, &t, false, 100.0, 1), Baked(top));
+        t.record(ladder.rungs[top], 150.0);
         assert_eq!(moving_frame(&ladder, serves, &t, false, 100.0, 1), Baked(4));
-        t.record(ladder.rungs[4], 60.0);
-        assert_eq!(moving_frame(&ladder, serves, &t, false, 100.0, 1), Baked(4));
-        // One slow frame does not move it; two of three over the budget (200 ms) do: the full
-        // resolution with half the samples, predicted at half the cost, 100 ms.
-        t.record(ladder.rungs[4], 200.0);
-        assert_eq!(moving_frame(&ladder, serves, &t, false, 100.0, 1), Baked(4));
-        t.record(ladder.rungs[4], 200.0);
+        // Over it too (measured at 120 ms): 128² · 24+24, predicted at 96 ms.
+        t.record(ladder.rungs[4], 120.0);
         assert_eq!(moving_frame(&ladder, serves, &t, false, 100.0, 1), Baked(3));
-        // Over it too: the next rung the field serves, 64² · 48+48, predicted at 70 ms (half the
-        // cost of 128² · 24+24, measured at 140 ms).
+        // Over that as well: the next rung the field serves, 64² · 48+48, predicted at 70 ms (half
+        // the cost of 128² · 24+24, measured at 140 ms).
         t.record(ladder.rungs[3], 140.0);
         assert_eq!(moving_frame(&ladder, serves, &t, false, 100.0, 1), Baked(2));
         // A probe (the first frame of a move, then every PROBE_EVERY) tries the top again when
         // within twice the budget.
-        assert_eq!(moving_frame(&ladder, serves, &t, true, 100.0, 1), Baked(4));
-        assert_eq!(moving_frame(&ladder, serves, &t, true, 90.0, 1), Baked(2));
+        assert_eq!(moving_frame(&ladder, serves, &t, true, 100.0, 1), Baked(top));
+        assert_eq!(moving_frame(&ladder, serves, &t, true, 70.0, 1), Baked(2));
         // A drag whose first frame was slow (400 ms) goes down to 64² · 48+48; once frames there
         // say the machine is fast again (30 ms: the top at about 120), a probe tries the top.
         let mut slow_start = FrameTimes::default();
-        slow_start.record(ladder.rungs[4], 400.0);
+        slow_start.record(ladder.rungs[top], 400.0);
         assert_eq!(moving_frame(&ladder, serves, &slow_start, true, 100.0, 1), Baked(2));
         slow_start.record(ladder.rungs[2], 30.0);
         assert_eq!(moving_frame(&ladder, serves, &slow_start, false, 100.0, 1), Baked(2));
-        assert_eq!(moving_frame(&ladder, serves, &slow_start, true, 100.0, 1), Baked(4));
+        assert_eq!(moving_frame(&ladder, serves, &slow_start, true, 100.0, 1), Baked(top));
         // No baked rung fits: the exact ladder's rung.
         assert_eq!(moving_frame(&ladder, serves, &t, false, 40.0, 0), Exact(0));
         assert_eq!(moving_frame(&ladder, serves, &t, true, 40.0, 0), Exact(0));
@@ -453,7 +460,7 @@ mod tests {
         for (spec, field) in specs.iter().zip([QUICK_FIELD, FINE_FIELD]) {
             assert_eq!(Field::of(spec), field);
             assert!(spec.covers(&spec_for(&chosen, field, rays)));
-            // Each field also serves half the chosen coarse samples (the baked-only rung).
+            // Each field also serves half the chosen coarse samples (the cheapest baked-only rung).
             let half = RenderSettings { depth_resolution: 24, depth_resolution_importance: 24, ..chosen };
             assert_eq!(*spec, spec_for(&half, field, rays));
             // More coarse samples: shorter intervals, covered; fewer than half: a new bake.

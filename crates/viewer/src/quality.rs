@@ -2,9 +2,9 @@
 //! predicted time fits the frame budget; once it stops, it climbs the ladder one rung per UI frame
 //! up to the chosen settings. Rungs change only the resolution and sample counts, which reach the
 //! kernel through its `Params` uniform and the dispatch size, so no rung builds a new pipeline.
-//! One rung, the chosen resolution with half the samples, is drawn only from the baked field
-//! (`crate::bake`): there the field's own error is larger than what halving the samples adds, so
-//! a drag keeps the full resolution instead of dropping to a quarter of the rays.
+//! Two rungs at the chosen resolution with fewer samples are drawn only from the baked field
+//! (`crate::bake`): there a lookup is cheap enough that a drag keeps the full resolution with some
+//! of the samples instead of dropping to a quarter of the rays.
 
 use lp3d_renderer::RenderSettings;
 
@@ -31,16 +31,25 @@ impl Rung {
         rays * (self.depth_resolution + self.depth_resolution_importance) as f64
     }
 
-    /// The rung with the resolution divided by `res_div` and the samples by `samples_div`, within
-    /// the renderer's limits (an importance pass needs 4 coarse samples and 2 fine ones; 8 rays per
-    /// side at least).
+    /// The rung with the resolution divided by `res_div` and the samples by `samples_div`.
     fn divided(&self, (res_div, samples_div): (u32, u32)) -> Rung {
-        let fine = self.depth_resolution_importance;
-        let min_coarse = if fine > 0 { 4 } else { 2 }.min(self.depth_resolution);
+        self.scaled(res_div, (1, samples_div), (1, samples_div))
+    }
+
+    /// The rung with the resolution divided by `res_div`, the coarse samples scaled by `coarse`
+    /// and the fine ones by `fine` (numerator, denominator; rounded down), within the renderer's
+    /// limits (an importance pass needs 4 coarse samples and 2 fine ones; 8 rays per side at least).
+    fn scaled(&self, res_div: u32, coarse: (u32, u32), fine: (u32, u32)) -> Rung {
+        let n_fine = self.depth_resolution_importance;
+        let min_coarse = if n_fine > 0 { 4 } else { 2 }.min(self.depth_resolution);
         Rung {
             resolution: self.resolution.div_ceil(res_div).max(8.min(self.resolution)),
-            depth_resolution: (self.depth_resolution / samples_div).max(min_coarse),
-            depth_resolution_importance: if fine == 0 { 0 } else { (fine / samples_div).max(2.min(fine)) },
+            depth_resolution: (self.depth_resolution * coarse.0 / coarse.1).max(min_coarse),
+            depth_resolution_importance: if n_fine == 0 {
+                0
+            } else {
+                (n_fine * fine.0 / fine.1).max(2.min(n_fine))
+            },
         }
     }
 
@@ -69,20 +78,24 @@ impl Rung {
 /// frame's time.
 const STEPS: [(u32, u32); 4] = [(4, 4), (2, 4), (2, 1), (1, 1)];
 
-/// The baked-only rung, between the last two exact ones: the chosen resolution, half the samples.
-/// A baked 128² · 24+24 frame is 3-4 dB further from exact 192+192 than a baked 48+48 one (41-45
-/// against 44-50 dB; bench/RESULTS.md, "Baked field") at about half its time, and far closer than
-/// 64² · 48+48 shown at 128². Exact frames skip it: climbing through it would delay the final
-/// frame by half its time.
-const BAKED_STEP: (u32, u32) = (1, 2);
+/// The baked-only rungs, between the last two exact ones, cheapest first: the chosen resolution
+/// with (coarse, fine) samples scaled by these fractions, half of each, then three quarters of the
+/// coarse samples and half the fine ones. From the fine field at 128² · 48+48 (which takes a third
+/// more coarse samples) they draw 32+24 and 48+24: 51-54 and 56-57 dB from exact 192+192 on the
+/// shipped encoder's triplanes, at about 0.6 and 0.7 of the time of its 64+48 frame (61-64 dB;
+/// bench/RESULTS.md, "A second baked-only rung"), and far closer than 64² · 48+48 shown at 128²
+/// (37-41 dB). The second keeps a drag 4-5 dB closer to the still frame when 64+48 just misses
+/// the budget; the first serves slower spells. Exact frames skip them: climbing through them would
+/// delay the final frame.
+const BAKED_STEPS: [((u32, u32), (u32, u32)); 2] = [((1, 2), (1, 2)), ((3, 4), (1, 2))];
 
 /// The rungs for one choice of settings, cheapest first; the last is the chosen quality.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Ladder {
     pub rungs: Vec<Rung>,
-    /// The index of the rung only baked frames use (`BAKED_STEP`), when it differs from its
-    /// neighbours.
-    pub baked_only: Option<usize>,
+    /// The indices of the rungs only baked frames use (`BAKED_STEPS`, those that cost strictly
+    /// between their neighbours); empty when none does.
+    pub baked_only: std::ops::Range<usize>,
 }
 
 impl Ladder {
@@ -96,15 +109,22 @@ impl Ladder {
             }
         }
         debug_assert_eq!(rungs.last(), Some(&top));
-        // Between the last two exact rungs, where it costs strictly between them (at the
-        // renderer's minimum samples halving changes nothing), so rung 0 is always exact.
-        let half = top.divided(BAKED_STEP);
+        // Between the last two exact rungs, each where it costs strictly between the one below
+        // and the top (at the renderer's minimum samples scaling changes nothing), so rung 0 is
+        // always exact.
         let n = rungs.len();
-        let baked_only =
-            (n >= 2 && half.cost() > rungs[n - 2].cost() && half.cost() < top.cost()).then(|| {
-                rungs.insert(n - 1, half);
-                n - 1
-            });
+        let mut baked = Vec::with_capacity(BAKED_STEPS.len());
+        if n >= 2 {
+            for (coarse, fine) in BAKED_STEPS {
+                let rung = top.scaled(1, coarse, fine);
+                let below = baked.last().unwrap_or(&rungs[n - 2]).cost();
+                if rung.cost() > below && rung.cost() < top.cost() {
+                    baked.push(rung);
+                }
+            }
+        }
+        let baked_only = n - 1..n - 1 + baked.len();
+        rungs.splice(n - 1..n - 1, baked);
         Ladder { rungs, baked_only }
     }
 
@@ -112,9 +132,9 @@ impl Ladder {
         self.rungs.len() - 1
     }
 
-    /// Whether exact frames use rung `i` (all but the baked-only rung).
+    /// Whether exact frames use rung `i` (all but the baked-only rungs).
     pub fn exact(&self, i: usize) -> bool {
-        self.baked_only != Some(i)
+        !self.baked_only.contains(&i)
     }
 
     /// The rung an exact frame refines to after rung `i`: the next exact one (the top at most).
@@ -257,23 +277,37 @@ mod tests {
     }
 
     #[test]
-    fn the_baked_only_rung_keeps_the_resolution_with_half_the_samples() {
+    fn the_baked_only_rungs_keep_the_resolution_with_fewer_samples() {
         let l = Ladder::new(&settings(128, 48, 48));
-        assert_eq!(labels(&l), ["32² · 12+12", "64² · 12+12", "64² · 48+48", "128² · 24+24", "128² · 48+48"]);
-        assert_eq!(l.baked_only, Some(3));
+        assert_eq!(
+            labels(&l),
+            ["32² · 12+12", "64² · 12+12", "64² · 48+48", "128² · 24+24", "128² · 36+24", "128² · 48+48"]
+        );
+        assert_eq!(l.baked_only, 3..5);
         assert_eq!(l.rungs[3].cost() / l.rungs[2].cost(), 2.0);
-        assert_eq!(labels(&Ladder::new(&settings(100, 64, 0)))[3], "100² · 32");
-        // Exact frames climb past it; a baked frame at it refines to the top.
-        assert_eq!([0, 1, 2, 3, 4].map(|i| l.next_exact(i)), [1, 2, 4, 4, 4]);
-        assert_eq!([0, 2, 4].map(|i| l.exact_step(i)), [(1, 4), (3, 4), (4, 4)]);
-        // None where halving the samples changes nothing (the renderer's minimums).
+        assert_eq!(l.rungs[4].cost() / l.rungs[5].cost(), 0.625);
+        assert_eq!(labels(&Ladder::new(&settings(100, 64, 0)))[3..5], ["100² · 32", "100² · 48"]);
+        // Exact frames climb past them; a baked frame at either refines to the top.
+        assert_eq!([0, 1, 2, 3, 4, 5].map(|i| l.next_exact(i)), [1, 2, 5, 5, 5, 5]);
+        assert_eq!([0, 2, 5].map(|i| l.exact_step(i)), [(1, 4), (3, 4), (4, 4)]);
+        // None where scaling the samples changes nothing (the renderer's minimums) ...
         let small = Ladder::new(&settings(16, 4, 2));
-        assert_eq!(small.baked_only, None);
+        assert!(small.baked_only.is_empty());
         assert_eq!(small.next_exact(0), 1);
+        // ... and only those that cost strictly more than the rung below them: at 5+4 samples
+        // three quarters of the coarse ones round up to the renderer's minimum as half do, one rung.
+        let one = Ladder::new(&settings(32, 5, 4));
+        assert_eq!(labels(&one)[2..], ["16² · 5+4", "32² · 4+2", "32² · 5+4"]);
+        assert_eq!(one.baked_only, 3..4);
         for l in [Ladder::new(&settings(48, 12, 12)), Ladder::new(&settings(33, 5, 0))] {
-            let i = l.baked_only.expect("a baked-only rung");
-            assert_eq!((i, l.rungs[i].resolution), (l.top() - 1, l.rungs[l.top()].resolution));
-            l.rungs[i].apply(&settings(48, 12, 12)).validate().unwrap();
+            assert!(!l.baked_only.is_empty() && l.baked_only.end == l.top());
+            for i in l.baked_only.clone() {
+                assert_eq!(l.rungs[i].resolution, l.rungs[l.top()].resolution);
+                assert!(
+                    l.rungs[i - 1].cost() < l.rungs[i].cost() && l.rungs[i].cost() < l.rungs[i + 1].cost()
+                );
+                l.rungs[i].apply(&settings(48, 12, 12)).validate().unwrap();
+            }
         }
     }
 
@@ -283,10 +317,10 @@ mod tests {
         let mut t = FrameTimes::default();
         assert_eq!(l.interactive(&t, 100.0), 0, "nothing measured: start at the cheapest");
         // 1.2 s at the top predicts 75 ms for 64² · 12+12 (a sixteenth of the cost).
-        t.record(l.rungs[4], 1200.0);
+        t.record(l.rungs[l.top()], 1200.0);
         assert_eq!(t.predict(&l.rungs[1]), Some(75.0));
         assert_eq!(l.interactive(&t, 100.0), 1);
-        assert_eq!(l.interactive(&t, 2000.0), 4);
+        assert_eq!(l.interactive(&t, 2000.0), l.top());
         // 128² · 24+24 (predicted 600 ms) fits 700 ms but is for baked frames: 64² · 48+48.
         assert_eq!(l.interactive(&t, 700.0), 2);
         assert_eq!(l.interactive(&t, 1.0), 0, "nothing fits: the cheapest");
@@ -304,13 +338,13 @@ mod tests {
     #[test]
     fn one_slow_frame_does_not_demote_a_rung_two_of_three_do() {
         let l = Ladder::new(&settings(128, 48, 48));
-        let top = l.rungs[4];
+        let top = l.rungs[l.top()];
         let mut t = FrameTimes::default();
         for ms in [90.0, 95.0, 300.0] {
             t.record(top, ms);
         }
         assert_eq!(t.predict(&top), Some(95.0), "a spike among three");
-        assert_eq!(l.interactive(&t, 100.0), 4);
+        assert_eq!(l.interactive(&t, 100.0), l.top());
         t.record(top, 130.0);
         assert_eq!(t.predict(&top), Some(130.0), "95, 300, 130: a slow spell");
         assert_eq!(l.interactive(&t, 100.0), 2);
@@ -326,7 +360,7 @@ mod tests {
     #[test]
     fn a_probe_hopes_from_the_rung_measured_last() {
         let l = Ladder::new(&settings(128, 48, 48));
-        let (top, quarter) = (l.rungs[4], l.rungs[2]);
+        let (top, quarter) = (l.rungs[l.top()], l.rungs[2]);
         let mut t = FrameTimes::default();
         assert_eq!(t.hopeful(&top), None);
         t.record(top, 400.0);
