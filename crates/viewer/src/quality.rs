@@ -203,10 +203,17 @@ impl FrameTimes {
     }
 
     /// The rung's measured time, else the time of the measured rung closest in cost, scaled by
-    /// the ratio of costs; `None` before any measurement.
+    /// the ratio of costs; `None` before any measurement. A rung with fewer than [`RECENT`] frames
+    /// takes the lesser of its own time and the rung measured last's, scaled: so one slow frame
+    /// (a drag's first, say) does not keep it off for the rest of a drag once the frames drawn
+    /// since say it may fit; three frames over the budget do.
     pub fn predict(&self, rung: &Rung) -> Option<f64> {
         if let Some((_, times)) = self.measured.iter().find(|(r, _)| r == rung) {
-            return Some(lower_median(times));
+            let own = lower_median(times);
+            return Some(match self.scaled_from_last(rung) {
+                Some(scaled) if times.len() < RECENT => own.min(scaled),
+                _ => own,
+            });
         }
         let cost = rung.cost().max(1.0);
         self.measured
@@ -223,9 +230,14 @@ impl FrameTimes {
     /// time of the rung measured last, scaled by the ratio of costs. So a rung whose only frames
     /// were slowed by a spike is tried again once the frames drawn since say the machine is fast.
     pub fn hopeful(&self, rung: &Rung) -> Option<f64> {
-        let (last, times) = self.measured.last()?;
-        let scaled = lower_median(times) * rung.cost().max(1.0) / last.cost().max(1.0);
+        let scaled = self.scaled_from_last(rung)?;
         Some(self.predict(rung).map_or(scaled, |ms| ms.min(scaled)))
+    }
+
+    /// The time of the rung measured last, scaled to `rung` by the ratio of costs.
+    fn scaled_from_last(&self, rung: &Rung) -> Option<f64> {
+        let (last, times) = self.measured.last()?;
+        Some(lower_median(times) * rung.cost().max(1.0) / last.cost().max(1.0))
     }
 }
 
@@ -358,14 +370,41 @@ mod tests {
     }
 
     #[test]
+    fn a_rung_slow_once_is_tried_again_when_the_frames_since_say_it_may_fit() {
+        let l = Ladder::new(&settings(128, 48, 48));
+        let (half, quarter) = (l.rungs[3], l.rungs[2]); // 128² · 24+24 and 64² · 48+48
+        let mut t = FrameTimes::default();
+        t.record(half, 112.0);
+        assert_eq!(t.predict(&half), Some(112.0), "measured last: its own time");
+        // The frames at a quarter of the cost since (48 ms) say about 96 ms: tried again.
+        t.record(quarter, 48.0);
+        assert_eq!(t.predict(&half), Some(96.0));
+        t.record(half, 110.0);
+        t.record(quarter, 48.0);
+        assert_eq!(t.predict(&half), Some(96.0), "two frames over the budget: still hopeful");
+        // A third frame over the budget: its own lower median, whatever the others say.
+        t.record(half, 111.0);
+        t.record(quarter, 40.0);
+        assert_eq!(t.predict(&half), Some(111.0));
+        // A rung with fewer frames is never predicted slower than its own time.
+        let mut fast = FrameTimes::default();
+        fast.record(half, 50.0);
+        fast.record(quarter, 45.0);
+        assert_eq!(fast.predict(&half), Some(50.0));
+    }
+
+    #[test]
     fn a_probe_hopes_from_the_rung_measured_last() {
         let l = Ladder::new(&settings(128, 48, 48));
         let (top, quarter) = (l.rungs[l.top()], l.rungs[2]);
         let mut t = FrameTimes::default();
         assert_eq!(t.hopeful(&top), None);
-        t.record(top, 400.0);
+        for _ in 0..3 {
+            t.record(top, 400.0);
+        }
         assert_eq!(t.hopeful(&top), Some(400.0));
-        // Frames at a quarter of the cost since: 30 ms says the top would take about 120.
+        // Frames at a quarter of the cost since: 30 ms says the top would take about 120. Its
+        // three slow frames keep its prediction (a rung with fewer would take the 120 too).
         t.record(quarter, 30.0);
         assert_eq!(t.predict(&top), Some(400.0));
         assert_eq!(t.hopeful(&top), Some(120.0));

@@ -167,25 +167,35 @@ const rungLabel = (r) =>
   r.resolution + "² · " + r.depth_resolution + (r.depth_resolution_importance ? "+" + r.depth_resolution_importance : "");
 
 // Measured times per rung: the last three of each, read by their lower median (as lp3d-view's
-// quality::FrameTimes: one slow frame does not demote a rung, two of three do); unmeasured rungs
-// scaled from the nearest in cost.
+// quality::FrameTimes: one slow frame does not demote a rung, two of three do; a rung with fewer
+// frames takes the lesser of its own time and the rung measured last's, scaled by cost); unmeasured
+// rungs scaled from the nearest in cost.
 const RECENT = 3;
 const lowerMedian = (times) => [...times].sort((a, b) => a - b)[(times.length - 1) >> 1];
+// A measured rung's time scaled to `rung` by the ratio of costs.
+const scaledTo = (m, rung) => (lowerMedian(m.recent) * rungCost(rung)) / rungCost(m.rung);
 class FrameTimes {
   constructor() {
-    this.ms = new Map();
+    this.ms = new Map(); // in the order measured: the rung measured last is last
   }
   record(rung, ms) {
     if (!Number.isFinite(ms) || ms < 0) return;
     const key = rungLabel(rung);
     const recent = [...(this.ms.get(key)?.recent ?? []), ms].slice(-RECENT);
+    this.ms.delete(key);
     this.ms.set(key, { rung, recent });
   }
   predict(rung) {
+    const own = this.ms.get(rungLabel(rung));
+    if (own) {
+      const last = [...this.ms.values()].pop();
+      const ms = lowerMedian(own.recent);
+      return own.recent.length < RECENT ? Math.min(ms, scaledTo(last, rung)) : ms;
+    }
     let best = null;
     for (const m of this.ms.values()) {
       const d = Math.abs(Math.log(rungCost(m.rung) / rungCost(rung)));
-      if (best === null || d < best.d) best = { d, ms: (lowerMedian(m.recent) * rungCost(rung)) / rungCost(m.rung) };
+      if (best === null || d < best.d) best = { d, ms: scaledTo(m, rung) };
     }
     return best === null ? null : best.ms;
   }
