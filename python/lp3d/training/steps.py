@@ -236,7 +236,7 @@ class TrainingSteps:
         if not bool(torch.isfinite(total)):
             terms = {k: v for k, v in row.items() if isinstance(v, float)}
             raise NonFiniteError(
-                f"step {step}: the training loss is {float(total)} (terms {terms}, identity seeds "
+                f"step {step}: the training loss is {float(total.detach())} (terms {terms}, identity seeds "
                 f"{batch.seeds}); resume from the last checkpoint with a lower learning rate"
             )
         self.student_step(total, row)
