@@ -9,11 +9,12 @@ twice that of Adam's state. The weights alone are what ``lp3d eval``, ``lp3d exp
     python scripts/checkpoint_parts.py join OUT_DIR/step-NNNNNN.parts.json runs/x/checkpoints/step-NNNNNN.pt
 
 ``split`` reads the checkpoint as ``lp3d eval`` does (a run folder: its newest readable one), keeps
-what rebuilding the student needs (its configuration, teacher, scene bounds, step and weights; marked
-``weights_only``) and writes ``step-NNNNNN.part00``, ``.part01``, ... and, last, the manifest
-``step-NNNNNN.parts.json`` with every part's size and SHA-256 and the whole file's. ``join`` checks
-each part and the whole against the manifest before anything is written, and publishes the
-checkpoint only once it loads as one (atomically: never half a file under its name).
+what rebuilding the student needs (``lp3d.training.checkpoint.weights_only_checkpoint``: its
+configuration, teacher, scene bounds, step and weights) and writes ``step-NNNNNN.part00``,
+``.part01``, ... and, last, the manifest ``step-NNNNNN.parts.json`` with every part's size and
+SHA-256 and the whole file's. ``join`` checks each part and the whole against the manifest before
+anything is written, and publishes the checkpoint only once it loads as one (atomically: never half
+a file under its name).
 """
 
 from __future__ import annotations
@@ -27,8 +28,6 @@ import sys
 from pathlib import Path
 
 PARTS_FORMAT = "lp3d-checkpoint-parts-v1"
-#: What a weights-only checkpoint keeps: enough for ``load_checkpoint`` and ``student_from_checkpoint``.
-KEPT = ("format", "config", "teacher", "teacher_args", "scene", "step", "student")
 #: The device tool returns files named in letters, digits, '.', '_' and '-' alone.
 SAFE_NAME = re.compile(r"^[A-Za-z0-9._-]{1,100}$")
 MAX_PARTS = 256
@@ -42,29 +41,20 @@ def _sha256(data: bytes | memoryview) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
-def weights_only(ckpt: dict) -> dict:
-    """The parts of a loaded checkpoint that rebuild its student, tensors on the CPU, marked
-    ``weights_only`` (``--resume`` refuses it, naming why)."""
-    slim = {k: ckpt[k] for k in KEPT if k in ckpt}
-    slim["student"] = {k: v.detach().to("cpu", copy=True).contiguous() for k, v in ckpt["student"].items()}
-    slim["weights_only"] = True
-    return slim
-
-
 def split(source: Path, out_dir: Path, part_bytes: int) -> Path:
     """Write the weights of ``source`` (a checkpoint or a run folder) as parts of at most
     ``part_bytes`` into ``out_dir``; returns the manifest's path."""
     import torch
 
     from lp3d.atomic import atomic_path, atomic_write_text
-    from lp3d.training.checkpoint import load_checkpoint
+    from lp3d.training.checkpoint import load_checkpoint, weights_only_checkpoint
 
     if part_bytes < 1:
         raise PartsError(f"the part size must be at least 1 byte, got {part_bytes}")
     ckpt = load_checkpoint(source)
     step = int(ckpt["step"])
     buf = io.BytesIO()
-    torch.save(weights_only(ckpt), buf)
+    torch.save(weights_only_checkpoint(ckpt), buf)
     data = buf.getbuffer()
     n_parts = -(-len(data) // part_bytes)
     if n_parts > MAX_PARTS:

@@ -27,6 +27,11 @@ from lp3d.training.student import SceneBounds, Student
 CHECKPOINT_FORMAT = "lp3d-train-checkpoint-v1"
 
 
+#: What a weights-only checkpoint keeps (:func:`weights_only_checkpoint`): enough for
+#: :func:`load_checkpoint` and :func:`student_from_checkpoint`, not for ``--resume``.
+WEIGHTS_ONLY_KEYS = ("format", "config", "teacher", "teacher_args", "scene", "step", "student")
+
+
 class CheckpointError(ValueError):
     """A checkpoint that cannot be used here (another configuration, another format, a bad file)."""
 
@@ -40,6 +45,17 @@ def write_checkpoint(state: dict[str, Any], run_dir: Path, keep: int) -> Path:
     for _, p in checkpoints(run_dir)[:-keep]:
         p.unlink(missing_ok=True)
     return path
+
+
+def weights_only_checkpoint(ckpt: dict[str, Any]) -> dict[str, Any]:
+    """The parts of a loaded checkpoint that rebuild its student (:data:`WEIGHTS_ONLY_KEYS`), tensors
+    on the CPU, marked ``weights_only``: what ``lp3d eval``, ``lp3d export`` and ``--init-from`` read,
+    a third of the file without the optimiser's state; ``--resume`` refuses it
+    (:func:`lp3d.training.resume.refuse_weights_only`)."""
+    slim = {k: ckpt[k] for k in WEIGHTS_ONLY_KEYS if k in ckpt}
+    slim["student"] = {k: v.detach().to("cpu", copy=True).contiguous() for k, v in ckpt["student"].items()}
+    slim["weights_only"] = True
+    return slim
 
 
 def load_checkpoint(

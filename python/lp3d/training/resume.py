@@ -49,7 +49,7 @@ def with_ray_phase(cfg: TrainConfig, ray_from: int, step: int = 0) -> TrainConfi
 
 def refuse_weights_only(ckpt: dict[str, Any]) -> dict[str, Any]:
     """``ckpt``, or :class:`CheckpointError` when it holds the student's weights alone
-    (``scripts/checkpoint_parts.py``): nothing for ``--resume`` to continue."""
+    (:func:`lp3d.training.checkpoint.weights_only_checkpoint`): nothing for ``--resume`` to continue."""
     if ckpt.get("weights_only"):
         raise CheckpointError(
             f"checkpoint {ckpt['path']!r} holds the student's weights alone, without the optimiser's "
