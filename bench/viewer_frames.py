@@ -17,12 +17,13 @@ time (``render_ms``: from the start of the render call to the GPU finishing it),
 previous UI frame began (``interval_ms``: what the user sees as the frame time, UI work included),
 its rung of the quality ladder, whether it was drawn from the baked field and whether a pointer
 button was down. Reported per run: the rungs drawn while dragging, median and 90th percentile of
-both times over the drag's frames, the frames per second on screen while dragging (1000 / median
-interval), the time from releasing the pointer to the final image on screen (``release → final``,
-the 200 ms settle included), the final frame's render time and, in baked mode, the bake's time
-(the occupancy grid and the field, from the file opening to the field being ready). A second table
-compares, for each rung, its first render in the process with the median of its later ones: a rung
-that needed a pipeline compile would show a first render seconds slower.
+both times over the drag's frames, the median of the window's own time per frame (a frame's interval
+less the render it holds: egui, painting and presenting), the frames per second on screen while
+dragging (1000 / median interval), the time from releasing the pointer to the final image on screen
+(``release → final``, the 200 ms settle included), the final frame's render time and, in baked
+mode, the bake's time (the occupancy grid and the field, from the file opening to the field being
+ready). A second table compares, for each rung, its first render in the process with the median of
+its later ones: a rung that needed a pipeline compile would show a first render seconds slower.
 """
 
 from __future__ import annotations
@@ -88,6 +89,14 @@ def run_once(scene: Path, work: Path, budget: float, mode: str, drag_frames: int
     render = [f["render_ms"] for f in drag]
     # The first drag frame's interval includes the wait before the drag started.
     interval = [f["interval_ms"] for f in drag[1:]] or [drag[0]["interval_ms"]]
+    # A frame's interval (since the UI frame before began) holds the render of the UI frame before:
+    # what is left of it when that render is taken off is the window's own work (egui, painting,
+    # presenting), where the two UI frames are consecutive.
+    window = [
+        b["interval_ms"] - a["render_ms"]
+        for a, b in zip(drag, drag[1:], strict=False)
+        if b["ui_frame"] == a["ui_frame"] + 1
+    ]
     bake = meta["bake"]
     if mode != "ladder" and bake["state"] != "ready":
         raise RuntimeError(f"the bake did not finish: {bake}")
@@ -104,6 +113,7 @@ def run_once(scene: Path, work: Path, budget: float, mode: str, drag_frames: int
         "render_p90": _percentile(render, 90),
         "interval_median": statistics.median(interval),
         "interval_p90": _percentile(interval, 90),
+        "window_median": statistics.median(window) if window else float("nan"),
         "release_to_final": meta["drag"]["release_to_final_ms"],
         "final_ms": frames[-1]["render_ms"],
         "frames": frames,
@@ -176,7 +186,8 @@ def main(argv: list[str] | None = None) -> int:
                     print(
                         f"budget {budget:g} ms, {mode}: drag render {r['render_median']:.1f}/"
                         f"{r['render_p90']:.1f} ms, interval {r['interval_median']:.1f}/"
-                        f"{r['interval_p90']:.1f} ms, release → final {r['release_to_final']:.0f} ms, "
+                        f"{r['interval_p90']:.1f} ms, window {r['window_median']:.1f} ms, "
+                        f"release → final {r['release_to_final']:.0f} ms, "
                         f"bake {r['bake_s'] or 0:.1f} s, load {r['load']:.1f}",
                         flush=True,
                     )
@@ -193,15 +204,17 @@ def main(argv: list[str] | None = None) -> int:
         f"LP3D_KERNEL={os.environ.get('LP3D_KERNEL', '(unset)')}",
         "",
         "| budget ms | mode | rungs drawn while dragging (frames) | render ms median / p90 | frame interval "
-        "ms median / p90 | drag frames / s | release → final ms | final render ms | bake s | load (1 min) |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "ms median / p90 | window ms median | drag frames / s | release → final ms | final render ms "
+        "| bake s | load (1 min) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in results:
         rungs = ", ".join(f"{k} ({n})" for k, n in r["rungs"].items())
         bake = f"{r['bake_s']:.1f}" if r["bake_s"] is not None else "–"
         lines.append(
             f"| {r['budget']:g} | {r['mode']} | {rungs} | {r['render_median']:.1f} / {r['render_p90']:.1f} | "
-            f"{r['interval_median']:.1f} / {r['interval_p90']:.1f} | {1e3 / r['interval_median']:.1f} | "
+            f"{r['interval_median']:.1f} / {r['interval_p90']:.1f} | {r['window_median']:.1f} | "
+            f"{1e3 / r['interval_median']:.1f} | "
             f"{r['release_to_final']:.0f} | {r['final_ms']:.0f} | {bake} | {r['load']:.1f} |"
         )
     for mode in modes:

@@ -132,6 +132,14 @@ def test_drag_then_refined_image_matches_render(gpu, sphere_file: Path, tmp_path
     assert np.abs(crop - blocks).max() > 20, "the view looks nearest-filtered"
     # The controls are in the same window: the left panel is not the 3D view and not black.
     assert window[:, : view["x"] - 4].mean() > 10
+    # The panels are drawn unfilled over the window's clear colour: the strip above the view is one
+    # colour, the left panel's own background (its commonest colour), not eframe's near-black.
+    strip = window[: view["y"], view["x"] : view["x"] + view["size"]].reshape(-1, 3)
+    assert len(strip) > 0 and (strip == strip[0]).all(), "the view's surround is not one colour"
+    colours, counts = np.unique(window[:, : view["x"] - 4].reshape(-1, 3), axis=0, return_counts=True)
+    assert (strip[0] == colours[counts.argmax()]).all() and strip[0].mean() > 20, (
+        f"surround {strip[0]} against the panel's {colours[counts.argmax()]}"
+    )
 
 
 def test_drag_draws_from_the_baked_field_once_it_is_ready(gpu, sphere_file: Path, tmp_path: Path) -> None:

@@ -457,6 +457,11 @@ impl ViewerApp {
 }
 
 impl eframe::App for ViewerApp {
+    /// The panels' colour: they are drawn unfilled over it.
+    fn clear_color(&self, visuals: &egui::Visuals) -> [f32; 4] {
+        visuals.panel_fill.to_normalized_gamma_f32()
+    }
+
     fn raw_input_hook(&mut self, _ctx: &egui::Context, raw_input: &mut egui::RawInput) {
         self.drive_drag(raw_input);
     }
@@ -473,8 +478,16 @@ impl eframe::App for ViewerApp {
         let now = Instant::now();
         self.interval_ms = now.duration_since(self.last_ui).as_secs_f64() * 1e3;
         self.last_ui = now;
-        egui::Panel::left("controls").resizable(false).exact_size(260.0).show(ui, |ui| self.controls(ui));
-        egui::CentralPanel::default().show(ui, |ui| self.view(ui));
+        // The panels are not filled: the window is cleared to their colour (`clear_color`), so
+        // lavapipe shades each pixel under the image once, not twice (~2 ms of a drag frame).
+        let side = egui::Frame::side_top_panel(ui.style()).fill(egui::Color32::TRANSPARENT);
+        let central = egui::Frame::central_panel(ui.style()).fill(egui::Color32::TRANSPARENT);
+        egui::Panel::left("controls")
+            .frame(side)
+            .resizable(false)
+            .exact_size(260.0)
+            .show(ui, |ui| self.controls(ui));
+        egui::CentralPanel::default().frame(central).show(ui, |ui| self.view(ui));
         self.drive_screenshot(ui.ctx());
     }
 }
