@@ -125,9 +125,10 @@ pub(crate) fn build_render_variant(
     })
 }
 
-/// The marker file that says this adapter's Mesa shader cache holds this build's fast kernel:
-/// `$MESA_SHADER_CACHE_DIR/lp3d-kernels/fast-<hash>`, the hash over the WGSL source and the
-/// adapter and driver. `None` without `MESA_SHADER_CACHE_DIR` or with Mesa's cache disabled (no
+/// The marker file that says this adapter's Mesa shader cache holds this build's fast kernel and
+/// the bake kernel with its decoder: `$MESA_SHADER_CACHE_DIR/lp3d-kernels/fast-<hash>`, the hash
+/// over the WGSL source, the pipelines the background compile leaves cached, and the adapter and
+/// driver. `None` without `MESA_SHADER_CACHE_DIR` or with Mesa's cache disabled (no
 /// marker: `Auto` then always starts with the quick kernel). Kept inside Mesa's folder so that
 /// clearing the cache clears the marker too.
 pub(crate) fn fast_kernel_marker(info: &wgpu::AdapterInfo) -> Option<std::path::PathBuf> {
@@ -152,6 +153,8 @@ pub(crate) fn fast_kernel_marker(info: &wgpu::AdapterInfo) -> Option<std::path::
     }
     let mut h = Fnv(0xcbf29ce484222325);
     shaders::render_module_source().hash(&mut h);
+    // Markers written before the background compile also compiled the bake kernel do not count.
+    "render_rays + bake_field".hash(&mut h);
     (&info.name, &info.driver, &info.driver_info, info.vendor, info.device).hash(&mut h);
     Some(std::path::Path::new(&dir).join("lp3d-kernels").join(format!("fast-{:016x}", h.finish())))
 }

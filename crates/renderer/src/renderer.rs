@@ -10,7 +10,7 @@ mod layouts;
 mod saved_field;
 mod upload;
 
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, OnceLock};
 use std::thread::JoinHandle;
 
@@ -109,9 +109,12 @@ pub struct Renderer {
     /// The background compile of the fast kernel (`KernelChoice::QuickThenFast`, and `Auto` on
     /// a CPU adapter without the marker).
     background: Mutex<Option<JoinHandle<Result<()>>>>,
-    /// Where to record that the fast kernel is in Mesa's shader cache (`fast_kernel_marker`),
-    /// until a render with the fast kernel has done so.
+    /// Where to record that the fast kernel and the bake kernel with its decoder are in Mesa's
+    /// shader cache (`fast_kernel_marker`), until this process has run both and done so.
     marker: Mutex<Option<std::path::PathBuf>>,
+    /// Which of the two this process has run: the fast render kernel [0], the bake with the fast
+    /// kernel's decoder [1].
+    fast_ran: [AtomicBool; 2],
     bounds_pipeline: wgpu::ComputePipeline,
     present_layout: wgpu::BindGroupLayout,
     present_pipeline: wgpu::ComputePipeline,
@@ -203,6 +206,7 @@ impl Renderer {
             quick_pipeline,
             background: Mutex::new(background),
             marker: Mutex::new(marker),
+            fast_ran: [AtomicBool::new(false), AtomicBool::new(false)],
             bounds_pipeline,
             present_layout,
             present_pipeline,
@@ -248,9 +252,14 @@ impl Renderer {
         ok
     }
 
-    /// Records (once) that the fast kernel has run, so is in Mesa's shader cache. Best effort:
-    /// without the marker, the next process only takes the slower `Auto` start.
-    fn record_fast_kernel(&self) {
+    /// Notes that `pipeline` (0: the fast render kernel, 1: the bake with its decoder) has run,
+    /// so is in Mesa's shader cache; once both have, records it (once). Best effort: without the
+    /// marker, the next process only takes the slower `Auto` start.
+    fn record_fast_kernel(&self, pipeline: usize) {
+        self.fast_ran[pipeline].store(true, Ordering::Relaxed);
+        if !self.fast_ran.iter().all(|r| r.load(Ordering::Relaxed)) {
+            return;
+        }
         if let Some(path) = self.marker.lock().ok().and_then(|mut m| m.take()) {
             write_marker(&path);
         }
@@ -337,7 +346,7 @@ impl Renderer {
         }
         self.check(scope, "render dispatch")?;
         if self.fast_pipeline.get().is_some() {
-            self.record_fast_kernel();
+            self.record_fast_kernel(0);
         }
         // Validated inputs cannot produce NaN/Inf (`check_decoder_range`, `Camera::from_label`);
         // one pass over the results (cheap next to the render) keeps a broken promise from

@@ -1,13 +1,15 @@
 //! The two compiled forms of the render kernel (`shaders/decoder.wgsl`'s unrolled and rolled
-//! decoders) give bit-identical outputs, and a renderer that starts with the quick kernel and
-//! switches to the fast one after its background compile changes no bit either.
+//! decoders) give bit-identical outputs, so do the bake kernels built with them, and a renderer
+//! that starts with the quick kernel and switches to the fast one after its background compile
+//! changes no bit either.
 
 mod common;
 
 use lp3d_renderer::camera::{FFHQ_FOCAL, FFHQ_RADIUS};
 use lp3d_renderer::kernel::{Kernel, KernelChoice};
 use lp3d_renderer::{
-    Camera, GpuContext, GpuTriplane, Outputs, PlaneDtype, RenderSettings, Renderer, Triplane,
+    BakeSpec, Camera, GpuContext, GpuTriplane, Occupancy, Outputs, PlaneDtype, RenderSettings, Renderer,
+    Triplane,
 };
 
 fn test_triplane(dtype: PlaneDtype) -> Triplane {
@@ -85,4 +87,41 @@ fn quick_then_fast_switches_kernels_without_changing_a_bit() {
     let after = render_bits(&renderer, &gpu);
     assert_eq!(renderer.kernel(), Kernel::Fast);
     assert_same(&before, &after, "before vs after the switch");
+}
+
+/// Both levels of a two-level field, as float16 bits: the bake with the fast kernel's unrolled
+/// decoder (what a renderer bakes with once the fast kernel serves) and with the quick kernel's
+/// rolled one.
+#[test]
+fn fast_and_quick_kernels_bake_the_same_field() {
+    let ctx = GpuContext::headless().expect("a GPU adapter (lavapipe in CI)");
+    let mut tri = test_triplane(PlaneDtype::F32);
+    // The density row scaled up so that the raw density swings across the box: a surface crosses
+    // some bricks and not others (checked below).
+    tri.decoder.b1[0] = 0.0;
+    for w in &mut tri.decoder.w1[..lp3d_renderer::triplane::HIDDEN] {
+        *w *= 6.0;
+    }
+    tri.occupancy = Some(Occupancy::bake(&tri, 8).unwrap());
+    let settings =
+        RenderSettings { depth_resolution: 12, depth_resolution_importance: 12, ..Default::default() };
+    let spec = BakeSpec {
+        subdivisions: 2,
+        fine_subdivisions: 6,
+        epsilon: 1e-4,
+        max_delta: settings.max_interval(tri.bounds.ray_start, tri.bounds.ray_end),
+    };
+    let mut fields = Vec::new();
+    for choice in [KernelChoice::Fast, KernelChoice::Quick] {
+        let renderer = Renderer::with_kernel(&ctx, choice).unwrap();
+        let baked = renderer.bake(&renderer.upload(&tri).unwrap(), spec).unwrap();
+        let coarse = renderer.read_baked_values(&baked, false).unwrap();
+        let fine = renderer.read_baked_values(&baked, true).unwrap();
+        fields.push((baked.n_bricks, baked.n_coarse(), coarse, fine));
+    }
+    let (bricks, n_coarse, coarse, fine) = &fields[0];
+    // Not vacuous: both levels hold points, and not all of them zero.
+    assert!(*n_coarse > 0 && n_coarse < bricks, "{n_coarse} coarse bricks of {bricks}");
+    assert!(coarse.iter().any(|&v| v != 0) && fine.iter().any(|&v| v != 0));
+    assert!(fields[0] == fields[1], "the fast and quick kernels baked different fields");
 }

@@ -19,7 +19,8 @@ pub(super) fn spawn_fast_kernel_compile(
 /// The background half of `KernelChoice::Auto`: compiles the fast kernel on a device of its
 /// own (lavapipe JIT-compiles a pipeline at its first dispatch, on the queue that runs it, so
 /// compiling on the renderer's own device would stall its renders for the whole compile) with
-/// one one-ray render, which leaves the compiled kernel in Mesa's on-disk shader cache. The
+/// one one-ray render, and the bake kernel with its decoder with a bake of a few points, which
+/// leaves both compiled in Mesa's on-disk shader cache. The
 /// device is dropped before returning, which flushes that cache, so the renderer's own first
 /// dispatch of the fast kernel then loads it instead of compiling it. (With Mesa's cache
 /// disabled, that dispatch compiles it again, once.)
@@ -36,7 +37,7 @@ fn compile_fast_kernel(adapter: &str, marker: Option<&std::path::Path>) -> Resul
     if let Ok(mut m) = renderer.marker.lock() {
         *m = None;
     }
-    let tri = Triplane {
+    let mut tri = Triplane {
         planes: vec![0.0; 3 * N_CHANNELS * 2 * 2],
         height: 2,
         width: 2,
@@ -45,13 +46,15 @@ fn compile_fast_kernel(adapter: &str, marker: Option<&std::path::Path>) -> Resul
             w0: vec![0.0; crate::triplane::HIDDEN * N_CHANNELS],
             b0: vec![0.0; crate::triplane::HIDDEN],
             w1: vec![0.0; crate::triplane::N_OUT * crate::triplane::HIDDEN],
-            b1: vec![0.0; crate::triplane::N_OUT],
+            // Dense everywhere, so that the bake below has bricks to decode.
+            b1: [vec![20.0], vec![0.0; crate::triplane::N_OUT - 1]].concat(),
         },
         bounds: SceneBounds::default(),
         camera: None,
         occupancy: None,
         source: None,
     };
+    tri.occupancy = Some(crate::Occupancy::bake(&tri, 2)?);
     let gpu = renderer.upload(&tri)?;
     let camera = Camera::lookat_pose(
         std::f64::consts::FRAC_PI_2,
@@ -62,6 +65,9 @@ fn compile_fast_kernel(adapter: &str, marker: Option<&std::path::Path>) -> Resul
     );
     let settings = RenderSettings { resolution: 1, ..Default::default() };
     renderer.render(&gpu, &[camera], &settings, Outputs::ALL)?;
+    let max_delta = settings.max_interval(tri.bounds.ray_start, tri.bounds.ray_end);
+    renderer
+        .bake(&gpu, crate::BakeSpec { subdivisions: 1, fine_subdivisions: 0, epsilon: 1e-4, max_delta })?;
     // Drop the device (flushing Mesa's cache writes) before the marker says it is cached.
     drop((gpu, renderer, ctx));
     if let Some(path) = marker {

@@ -40,8 +40,8 @@ pub(super) struct BakedPipelines {
     lookup: OnceLock<wgpu::ComputePipeline>,
     /// render_rays guided by a baked field (`GUIDED`), with the fast [0] and the quick [1] decoder.
     guided: [OnceLock<wgpu::ComputePipeline>; 2],
-    /// The bake kernel and its bindings.
-    bake: OnceLock<wgpu::ComputePipeline>,
+    /// The bake kernel, with the fast [0] and the quick [1] decoder, and its bindings.
+    bake: [OnceLock<wgpu::ComputePipeline>; 2],
     bake_layout: wgpu::BindGroupLayout,
     bake_pipeline_layout: wgpu::PipelineLayout,
     /// Bound in place of a baked field when the render decodes, and of fine bricks when it has none.
@@ -58,7 +58,7 @@ impl BakedPipelines {
         Self {
             lookup: OnceLock::new(),
             guided: [OnceLock::new(), OnceLock::new()],
-            bake: OnceLock::new(),
+            bake: [OnceLock::new(), OnceLock::new()],
             bake_layout,
             bake_pipeline_layout,
             no_baked: super::layouts::placeholder(device, "lp3d no baked field"),
@@ -352,6 +352,7 @@ impl Renderer {
         if let Some(e) = pollster::block_on(oom.pop()) {
             return Err(Error::Gpu(format!("out of device memory allocating the baked field: {e}")));
         }
+        let kernel = self.decoding_kernel();
         let mut done = 0;
         while done < n_points {
             let count = BAKE_CHUNK.min(n_points - done);
@@ -367,7 +368,7 @@ impl Renderer {
                     label: Some("lp3d bake pass"),
                     timestamp_writes: None,
                 });
-                cpass.set_pipeline(self.bake_pipeline());
+                cpass.set_pipeline(self.bake_pipeline(kernel));
                 cpass.set_bind_group(0, &group, &[]);
                 cpass.dispatch_workgroups(gx, gy, 1);
             }
@@ -381,7 +382,11 @@ impl Renderer {
                 return Err(Error::invalid("bake", "stopped before it finished"));
             }
         }
-        self.check(scope, "baking the field")
+        self.check(scope, "baking the field")?;
+        if kernel == Kernel::Fast {
+            self.record_fast_kernel(1);
+        }
+        Ok(())
     }
 
     /// The baked field a render with `settings` uses: the triplane's, when it covers them, else
@@ -421,26 +426,43 @@ impl Renderer {
         })
     }
 
-    /// render_rays guided by the baked field (`GUIDED`), built on first use, with the decoder of
-    /// the kernel the exact renders use now (`Renderer::render_pipeline`): the guide decodes.
-    pub(super) fn guided_pipeline(&self) -> &wgpu::ComputePipeline {
+    /// The kernel exact renders use now (`Renderer::render_pipeline`, which takes a finished
+    /// background compile): the field's pipelines that decode use its decoder.
+    fn decoding_kernel(&self) -> Kernel {
         let quick = self.quick_pipeline.as_ref().is_some_and(|q| std::ptr::eq(q, self.render_pipeline()));
-        let kernel = if quick { Kernel::Quick } else { Kernel::Fast };
-        self.baked.guided[quick as usize].get_or_init(|| {
+        if quick {
+            Kernel::Quick
+        } else {
+            Kernel::Fast
+        }
+    }
+
+    /// render_rays guided by the baked field (`GUIDED`), built on first use, with the decoder of
+    /// the kernel the exact renders use now: the guide decodes.
+    pub(super) fn guided_pipeline(&self) -> &wgpu::ComputePipeline {
+        let kernel = self.decoding_kernel();
+        self.baked.guided[(kernel == Kernel::Quick) as usize].get_or_init(|| {
             build_render_variant(&self.device, &self.module, &self.pipeline_layout, kernel, FieldUse::Guide)
         })
     }
 
-    /// The bake kernel (rolled decoder: a short compile; the bake runs once per field).
-    fn bake_pipeline(&self) -> &wgpu::ComputePipeline {
-        self.baked.bake.get_or_init(|| {
+    /// The bake kernel with `kernel`'s decoder (`decoding_kernel`: that of the kernel the exact
+    /// renders use when a bake pass starts), built on first use: on lavapipe the unrolled one bakes 2-2.5x quicker (bench/RESULTS.md, "The bake with the
+    /// fast kernel's decoder"), and `KernelChoice::Auto`'s background compile has compiled it by the
+    /// time the fast kernel serves; until then the rolled one, whose compile is short.
+    fn bake_pipeline(&self, kernel: Kernel) -> &wgpu::ComputePipeline {
+        self.baked.bake[(kernel == Kernel::Quick) as usize].get_or_init(|| {
+            let rolled = if kernel == Kernel::Quick { 1.0 } else { 0.0 };
             self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some("lp3d bake_field"),
+                label: Some(match kernel {
+                    Kernel::Fast => "lp3d bake_field (fast kernel's decoder)",
+                    Kernel::Quick => "lp3d bake_field (quick kernel's decoder)",
+                }),
                 layout: Some(&self.baked.bake_pipeline_layout),
                 module: &self.module,
                 entry_point: Some(shaders::BAKE_ENTRY),
                 compilation_options: wgpu::PipelineCompilationOptions {
-                    constants: &[("ROLLED_DECODER", 1.0)],
+                    constants: &[("ROLLED_DECODER", rolled)],
                     ..Default::default()
                 },
                 cache: None,
