@@ -20,7 +20,7 @@ use crate::camera::Camera;
 use crate::device::GpuContext;
 use crate::error::{Error, Result};
 use crate::gpu_types::{DecoderUniform, DisplayUniform, Params, FLAG_HALF_PLANES};
-use crate::kernel::{build_render_pipeline, fast_kernel_marker, write_marker};
+use crate::kernel::{build_render_pipeline, fast_kernel_marker};
 use crate::occupancy::Occupancy;
 use crate::settings::{Outputs, RenderSettings};
 use crate::shaders;
@@ -250,19 +250,6 @@ impl Renderer {
             self.set_fast();
         }
         ok
-    }
-
-    /// Notes that `pipeline` (0: the fast render kernel, 1: the bake with its decoder) has run,
-    /// so is in Mesa's shader cache; once both have, records it (once). Best effort: without the
-    /// marker, the next process only takes the slower `Auto` start.
-    fn record_fast_kernel(&self, pipeline: usize) {
-        self.fast_ran[pipeline].store(true, Ordering::Relaxed);
-        if !self.fast_ran.iter().all(|r| r.load(Ordering::Relaxed)) {
-            return;
-        }
-        if let Some(path) = self.marker.lock().ok().and_then(|mut m| m.take()) {
-            write_marker(&path);
-        }
     }
 
     fn set_fast(&self) {

@@ -478,16 +478,7 @@ impl eframe::App for ViewerApp {
         let now = Instant::now();
         self.interval_ms = now.duration_since(self.last_ui).as_secs_f64() * 1e3;
         self.last_ui = now;
-        // The panels are not filled: the window is cleared to their colour (`clear_color`), so
-        // lavapipe shades each pixel under the image once, not twice.
-        let side = egui::Frame::side_top_panel(ui.style()).fill(egui::Color32::TRANSPARENT);
-        let central = egui::Frame::central_panel(ui.style()).fill(egui::Color32::TRANSPARENT);
-        egui::Panel::left("controls")
-            .frame(side)
-            .resizable(false)
-            .exact_size(260.0)
-            .show(ui, |ui| self.controls(ui));
-        egui::CentralPanel::default().frame(central).show(ui, |ui| self.view(ui));
+        self.panels(ui);
         self.drive_screenshot(ui.ctx());
     }
 }

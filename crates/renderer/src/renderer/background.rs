@@ -1,5 +1,6 @@
 //! The background half of `KernelChoice::Auto` on lavapipe: the fast kernel compiled on a
-//! device and thread of its own while the quick kernel serves.
+//! device and thread of its own while the quick kernel serves, and the marker that tells later
+//! processes it is in Mesa's shader cache.
 
 use super::*;
 use crate::kernel::write_marker;
@@ -74,4 +75,19 @@ fn compile_fast_kernel(adapter: &str, marker: Option<&std::path::Path>) -> Resul
         write_marker(path);
     }
     Ok(())
+}
+
+impl Renderer {
+    /// Notes that `pipeline` (0: the fast render kernel, 1: the bake with its decoder) has run,
+    /// so is in Mesa's shader cache; once both have, records it (once). Best effort: without the
+    /// marker, the next process only takes the slower `Auto` start.
+    pub(super) fn record_fast_kernel(&self, pipeline: usize) {
+        self.fast_ran[pipeline].store(true, Ordering::Relaxed);
+        if !self.fast_ran.iter().all(|r| r.load(Ordering::Relaxed)) {
+            return;
+        }
+        if let Some(path) = self.marker.lock().ok().and_then(|mut m| m.take()) {
+            write_marker(&path);
+        }
+    }
 }

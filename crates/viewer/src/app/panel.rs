@@ -141,6 +141,19 @@ impl ViewerApp {
         format!("{} ({:?})", info.name, info.backend)
     }
 
+    /// The side panel and the view, drawn unfilled over the window cleared to their colour
+    /// (`clear_color`), so that lavapipe shades each pixel under the image once, not twice.
+    pub(super) fn panels(&mut self, ui: &mut egui::Ui) {
+        let side = egui::Frame::side_top_panel(ui.style()).fill(egui::Color32::TRANSPARENT);
+        let central = egui::Frame::central_panel(ui.style()).fill(egui::Color32::TRANSPARENT);
+        egui::Panel::left("controls")
+            .frame(side)
+            .resizable(false)
+            .exact_size(260.0)
+            .show(ui, |ui| self.controls(ui));
+        egui::CentralPanel::default().frame(central).show(ui, |ui| self.view(ui));
+    }
+
     pub(super) fn view(&mut self, ui: &mut egui::Ui) {
         if self.loaded.is_none() {
             ui.centered_and_justified(|ui| ui.label("no triplane loaded"));
