@@ -6,7 +6,7 @@ planes) and the teacher head itself (256² planes).
     python bench/bake_speed.py --out /tmp/bake_speed.md
 
 The bake kernel uses the decoder of the kernel that exact renders use (``LP3D_KERNEL``): the fast
-kernel's unrolled one, or the quick kernel's rolled one (what every bake used before 2026-11-28).
+kernel's unrolled one, or the quick kernel's rolled one (what every bake used before 2026-11-29).
 Each bake runs in a fresh process per kernel, alternated, after an untimed bake of a tiny field that
 compiles the kernel (or loads it from Mesa's shader cache). Reported: the GPU part of each bake
 (``BakedField.bake_seconds``), the field's size, and whether the two kernels' fields are identical

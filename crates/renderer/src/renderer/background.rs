@@ -21,10 +21,10 @@ pub(super) fn spawn_fast_kernel_compile(
 /// own (lavapipe JIT-compiles a pipeline at its first dispatch, on the queue that runs it, so
 /// compiling on the renderer's own device would stall its renders for the whole compile) with
 /// one one-ray render, and the bake kernel with its decoder with a bake of a few points, which
-/// leaves both compiled in Mesa's on-disk shader cache. The
-/// device is dropped before returning, which flushes that cache, so the renderer's own first
-/// dispatch of the fast kernel then loads it instead of compiling it. (With Mesa's cache
-/// disabled, that dispatch compiles it again, once.)
+/// leaves both compiled in Mesa's on-disk shader cache. The device is dropped before returning,
+/// which flushes that cache, so the renderer's own first dispatches of them then load them
+/// instead of compiling them. (With Mesa's cache disabled, those dispatches compile them again,
+/// once.)
 fn compile_fast_kernel(adapter: &str, marker: Option<&std::path::Path>) -> Result<()> {
     let ctx = GpuContext::headless()?;
     if ctx.adapter_info.name != adapter {

@@ -447,9 +447,10 @@ impl Renderer {
     }
 
     /// The bake kernel with `kernel`'s decoder (`decoding_kernel`: that of the kernel the exact
-    /// renders use when a bake pass starts), built on first use: on lavapipe the unrolled one bakes 2-2.5x quicker (bench/RESULTS.md, "The bake with the
-    /// fast kernel's decoder"), and `KernelChoice::Auto`'s background compile has compiled it by the
-    /// time the fast kernel serves; until then the rolled one, whose compile is short.
+    /// renders use when a bake pass starts), built on first use. On lavapipe the unrolled decoder
+    /// bakes ~2x quicker (bench/RESULTS.md, "The bake with the fast kernel's decoder"), and
+    /// `KernelChoice::Auto`'s background compile has compiled it by the time the fast kernel
+    /// serves; until then the rolled one, whose compile is short.
     fn bake_pipeline(&self, kernel: Kernel) -> &wgpu::ComputePipeline {
         self.baked.bake[(kernel == Kernel::Quick) as usize].get_or_init(|| {
             let rolled = if kernel == Kernel::Quick { 1.0 } else { 0.0 };
