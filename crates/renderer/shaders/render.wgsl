@@ -10,7 +10,7 @@
 // needs: FLAG_OCCUPANCY_COARSE, FLAG_WHITE_BACK, camera_ray, importance_depths, sample_triplane,
 // needs: decode, interval_alpha, transmit, Walk, walk_start, walk_advance, walk_to_needed,
 // needs: BAKED, GUIDED, baked_sample, guide_decodes
-// provides: COARSE_CACHE, Composite, composite_sample, render_rays
+// provides: COARSE_CACHE, Composite, composite_sample, ray_pixel, render_rays
 
 // One loop walks a ray twice: first its coarse samples (the density pass of sample_importance,
 // weights into `scratch`), then, after the importance draw, the merged coarse + fine list
@@ -76,13 +76,31 @@ fn composite_sample(
 // 27 s at 256, 20 s at 64; quick kernel 7 s and 2.1 s; bench/RESULTS.md).
 const COARSE_CACHE: u32 = 64u;
 
+// The pixel of ray slot `i` (a camera's invocation x). lavapipe runs 8 consecutive invocations in
+// lock-step, each loop until the last of the 8 is done, so the 8 are best close together: when the
+// side is a multiple of 8, each workgroup of 64 covers an 8 x 8 tile and each 8 a 4 x 2 block of it
+// (rows of 8 otherwise).
+fn ray_pixel(i: u32) -> u32 {
+    let r = params.resolution;
+    if ((r & 7u) != 0u) {
+        return i;
+    }
+    let tile = i >> 6u;
+    let tiles_x = r >> 3u;
+    let lane_group = (i >> 3u) & 7u;
+    let lane = i & 7u;
+    let x = ((tile % tiles_x) << 3u) + ((lane_group & 1u) << 2u) + (lane & 3u);
+    let y = ((tile / tiles_x) << 3u) + ((lane_group >> 1u) << 1u) + (lane >> 2u);
+    return y * r + x;
+}
+
 @compute @workgroup_size(64)
 fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
     let n_pix = params.resolution * params.resolution;
-    let pixel = gid.x;
-    if (pixel >= n_pix) {
+    if (gid.x >= n_pix) {
         return;
     }
+    let pixel = ray_pixel(gid.x);
     let cam = params.camera_offset + gid.y;
     let ray_index = cam * n_pix + pixel;
     let out_index = gid.y * n_pix + pixel;
