@@ -83,12 +83,18 @@ fn importance_depths(
     }
     // 3. max_pool1d(2, 1, pad 1) -> avg_pool1d(2, 1) -> + PDF_WEIGHT_FLOOR, keeping
     //    a[1:S-2] (S - 3 bin weights), then sample_pdf's + PDF_EPS. In place, front to back.
+    //    Weights k + 1 and k + 2 are carried in registers (a and b), so each bin loads one weight.
     let n_bins = s - 3u;
     var total = 0.0;
+    var a = (*scratch)[0];
+    var b = (*scratch)[1];
     for (var k = 0u; k < n_bins; k++) {
-        let pw = (max((*scratch)[k], (*scratch)[k + 1u]) + max((*scratch)[k + 1u], (*scratch)[k + 2u])) * 0.5 + PDF_WEIGHT_FLOOR;
-        (*scratch)[k] = pw + PDF_EPS;
-        total += (*scratch)[k];
+        let c = (*scratch)[k + 2u];
+        let bin = (max(a, b) + max(b, c)) * 0.5 + PDF_WEIGHT_FLOOR + PDF_EPS;
+        (*scratch)[k] = bin;
+        total += bin;
+        a = b;
+        b = c;
     }
     // 4. cdf = [0, cumsum(pdf)]: S - 2 entries, in place.
     var c = 0.0;
@@ -104,7 +110,10 @@ fn importance_depths(
     if (jittered()) {
         e_total = spacing_total(ray_index);
     }
+    //    The cdf at `below` and `above` is carried in registers (c0, c1): each step of idx loads one.
     var idx = 0u;
+    var c0 = (*scratch)[0];
+    var c1 = c0;
     for (var j = 0u; j < n; j++) {
         var u = 0.0;
         if (jittered()) {
@@ -113,13 +122,16 @@ fn importance_depths(
         } else {
             u = linspace_at(j, n, 0.0, 1.0, params.u_step);
         }
-        while (idx <= n_bins && (*scratch)[idx] <= u) {
+        while (idx <= n_bins && c1 <= u) {
             idx++;
+            c0 = c1;
+            if (idx <= n_bins) {
+                c1 = (*scratch)[idx];
+            }
         }
         let below = max(idx, 1u) - 1u;
         let above = min(idx, n_bins);
-        let c0 = (*scratch)[below];
-        var denom = (*scratch)[above] - c0;
+        var denom = c1 - c0;
         if (denom < PDF_EPS) {
             denom = 1.0;
         }
