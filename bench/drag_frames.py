@@ -9,7 +9,8 @@ viewer's skips on the scenes a user opens (the shipped encoder's triplanes of fr
 teacher heads 0 and 1000003, 64² planes; three views, yaw -30/0/30, pitch 5, one call), as the
 median of ``--repeats`` calls per view, after one untimed call that compiles the kernel. Each field
 is baked once and saved under ``--fields`` (reused by later runs; a saved field is checked against
-its triplane when loaded).
+its triplane when loaded, and baked again if it does not fit; delete the folder to encode the scenes
+again with another model).
 
 Builds: ``NAME=PATH`` runs this script's timing in a child process with ``PATH`` first on
 ``PYTHONPATH`` (an ``lp3d_render`` built elsewhere, e.g. ``pip install --target PATH .`` of an older
@@ -69,9 +70,11 @@ def prepare(fields: Path) -> list[object]:
             save_triplane(tri_path, encoder_output(ProceduralTeacher().sample(seed)))
         tri = load_triplane(tri_path).to_native()
         field_path = fields / f"encoder-{seed}.field-k4-16.npz"
-        if field_path.exists():
+        try:
             load_baked(field_path, tri)
-        else:
+        except (OSError, ValueError) as e:
+            if field_path.exists():  # saved by another version, or damaged: bake it again
+                print(f"not reusing {field_path}: {e}", file=sys.stderr, flush=True)
             print(f"baking head {seed}'s fine field (about a minute)", file=sys.stderr, flush=True)
             save_baked(field_path, lp3d_render.bake(tri, **FIELD), tri)
         tris.append(tri)
