@@ -160,7 +160,12 @@ impl Renderer {
             if first == 0 {
                 // Batch-global depth range first: render_rays clamps against it.
                 pass.set_pipeline(&self.bounds_pipeline);
-                pass.dispatch_workgroups(groups_x, frame.n_cam as u32, 1);
+                if frame.params.flags & crate::gpu_types::FLAG_JITTER != 0 {
+                    pass.dispatch_workgroups(groups_x, frame.n_cam as u32, 1);
+                } else {
+                    // Every ray has the same coarse depths: the shader reads the first one's.
+                    pass.dispatch_workgroups(1, 1, 1);
+                }
             }
             if frame.guided {
                 pass.set_pipeline(self.guided_pipeline());
