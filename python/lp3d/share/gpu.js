@@ -233,7 +233,9 @@ class Gpu {
     const groups = Math.ceil((rung.resolution * rung.resolution) / WORKGROUP);
     pass.setBindGroup(0, this.renderGroup);
     pass.setPipeline(this.boundsPipeline);
-    pass.dispatchWorkgroups(groups, 1, 1);
+    // The page renders without jitter, so every ray has the same coarse depths: the bounds pass
+    // reads the first ray's, one invocation (frame.rs does the same).
+    pass.dispatchWorkgroups(1, 1, 1);
     pass.setPipeline(this.pipeline);
     pass.dispatchWorkgroups(groups, 1, 1);
     return { encoder, pass };
