@@ -33,21 +33,21 @@ from pathlib import Path
 
 import numpy as np
 
+from drag_error import FINE, VIEWER_SKIPS  # bench/ is on sys.path when run as a script
+
 os.environ.setdefault("LP3D_KERNEL", "fast")
 
 SEEDS = (0, 1_000_003)
 YAWS = (-30.0, 0.0, 30.0)
 PITCH = 5.0
-#: The viewer's fine field (crates/viewer/src/bake.rs, FINE_FIELD) and the skips of its frames.
-FIELD = {"subdivisions": 4, "fine_subdivisions": 16, "occupancy_epsilon": 1e-4, "depth_resolution": 24}
-SKIPS = {
-    "occupancy_epsilon": 1e-4,
-    "occupancy_coarse": True,
-    "transmittance_threshold": 1e-3,
-    "empty_threshold": 1e-3,
-    "baked_subdivisions": 4,
-    "baked_fine_subdivisions": 16,
+#: The viewer's fine field (k, k_f) and its frames' skips, as bench/drag_error.py states them.
+FIELD = {
+    "subdivisions": FINE[0],
+    "fine_subdivisions": FINE[1],
+    "occupancy_epsilon": VIEWER_SKIPS["occupancy_epsilon"],
+    "depth_resolution": 24,
 }
+SKIPS = VIEWER_SKIPS | {"baked_subdivisions": FINE[0], "baked_fine_subdivisions": FINE[1]}
 #: (coarse, fine): the drag rung and the first baked-only rung, as the fine field draws them.
 FRAMES = ((64, 48), (48, 24))
 
