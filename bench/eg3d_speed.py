@@ -18,7 +18,9 @@ the RGB image, so the two are compared on those).
 The scene: ``--scene random`` (default), ``bench/render_bench.py``'s 256² random triplane with an
 EG3D-scaled decoder, or ``--scene teacher``, a procedural teacher head (its decoder's gains of up to
 4000 turn float32 rounding in the plane fetch into feature differences of ~1e-2, so only its timing
-and depth compare). Reported: median seconds per frame of each, the ratio, and the largest
+and depth compare). The two renderers' frames are timed in pairs, back to back (each first in turn),
+so that a slow spell of the machine falls on both. Reported: median seconds per frame of each, the
+ratio of the medians and the lowest and highest ratio within a pair, and the largest
 differences in features and depth.
 """
 
@@ -47,13 +49,20 @@ from render_bench import scene as random_scene  # bench/ is on sys.path when run
 os.environ.setdefault("LP3D_KERNEL", "fast")
 
 
-def median_s(fn: Callable[[], object], repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
+def interleaved_s(
+    a: Callable[[], object], b: Callable[[], object], repeats: int
+) -> list[tuple[float, float]]:
+    """Seconds of `a` and of `b` for each repeat, the two run back to back (in turn first), so that a
+    slow spell of the machine slows both of a pair rather than one renderer's whole series."""
+    pairs = []
+    for i in range(repeats):
+        times = {}
+        for name, fn in (("a", a), ("b", b)) if i % 2 == 0 else (("b", b), ("a", a)):
+            start = time.perf_counter()
+            fn()
+            times[name] = time.perf_counter() - start
+        pairs.append((times["a"], times["b"]))
+    return pairs
 
 
 @contextlib.contextmanager
@@ -173,8 +182,10 @@ def main(argv: list[str] | None = None) -> int:
 
     ours = lp3d()  # compiles the pipeline (untimed)
     theirs = eg3d()
-    t_lp3d = median_s(lp3d, args.repeats)
-    t_eg3d = median_s(eg3d, args.repeats)
+    pairs = interleaved_s(lp3d, eg3d, args.repeats)
+    t_lp3d = statistics.median(p[0] for p in pairs)
+    t_eg3d = statistics.median(p[1] for p in pairs)
+    pair_ratios = sorted(e / m for m, e in pairs)
     feat = theirs[0][0].numpy().reshape(r, r, -1)
     depth = theirs[1][0].numpy().reshape(r, r)
     mine = ours["features"] if outputs is None else ours["rgb"]  # lp3d: (C, R, R)
@@ -193,13 +204,14 @@ def main(argv: list[str] | None = None) -> int:
     )
     print(
         "| R | samples | lp3d outputs | EG3D ImportanceRenderer s/frame | lp3d_render s/frame | EG3D / lp3d "
+        "| per pair, lowest–highest "
         f"| max abs Δ {'features' if outputs is None else 'RGB (features 0-2)'} | max abs Δ depth |"
     )
-    print("|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|")
     ratio = t_eg3d / t_lp3d
     print(
-        f"| {r} | {s}+{s} | {args.outputs} | {t_eg3d:.2f} | {t_lp3d:.2f} | {ratio:.2f}× | {d_feat:.1e} "
-        f"| {d_depth:.1e} |"
+        f"| {r} | {s}+{s} | {args.outputs} | {t_eg3d:.2f} | {t_lp3d:.2f} | {ratio:.2f}× "
+        f"| {pair_ratios[0]:.2f}–{pair_ratios[-1]:.2f}× | {d_feat:.1e} | {d_depth:.1e} |"
     )
     return 0
 
