@@ -56,12 +56,12 @@ def interleaved_s(
     slow spell of the machine slows both of a pair rather than one renderer's whole series."""
     pairs = []
     for i in range(repeats):
-        times = {}
-        for name, fn in (("a", a), ("b", b)) if i % 2 == 0 else (("b", b), ("a", a)):
+        times = [0.0, 0.0]
+        for k in (0, 1) if i % 2 == 0 else (1, 0):
             start = time.perf_counter()
-            fn()
-            times[name] = time.perf_counter() - start
-        pairs.append((times["a"], times["b"]))
+            (a, b)[k]()
+            times[k] = time.perf_counter() - start
+        pairs.append((times[0], times[1]))
     return pairs
 
 

@@ -19,7 +19,7 @@ use wgpu::util::DeviceExt;
 use crate::camera::Camera;
 use crate::device::GpuContext;
 use crate::error::{Error, Result};
-use crate::gpu_types::{DecoderUniform, DisplayUniform, Params, FLAG_HALF_PLANES};
+use crate::gpu_types::{DecoderUniform, DisplayUniform, Params, FLAG_HALF_PLANES, FLAG_JITTER};
 use crate::kernel::{build_render_pipeline, fast_kernel_marker};
 use crate::occupancy::Occupancy;
 use crate::settings::{Outputs, RenderSettings};

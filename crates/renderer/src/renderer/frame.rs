@@ -160,7 +160,7 @@ impl Renderer {
             if first == 0 {
                 // Batch-global depth range first: render_rays clamps against it.
                 pass.set_pipeline(&self.bounds_pipeline);
-                if frame.params.flags & crate::gpu_types::FLAG_JITTER != 0 {
+                if frame.params.flags & FLAG_JITTER != 0 {
                     pass.dispatch_workgroups(groups_x, frame.n_cam as u32, 1);
                 } else {
                     // Every ray has the same coarse depths: the shader reads the first one's.
