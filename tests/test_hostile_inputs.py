@@ -307,8 +307,9 @@ LAVAPIPE_HINT = "install Mesa's lavapipe (sudo apt install mesa-vulkan-drivers l
         ),
         ({"WGPU_BACKEND": "bogus"}, "the environment variable WGPU_BACKEND='bogus' names no GPU backend"),
         ({"LP3D_KERNEL": "bogus"}, "the environment variable LP3D_KERNEL='bogus' names no renderer kernel"),
+        ({"LP3D_FULL_WALK": "yes"}, "the environment variable LP3D_FULL_WALK='yes' is not 0 or 1"),
     ],
-    ids=["no-vulkan-driver", "wgpu-backend", "lp3d-kernel"],
+    ids=["no-vulkan-driver", "wgpu-backend", "lp3d-kernel", "lp3d-full-walk"],
 )
 @pytest.mark.parametrize("command", ["render", "orbit"])
 def test_no_usable_gpu_is_one_line_saying_how_to_install_it(tmp_path, env, words, command) -> None:

@@ -153,14 +153,21 @@ def renderer_setup_error(message: str) -> str | None:
     """The one line a user sees when ``message`` (an error's text) says the renderer ``lp3d_render``
     cannot start, else None: no usable GPU adapter (``crates/renderer/src/device.rs``: the most common
     first-run failure), a ``WGPU_BACKEND`` that names no backend, an ``LP3D_KERNEL`` the renderer does
-    not know (``crates/renderer/src/kernel.rs``), or another GPU failure (``GPU error: ...``, already
-    one line). The renderer raises these as ``RuntimeError`` from whichever call first needs the GPU,
-    so they are recognised here, where every entry point ends (:func:`run_command`)."""
+    not know (``crates/renderer/src/kernel.rs``), an ``LP3D_FULL_WALK`` other than 0 or 1, or another
+    GPU failure (``GPU error: ...``, already one line). The renderer raises these as ``RuntimeError``
+    from whichever call first needs the GPU, so they are recognised here, where every entry point ends
+    (:func:`run_command`)."""
     if "LP3D_KERNEL: must be" in message:
         value = os.environ.get("LP3D_KERNEL", "")
         return (
             f"the environment variable LP3D_KERNEL={value!r} names no renderer kernel: set it to auto, "
             "fast or quick, or unset it"
+        )
+    if "LP3D_FULL_WALK: must be" in message:
+        value = os.environ.get("LP3D_FULL_WALK", "")
+        return (
+            f"the environment variable LP3D_FULL_WALK={value!r} is not 0 or 1: set it to 1 to walk every "
+            "sample (the outputs are the same; for tests and benchmarks), or unset it"
         )
     no_adapter = "no usable GPU adapter" in message
     no_surface = "Failed to create surface for any enabled backend" in message  # the viewer's window

@@ -2,7 +2,7 @@
 // The Rust mirror is `crates/renderer/src/gpu_types.rs`; a test checks the sizes match.
 // needs: nothing
 // provides: MAX_SAMPLES, N_CHANNELS, HIDDEN, FLAG_JITTER, FLAG_WHITE_BACK, FLAG_HALF_PLANES,
-// provides: FLAG_OCCUPANCY_COARSE, Params, Decoder, params, cameras, planes, decoder,
+// provides: FLAG_OCCUPANCY_COARSE, FLAG_FULL_WALK, Params, Decoder, params, cameras, planes, decoder,
 // provides: out_features, out_depth, out_weights_sum, depth_bounds, occupancy_bits, baked,
 // provides: baked_fine, bake_cells, bake_out
 
@@ -18,6 +18,9 @@ const FLAG_WHITE_BACK: u32 = 2u;
 const FLAG_HALF_PLANES: u32 = 4u;
 // The occupancy skip applies to the coarse pass too (not only the final composite).
 const FLAG_OCCUPANCY_COARSE: u32 = 8u;
+// Walk every sample: no exact early termination (render.wgsl's walk_ends; the outputs are the
+// same bits either way, which tests check with it).
+const FLAG_FULL_WALK: u32 = 16u;
 
 // Per-render settings. Field names follow EG3D's rendering_kwargs.
 struct Params {

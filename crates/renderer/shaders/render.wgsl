@@ -9,8 +9,9 @@
 // needs: params, out_features, out_depth, out_weights_sum, depth_bounds, MAX_SAMPLES,
 // needs: FLAG_OCCUPANCY_COARSE, FLAG_WHITE_BACK, camera_ray, importance_depths, sample_triplane,
 // needs: decode, interval_alpha, transmit, Walk, walk_start, walk_advance, walk_to_needed,
-// needs: BAKED, GUIDED, baked_sample, guide_decodes
-// provides: COARSE_CACHE, Composite, composite_sample, ray_pixel, render_rays
+// needs: BAKED, GUIDED, baked_sample, guide_decodes, FLAG_FULL_WALK
+// provides: COARSE_CACHE, Composite, composite_sample, eighth_ulp, composite_absorbed,
+// provides: coarse_absorbed, walk_ends, ray_pixel, render_rays
 
 // One loop walks a ray twice: first its coarse samples (the density pass of sample_importance,
 // weights into `scratch`), then, after the importance draw, the merged coarse + fine list
@@ -71,6 +72,95 @@ fn composite_sample(
     }
 }
 
+// Exact early termination: a walk ends once nothing still to come can change its float32 sums,
+// so the outputs are bit for bit those of the whole walk (docs/numerics.md, "Exact early
+// termination"). It rests on two facts of the float32 arithmetic: the transmittance T never grows
+// (each step multiplies it by a factor <= 1), and each later interval's weight, alpha * T with
+// alpha <= 1, is at most today's T.
+
+// Below this T the walks test whether the rest is absorbed (a compare per sample above it).
+const ABSORB_TEST_BELOW: f32 = 9.5367431640625e-7; // 2^-20
+// A coarse weight below 2^-33 leaves a bin's max/avg-pooled weight + PDF_WEIGHT_FLOOR at exactly
+// PDF_WEIGHT_FLOOR (half its float32 spacing is 2^-31), as a weight of 0 does.
+const PDF_ABSORBED: f32 = 1.16415321826934814453125e-10; // 2^-33
+// |a decoded feature| < 1 + SIGMOID_MARGIN, rounded up with room to spare.
+const FEATURE_BOUND: f32 = 2.0;
+
+// An eighth of the float32 spacing above |x| (0 for 0 and tiny x): an addend below it leaves x as
+// it is, fused or not (the spacing below a power of two is half the one above).
+fn eighth_ulp(x: f32) -> f32 {
+    let e = bitcast<u32>(x) & 0x7f800000u;
+    if (e < (27u << 23u)) {
+        return 0.0;
+    }
+    return bitcast<f32>(e - (26u << 23u));
+}
+
+// The composite walk: whether every weight still to come (each <= T) is too small to change the
+// weights sum, the depth sum (addends <= T * t_bound) or any output feature (<= T * FEATURE_BOUND).
+fn composite_absorbed(c: ptr<function, Composite>, wide: bool, n_feat: u32, t_bound: f32) -> bool {
+    let t = (*c).transmittance;
+    if (!(t < ABSORB_TEST_BELOW)) {
+        return false;
+    }
+    if (!(t < eighth_ulp((*c).weights_sum) && t * t_bound < eighth_ulp((*c).depth_acc))) {
+        return false;
+    }
+    if (n_feat == 0u) {
+        return true;
+    }
+    // The smallest |sum| among the output channels has the smallest spacing.
+    var m = abs((*c).acc[0]);
+    if (wide) {
+        for (var q = 1u; q < 8u; q++) {
+            m = min(m, abs((*c).acc[q]));
+        }
+    } else {
+        // RGB (and one more channel when n_feat says so) in acc[0]; lanes not output do not count.
+        m = select(vec4<f32>(1.0), m, vec4<u32>(0u, 1u, 2u, 3u) < vec4<u32>(n_feat));
+    }
+    return t * FEATURE_BOUND < eighth_ulp(min(min(m.x, m.y), min(m.z, m.w)));
+}
+
+// The coarse walk, about to evaluate sample i: whether the weights still to come (w_{i-1} on, each
+// <= T) and the two before them are all below PDF_ABSORBED. Every pdf bin that would hold one of
+// the weights still to come pools only these, so the importance draw is the same with them as 0.
+fn coarse_absorbed(
+    t: f32,
+    i: u32,
+    scratch: ptr<function, array<f32, MAX_SAMPLES>>,
+) -> bool {
+    if (!(t < PDF_ABSORBED) || i < 3u) {
+        return false;
+    }
+    return (*scratch)[i - 2u] < PDF_ABSORBED && (*scratch)[i - 3u] < PDF_ABSORBED;
+}
+
+// Whether the walk about to evaluate sample `walk_i` ends: by the early ray termination skip
+// (threshold `thr` > 0), else, when the decoder evaluates the samples, by exact termination
+// (unless FLAG_FULL_WALK).
+fn walk_ends(
+    c: ptr<function, Composite>,
+    walk_i: u32,
+    coarse: bool,
+    wide: bool,
+    n_feat: u32,
+    thr: f32,
+    t_bound: f32,
+    scratch: ptr<function, array<f32, MAX_SAMPLES>>,
+) -> bool {
+    // With the skip's threshold (the viewer's 1e-3), the skip ends a walk long before the exact
+    // test would: no need to test. Nor with the baked field, whose un-premultiplied colours have
+    // no bound as tight as the decoder's features (and which its skips end anyway).
+    if (thr > 0.0 || BAKED || GUIDED || (params.flags & FLAG_FULL_WALK) != 0u) {
+        return (*c).transmittance < thr;
+    }
+    if (coarse) {
+        return coarse_absorbed((*c).transmittance, walk_i, scratch);
+    }
+    return composite_absorbed(c, wide, n_feat, t_bound);
+}
+
 // Coarse samples the coarse walk keeps for the composite (the first ones, when a ray has more).
 // Not MAX_SAMPLES: lavapipe's compile time grows with the size of a private array (fast kernel
 // 27 s at 256, 20 s at 64; quick kernel 7 s and 2.1 s; bench/RESULTS.md).
@@ -111,6 +201,8 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
     // lookup or the guide (RGB only): a constant there, so the compiler drops the 32-feature copies.
     let wide = !BAKED && !GUIDED && n_feat == 32u;
     let thr = params.transmittance_threshold;
+    // No sample lies farther than this (the depth sum's addends are below T times it).
+    let t_bound = 2.0 * (max(abs(params.ray_start), abs(params.ray_end)) + abs(params.jitter_step));
     // Per-invocation scratch: coarse weights -> pdf -> cdf (importance_depths), and the fine
     // depths it draws.
     var scratch = array<f32, MAX_SAMPLES>();
@@ -150,11 +242,11 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
             // The samples that need no decoding, in a loop of their own: the composite walk's
             // cached coarse samples and, with the baked guide, the samples it leaves to the field.
             // lavapipe runs 8 rays in lock-step, so each ray composites these up to its next
-            // sample to decode, and the 8 decode together. Early ray termination (a skip; the
-            // exact mode's threshold is 0, so it never fires) ends both loops.
+            // sample to decode, and the 8 decode together. Early ray termination ends both loops:
+            // the skip's (its threshold 0 in exact mode) or the exact one (walk_ends).
             loop {
                 walk_to_needed(&walk, ray, ray_index, n, &t_fine);
-                if (walk.i >= walk.total || c.transmittance < thr) {
+                if (walk.i >= walk.total || walk_ends(&c, walk.i, coarse, wide, n_feat, thr, t_bound, &scratch)) {
                     break;
                 }
                 let k = walk.k_cur;
@@ -182,7 +274,7 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
                 }
                 walk_advance(&walk, ray, ray_index, n, &t_fine);
             }
-            if (walk.i >= walk.total || c.transmittance < thr) {
+            if (walk.i >= walk.total || walk_ends(&c, walk.i, coarse, wide, n_feat, thr, t_bound, &scratch)) {
                 break;
             }
             let t = walk.t_cur;

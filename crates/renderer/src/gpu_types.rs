@@ -13,6 +13,9 @@ pub const FLAG_WHITE_BACK: u32 = 2;
 pub const FLAG_HALF_PLANES: u32 = 4;
 /// The occupancy skip applies to the coarse pass too.
 pub const FLAG_OCCUPANCY_COARSE: u32 = 8;
+/// Walk every sample: no exact early termination (`shaders/render.wgsl`'s `walk_ends`). The
+/// outputs are the same bits either way; tests and benchmarks compare the two with it.
+pub const FLAG_FULL_WALK: u32 = 16;
 
 /// Mirrors `struct Params` in `shaders/params.wgsl`.
 #[repr(C)]

@@ -115,6 +115,8 @@ pub struct Renderer {
     /// Which of the two this process has run: the fast render kernel [0], the bake with the fast
     /// kernel's decoder [1].
     fast_ran: [AtomicBool; 2],
+    /// Walk every sample (`set_full_walk`).
+    full_walk: AtomicBool,
     bounds_pipeline: wgpu::ComputePipeline,
     present_layout: wgpu::BindGroupLayout,
     present_pipeline: wgpu::ComputePipeline,
@@ -132,7 +134,10 @@ impl Renderer {
     /// Builds the pipelines on `ctx`'s device (a first dispatch may JIT-compile them), with
     /// the kernels `LP3D_KERNEL` asks for (`KernelChoice::from_env`, default `Auto`).
     pub fn new(ctx: &GpuContext) -> Result<Renderer> {
-        Renderer::with_kernel(ctx, KernelChoice::from_env()?)
+        let full_walk = frame::full_walk_from_env()?;
+        let renderer = Renderer::with_kernel(ctx, KernelChoice::from_env()?)?;
+        renderer.set_full_walk(full_walk);
+        Ok(renderer)
     }
 
     /// Builds the pipelines with an explicit kernel choice.
@@ -207,6 +212,7 @@ impl Renderer {
             background: Mutex::new(background),
             marker: Mutex::new(marker),
             fast_ran: [AtomicBool::new(false), AtomicBool::new(false)],
+            full_walk: AtomicBool::new(false),
             bounds_pipeline,
             present_layout,
             present_pipeline,

@@ -3,8 +3,27 @@
 //! each chunk's dispatches (`encode_chunk`).
 
 use super::*;
+use crate::gpu_types::FLAG_FULL_WALK;
+
+/// `LP3D_FULL_WALK` (`Renderer::new`): `1` walks every sample, `0` or unset ends a walk where
+/// nothing left can change an output (the default); anything else is an error naming it.
+pub(super) fn full_walk_from_env() -> Result<bool> {
+    match std::env::var("LP3D_FULL_WALK").ok().as_deref() {
+        None | Some("") | Some("0") => Ok(false),
+        Some("1") => Ok(true),
+        Some(other) => Err(Error::invalid("LP3D_FULL_WALK", format!("must be 0 or 1, got {other:?}"))),
+    }
+}
 
 impl Renderer {
+    /// Walk every sample of every ray (`true`), or end a walk once its transmittance is too small
+    /// for anything left to change an output's float32 sums (`false`, the default; exact early
+    /// termination, `docs/numerics.md`). The outputs are the same bits either way: this is for
+    /// the tests and benchmarks that compare the two. `Renderer::new` reads `LP3D_FULL_WALK`.
+    pub fn set_full_walk(&self, on: bool) {
+        self.full_walk.store(on, Ordering::Relaxed);
+    }
+
     /// How many cameras one dispatch renders: the batch is split so each dispatch's outputs
     /// (`fc` feature channels and `n_pix` pixels per camera) fit one storage binding.
     pub(super) fn cameras_per_dispatch(&self, fc: usize, n_pix: usize, n_cam: usize) -> Result<usize> {
@@ -43,6 +62,9 @@ impl Renderer {
         let mut params = Params::new(&tri.scene, settings, fc as u32, n_cam as u32);
         if tri.half {
             params.flags |= FLAG_HALF_PLANES;
+        }
+        if self.full_walk.load(Ordering::Relaxed) {
+            params.flags |= FLAG_FULL_WALK;
         }
         let occupancy = self.occupancy_bits(tri, settings)?;
         if let Some((g, _)) = &occupancy {
