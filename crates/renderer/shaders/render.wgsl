@@ -10,8 +10,9 @@
 // needs: FLAG_OCCUPANCY_COARSE, FLAG_WHITE_BACK, camera_ray, importance_depths, sample_triplane,
 // needs: decode, interval_alpha, transmit, Walk, walk_start, walk_advance, walk_to_needed,
 // needs: BAKED, GUIDED, baked_sample, guide_decodes, FLAG_FULL_WALK
-// provides: COARSE_CACHE, Composite, composite_sample, eighth_ulp, composite_absorbed,
-// provides: coarse_absorbed, walk_ends, ray_pixel, render_rays
+// provides: COARSE_CACHE, Composite, composite_sample, ABSORB_TEST_BELOW, PDF_ABSORBED,
+// provides: FEATURE_BOUND, eighth_ulp, composite_absorbed, coarse_absorbed, walk_ends, ray_pixel,
+// provides: render_rays
 
 // One loop walks a ray twice: first its coarse samples (the density pass of sample_importance,
 // weights into `scratch`), then, after the importance draw, the merged coarse + fine list
