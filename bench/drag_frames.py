@@ -55,20 +55,12 @@ FRAMES = ((64, 48), (48, 24))
 def prepare(fields: Path) -> list[object]:
     """The scenes' triplanes on the GPU with their fine fields attached (baked and saved once)."""
     import lp3d_render
+    from encoded import saved_encoder_output  # bench/ is on sys.path when run as a script
     from lp3d.render.baked import load_baked, save_baked
-    from lp3d.render.triplane_io import load_triplane, save_triplane
-    from lp3d.teachers import ProceduralTeacher
 
-    fields.mkdir(parents=True, exist_ok=True)
     tris = []
     for seed in SEEDS:
-        tri_path = fields / f"encoder-{seed}.npz"
-        if not tri_path.exists():
-            from encoded import encoder_output  # bench/ is on sys.path when run as a script
-
-            print(f"encoding head {seed}", file=sys.stderr, flush=True)
-            save_triplane(tri_path, encoder_output(ProceduralTeacher().sample(seed)))
-        tri = load_triplane(tri_path).to_native()
+        tri = saved_encoder_output(seed, fields).to_native()
         field_path = fields / f"encoder-{seed}.field-k4-16.npz"
         try:
             load_baked(field_path, tri)

@@ -3,7 +3,9 @@
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Iterable, Iterator
+from pathlib import Path
 
 import numpy as np
 
@@ -28,3 +30,17 @@ def encoder_outputs(heads: Iterable[TriplaneData]) -> Iterator[TriplaneData]:
 def encoder_output(head: TriplaneData) -> TriplaneData:
     """`encoder_outputs` of one head."""
     return next(encoder_outputs([head]))
+
+
+def saved_encoder_output(seed: int, folder: Path) -> TriplaneData:
+    """`encoder_output` of procedural teacher head `seed`, encoded once and kept in `folder` as
+    ``encoder-<seed>.npz`` (delete it to encode again with another model)."""
+    from lp3d.render.triplane_io import load_triplane, save_triplane
+    from lp3d.teachers import ProceduralTeacher
+
+    path = folder / f"encoder-{seed}.npz"
+    if not path.exists():
+        folder.mkdir(parents=True, exist_ok=True)
+        print(f"encoding head {seed}", file=sys.stderr, flush=True)
+        save_triplane(path, encoder_output(ProceduralTeacher().sample(seed)))
+    return load_triplane(path)

@@ -36,22 +36,15 @@ WALKS = (("every sample", "1"), ("ended walks", "0"))
 
 def scenes(folder: Path) -> list[tuple[str, object]]:
     """(name, native triplane) of every scene, the encoder's outputs encoded once and saved."""
-    from lp3d.render.triplane_io import load_triplane, save_triplane
+    from encoded import saved_encoder_output  # bench/ is on sys.path when run as a script
     from lp3d.teachers import ProceduralTeacher
-    from render_bench import scene as random_scene  # bench/ is on sys.path when run as a script
+    from render_bench import scene as random_scene
 
     out: list[tuple[str, object]] = [("random triplane", random_scene().to_native())]
     for seed in SEEDS:
         out.append((f"teacher head {seed}", ProceduralTeacher().sample(seed).to_native()))
-    folder.mkdir(parents=True, exist_ok=True)
     for seed in SEEDS:
-        path = folder / f"encoder-{seed}.npz"
-        if not path.exists():
-            from encoded import encoder_output
-
-            print(f"encoding head {seed}", file=sys.stderr, flush=True)
-            save_triplane(path, encoder_output(ProceduralTeacher().sample(seed)))
-        out.append((f"encoder output, head {seed}", load_triplane(path).to_native()))
+        out.append((f"encoder output, head {seed}", saved_encoder_output(seed, folder).to_native()))
     return out
 
 
