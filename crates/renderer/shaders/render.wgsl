@@ -244,10 +244,13 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
             // cached coarse samples and, with the baked guide, the samples it leaves to the field.
             // lavapipe runs 8 rays in lock-step, so each ray composites these up to its next
             // sample to decode, and the 8 decode together. Early ray termination ends both loops:
-            // the skip's (its threshold 0 in exact mode) or the exact one (walk_ends).
+            // the skip's (its threshold 0 in exact mode) or the exact one (walk_ends), tested once
+            // per sample here: the loop ends either there (`ended`) or at a sample to decode.
+            var ended = false;
             loop {
                 walk_to_needed(&walk, ray, ray_index, n, &t_fine);
-                if (walk.i >= walk.total || walk_ends(&c, walk.i, coarse, wide, n_feat, thr, t_bound, &scratch)) {
+                ended = walk.i >= walk.total || walk_ends(&c, walk.i, coarse, wide, n_feat, thr, t_bound, &scratch);
+                if (ended) {
                     break;
                 }
                 let k = walk.k_cur;
@@ -275,7 +278,7 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
                 }
                 walk_advance(&walk, ray, ray_index, n, &t_fine);
             }
-            if (walk.i >= walk.total || walk_ends(&c, walk.i, coarse, wide, n_feat, thr, t_bound, &scratch)) {
+            if (ended) {
                 break;
             }
             let t = walk.t_cur;
