@@ -26,13 +26,13 @@ import json
 import os
 import platform
 import statistics
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from child_runs import child_rows, emit_table  # bench/ is on sys.path when run as a script
 from drag_error import FINE, VIEWER_SKIPS  # bench/ is on sys.path when run as a script
 
 os.environ.setdefault("LP3D_KERNEL", "fast")
@@ -108,9 +108,7 @@ def run_build(path: str, args: argparse.Namespace) -> list[dict]:
     env = dict(os.environ)
     if path:
         env["PYTHONPATH"] = os.pathsep.join(p for p in (path, env.get("PYTHONPATH", "")) if p)
-    cmd = [sys.executable, __file__, "--child", "--fields", str(args.fields), "--repeats", str(args.repeats)]
-    done = subprocess.run(cmd, env=env, stdout=subprocess.PIPE, text=True, check=True)
-    return [json.loads(line) for line in done.stdout.splitlines() if line.startswith("{")]
+    return child_rows(__file__, ["--fields", str(args.fields), "--repeats", str(args.repeats)], env)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -157,10 +155,7 @@ def main(argv: list[str] | None = None) -> int:
             cells = [", ".join(f"{v:.1f}" for v in ms[(name, seed, frame)]) for name, _ in builds]
             same = "yes" if len(digests[(seed, frame)]) == 1 else "no"
             lines.append(f"| {seed} | 128² · {frame} | " + " | ".join(cells) + f" | {same} |")
-    table = "\n".join(lines)
-    print("\n" + table)
-    if args.out:
-        args.out.write_text(table + "\n")
+    emit_table(lines, args.out)
     return 0
 
 

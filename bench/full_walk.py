@@ -20,12 +20,13 @@ import json
 import os
 import platform
 import statistics
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+from child_runs import child_rows, emit_table  # bench/ is on sys.path when run as a script
 
 os.environ.setdefault("LP3D_KERNEL", "fast")
 
@@ -82,9 +83,7 @@ def child(folder: Path, repeats: int) -> None:
 
 def run_walk(full: str, args: argparse.Namespace) -> list[dict]:
     env = dict(os.environ, LP3D_FULL_WALK=full)
-    cmd = [sys.executable, __file__, "--child", "--scenes", str(args.scenes), "--repeats", str(args.repeats)]
-    done = subprocess.run(cmd, env=env, stdout=subprocess.PIPE, text=True, check=True)
-    return [json.loads(line) for line in done.stdout.splitlines() if line.startswith("{")]
+    return child_rows(__file__, ["--scenes", str(args.scenes), "--repeats", str(args.repeats)], env)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -129,10 +128,7 @@ def main(argv: list[str] | None = None) -> int:
         same = "yes" if len(digests[(scene, label)]) == 1 else "**no**"
         cells = [", ".join(f"{v:.0f}" for v in x) for x in (full, ended)]
         lines.append(f"| {scene} | {label} | {cells[0]} | {cells[1]} | {100 * saved:.0f}% | {same} |")
-    table = "\n".join(lines)
-    print("\n" + table)
-    if args.out:
-        args.out.write_text(table + "\n")
+    emit_table(lines, args.out)
     return 0
 
 
