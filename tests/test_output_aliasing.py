@@ -168,3 +168,14 @@ def test_viewer_screenshot_never_replaces_an_input(
     assert proc.returncode == 1, proc.stderr
     assert words in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
     assert snapshot(in_tmp) == before
+
+
+def test_viewer_drag_image_never_replaces_an_input(in_tmp: Path, triplane: Path) -> None:
+    """With --drag-frames the screenshot also writes the window during the drag, head.png ->
+    head.drag.png: a triplane of that name is refused before any window opens."""
+    input_file = triplane.rename(in_tmp / "head.drag.png")
+    before = snapshot(in_tmp)
+    proc = view("--drag-frames", "3", "--screenshot", "head.png", input_file)
+    assert proc.returncode == 1, proc.stderr
+    assert "drag image" in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
+    assert snapshot(in_tmp) == before

@@ -183,6 +183,18 @@ def test_drag_draws_from_the_baked_field_once_it_is_ready(gpu, sphere_file: Path
     after = frames[frames.index(dragging[-1]) + 1 :]
     assert [(f["baked"], f["phase"], f["resolution"]) for f in after] == [(False, "final", res)], after
     assert meta["quality"] == f"{res}² · {coarse}+{fine} (final)"
+    # The window at the last moving frame, captured before the release: the baked frame on screen
+    # (its panel said so). The release changes no view, so the still image that followed shows the
+    # same one, exact: close to the drag image but not equal.
+    drag_shot = shot.with_suffix(".drag.png")
+    assert meta["drag"]["image"] == drag_shot.name
+    assert meta["drag"]["image_quality"] == f"{res}² · {coarse * 4 // 3}+{fine} (moving, baked)"
+    moving = np.asarray(Image.open(drag_shot).convert("RGB"), dtype=np.int16)
+    still = np.asarray(Image.open(shot).convert("RGB"), dtype=np.int16)
+    assert moving.shape == still.shape
+    v = meta["view"]
+    view = np.s_[v["y"] : v["y"] + v["size"], v["x"] : v["x"] + v["size"]]
+    assert 0.0 < np.abs(moving[view] - still[view]).mean() < 2.0, "the drag image is not the baked frame"
 
 
 def test_bad_inputs_exit_non_zero(tmp_path: Path) -> None:

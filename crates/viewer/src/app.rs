@@ -27,7 +27,7 @@ use crate::bake::{self, BakeJob, Draw};
 use crate::options::ViewerOptions;
 use crate::orbit::Orbit;
 use crate::quality::{FrameTimes, Ladder, Rung};
-use crate::screenshot::{json_number, json_string, save_screenshot, RenderImage, ViewRect};
+use crate::screenshot::{drag_path, json_number, json_string, save_screenshot, RenderImage, ViewRect};
 use record::{FrameRecord, Phase, Shown};
 
 /// How long the view must stay unchanged (with no pointer button held) before refining.
@@ -74,7 +74,7 @@ struct Target {
 
 /// `--drag-frames`: a synthetic left-button drag injected into egui's input, one step per UI
 /// frame, so tests and benchmarks drive the same code path as a mouse.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 struct DragScript {
     frames: u32,
     /// 0: waiting for the first final image (and the bake); 1..=frames: moving; frames + 1:
@@ -85,6 +85,16 @@ struct DragScript {
     released: Option<Instant>,
     /// Release to the refined image on screen.
     release_to_final_ms: Option<f64>,
+    /// The window at the last moving frame, captured before the release (saved with the
+    /// screenshot as `drag_path`), and the quality it showed.
+    shot: DragShot,
+}
+
+#[derive(Debug, Clone, Default)]
+struct DragShot {
+    requested: Option<String>,
+    slot: Arc<Mutex<Option<Arc<egui::ColorImage>>>>,
+    image: Option<Arc<egui::ColorImage>>,
 }
 
 pub struct ViewerApp {
@@ -234,6 +244,7 @@ impl ViewerApp {
                 delta: egui::Vec2::ZERO,
                 released: None,
                 release_to_final_ms: None,
+                shot: DragShot::default(),
             });
         }
         Ok(app)

@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 
 use lp3d_renderer::RenderSettings;
 
-use crate::screenshot::{render_path, sidecar_path};
+use crate::screenshot::{drag_path, render_path, sidecar_path};
 
 pub const USAGE: &str = "\
 usage: lp3d-view [options] [triplane.npz]
@@ -38,9 +38,10 @@ options:
   --drag-frames N     with --screenshot: once the final image is up and the bake has ended
                       (ready or failed), drag the view to orbit
                       (synthetic pointer events, a quarter of the view's width to the right and a
-                      tenth down) over N UI frames, release, wait for the refined image, then
-                      save; the JSON sidecar records every frame's render time and quality,
-                      whether it came from the baked field, and the bake [0]
+                      tenth down) over N UI frames, save the window at the last moving frame (PATH
+                      with .drag.png), release, wait for the refined image, then save; the JSON
+                      sidecar records every frame's render time and quality, whether it came from
+                      the baked field, and the bake [0]
   -h, --help          show this help";
 
 #[derive(Debug, Clone, PartialEq)]
@@ -161,7 +162,7 @@ impl ViewerOptions {
     /// status 1), checked before the window opens.
     pub fn check_outputs(&self) -> Result<(), String> {
         if let (Some(shot), Some(input)) = (&self.screenshot, &self.path) {
-            check_screenshot_paths(input, shot)?;
+            check_screenshot_paths(input, shot, self.drag_frames > 0)?;
         }
         Ok(())
     }
@@ -183,44 +184,49 @@ impl ViewerOptions {
     }
 }
 
-/// A screenshot writes a PNG of the window, its JSON sidecar and the render itself as a PNG.
-/// Refused here, before any window opens: any of them being the triplane file or another of them
-/// (by name, link or relative path), a name that is not `.png`, a folder in their place, a
-/// missing folder.
-fn check_screenshot_paths(input: &Path, shot: &Path) -> Result<(), String> {
-    let sidecar = sidecar_path(shot);
-    let render = render_path(shot);
-    let (input_id, shot_id, sidecar_id, render_id) =
-        (file_id(input), file_id(shot), file_id(&sidecar), file_id(&render));
+/// A screenshot writes a PNG of the window, its JSON sidecar and the render itself as a PNG (and
+/// with a scripted drag, `drag`, the window during the drag as another PNG). Refused here, before
+/// any window opens: any of them being the triplane file or another of them (by name, link or
+/// relative path), a name that is not `.png`, a folder in their place, a missing folder.
+fn check_screenshot_paths(input: &Path, shot: &Path, drag: bool) -> Result<(), String> {
     let s = shot.display();
-    if shot_id == input_id {
-        return Err(format!(
-            "--screenshot {s} is the triplane file {}: it would be replaced",
-            input.display()
-        ));
+    let mut outputs = vec![
+        ("screenshot", shot.to_path_buf()),
+        ("JSON sidecar", sidecar_path(shot)),
+        ("render image", render_path(shot)),
+    ];
+    if drag {
+        outputs.push(("drag image", drag_path(shot)));
     }
-    for (what, p, id) in [("JSON sidecar", &sidecar, &sidecar_id), ("render image", &render, &render_id)] {
+    let input_id = file_id(input);
+    let ids: Vec<FileId> = outputs.iter().map(|(_, p)| file_id(p)).collect();
+    for ((what, p), id) in outputs.iter().zip(&ids) {
         if *id == input_id {
-            return Err(format!(
-                "--screenshot {s}: its {what} {} is the triplane file {}: it would be replaced",
-                p.display(),
-                input.display()
-            ));
+            return Err(if *what == "screenshot" {
+                format!("--screenshot {s} is the triplane file {}: it would be replaced", input.display())
+            } else {
+                format!(
+                    "--screenshot {s}: its {what} {} is the triplane file {}: it would be replaced",
+                    p.display(),
+                    input.display()
+                )
+            });
         }
     }
-    if sidecar_id == shot_id || render_id == shot_id || render_id == sidecar_id {
-        return Err(format!(
-            "--screenshot {s}: its JSON sidecar {} or render image {} would replace the screenshot \
-             or each other; give a .png file name",
-            sidecar.display(),
-            render.display()
-        ));
+    for (i, a) in ids.iter().enumerate() {
+        if let Some(j) = ids[i + 1..].iter().position(|b| b == a) {
+            let (what_a, what_b) = (outputs[i].0, outputs[i + 1 + j].0);
+            return Err(format!(
+                "--screenshot {s}: its {what_b} {} would replace its {what_a}; give a .png file name",
+                outputs[i + 1 + j].1.display()
+            ));
+        }
     }
     let is_png = shot.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("png"));
     if !is_png {
         return Err(format!("--screenshot {s}: the screenshot is a PNG image; give a .png file name"));
     }
-    for p in [shot, sidecar.as_path(), render.as_path()] {
+    for (_, p) in &outputs {
         if p.is_dir() {
             return Err(format!("--screenshot {s}: {} is a folder", p.display()));
         }
@@ -365,6 +371,13 @@ mod tests {
         std::fs::write(dir.join("v.json"), b"a triplane").unwrap();
         assert!(err(&p("v.png"), &p("v.json")).contains("sidecar"));
         assert!(err(&p("out.json"), &input_s).contains("sidecar"));
+        // With a scripted drag, the drag image of d.png is d.drag.png.
+        std::fs::write(dir.join("d.drag.png"), b"a triplane").unwrap();
+        let drag_err = |shot: &str, input: &str| {
+            parse(&["--drag-frames", "3", "--screenshot", shot, input]).unwrap().check_outputs().unwrap_err()
+        };
+        assert!(drag_err(&p("d.png"), &p("d.drag.png")).contains("drag image"));
+        parse(&["--screenshot", &p("d.png"), &p("d.drag.png")]).unwrap().check_outputs().unwrap();
         // The render image of v.png is v.render.png: a triplane of that name would be replaced.
         std::fs::write(dir.join("w.render.png"), b"a triplane").unwrap();
         assert!(err(&p("w.png"), &p("w.render.png")).contains("render image"));

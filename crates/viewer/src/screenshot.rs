@@ -41,19 +41,27 @@ fn encode_png(width: u32, height: u32, rgba: &[u8]) -> Result<Vec<u8>, String> {
     Ok(png_bytes)
 }
 
-/// Writes the window PNG at `path`, the render PNG at `render_path(path)` and the JSON sidecar
-/// (the view's rectangle and camera, the render's file name, then `report`'s fields: a JSON
-/// object's members, without braces) at `sidecar_path(path)`; all three or none.
+fn encode_window(image: &egui::ColorImage) -> Result<Vec<u8>, String> {
+    let [w, h] = image.size;
+    let rgba: Vec<u8> = image.pixels.iter().flat_map(|p| p.to_array()).collect();
+    encode_png(w as u32, h as u32, &rgba)
+}
+
+/// Writes the window PNG at `path`, the render PNG at `render_path(path)`, the window during the
+/// scripted drag (`drag`, if any) at `drag_path(path)` and the JSON sidecar (the view's rectangle
+/// and camera, the render's file name, then `report`'s fields: a JSON object's members, without
+/// braces) at `sidecar_path(path)`; all of them or none.
 pub fn save_screenshot(
     path: &Path,
     image: &egui::ColorImage,
     view: &ViewRect,
     render: &RenderImage,
+    drag: Option<&egui::ColorImage>,
     report: &str,
 ) -> Result<PathBuf, String> {
     let [w, h] = image.size;
-    let rgba: Vec<u8> = image.pixels.iter().flat_map(|p| p.to_array()).collect();
-    let window_png = encode_png(w as u32, h as u32, &rgba)?;
+    let window_png = encode_window(image)?;
+    let drag_png = drag.map(encode_window).transpose()?;
     let render_png = encode_png(render.size, render.size, &render.rgba)?;
     let render_file = render_path(path);
     let render_name = render_file.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
@@ -75,8 +83,10 @@ pub fn save_screenshot(
     let stage = |p: &Path, bytes: &[u8]| atomic::stage(p, |f| f.write_all(bytes)).map_err(|e| e.to_string());
     let png = stage(path, &window_png)?;
     let raw = stage(&render_file, &render_png)?;
+    let drag = drag_png.map(|bytes| stage(&drag_path(path), &bytes)).transpose()?;
     let json = stage(&sidecar_path(path), sidecar.as_bytes())?;
-    atomic::publish_all(vec![json, raw, png]).map_err(|e| e.to_string())?;
+    atomic::publish_all([Some(json), Some(raw), drag, Some(png)].into_iter().flatten().collect())
+        .map_err(|e| e.to_string())?;
     Ok(path.to_path_buf())
 }
 
@@ -104,6 +114,12 @@ pub fn json_string(s: &str) -> String {
     }
     out.push('"');
     out
+}
+
+/// The window during a scripted drag (`--drag-frames`), at its last moving frame, before the
+/// release: `shot.png` -> `shot.drag.png`.
+pub fn drag_path(path: &Path) -> PathBuf {
+    path.with_extension("drag.png")
 }
 
 /// `v` as a JSON number (`null` when not finite, which JSON cannot hold).
@@ -135,7 +151,7 @@ mod tests {
     }
 
     #[test]
-    fn saves_both_files_or_neither() {
+    fn saves_all_files_or_none() {
         let dir = std::env::temp_dir().join(format!("lp3d-screenshot-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
@@ -148,15 +164,32 @@ mod tests {
             v.sort();
             v
         };
-        save_screenshot(&dir.join("ok.png"), &image, &view(), &render(), "\"extra\": 1").unwrap();
+        save_screenshot(&dir.join("ok.png"), &image, &view(), &render(), None, "\"extra\": 1").unwrap();
         assert_eq!(names(), ["ok.json", "ok.png", "ok.render.png"]);
+        save_screenshot(&dir.join("dr.png"), &image, &view(), &render(), Some(&image), "").unwrap();
+        assert_eq!(
+            names(),
+            ["dr.drag.png", "dr.json", "dr.png", "dr.render.png", "ok.json", "ok.png", "ok.render.png"]
+        );
         let sidecar = std::fs::read_to_string(dir.join("ok.json")).unwrap();
         assert!(sidecar.contains("\"resolution\": 2"), "{sidecar}");
         assert!(sidecar.contains("\"render\": \"ok.render.png\",\n  \"extra\": 1\n}"), "{sidecar}");
         // The sidecar's place is taken by a folder: the write fails and leaves no PNG behind.
         std::fs::create_dir_all(dir.join("bad.json").join("inside")).unwrap();
-        assert!(save_screenshot(&dir.join("bad.png"), &image, &view(), &render(), "").is_err());
-        assert_eq!(names(), ["bad.json", "ok.json", "ok.png", "ok.render.png"]);
+        assert!(save_screenshot(&dir.join("bad.png"), &image, &view(), &render(), Some(&image), "").is_err());
+        assert_eq!(
+            names(),
+            [
+                "bad.json",
+                "dr.drag.png",
+                "dr.json",
+                "dr.png",
+                "dr.render.png",
+                "ok.json",
+                "ok.png",
+                "ok.render.png"
+            ]
+        );
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -73,11 +73,18 @@ impl ViewerApp {
         let s = &self.settings;
         let drag = match &self.drag {
             Some(d) => format!(
-                "{{\"frames\": {}, \"points\": [{}, {}], \"release_to_final_ms\": {}}}",
+                "{{\"frames\": {}, \"points\": [{}, {}], \"release_to_final_ms\": {}, \"image\": {}, \"image_quality\": {}}}",
                 d.frames,
                 json_number(d.delta.x as f64),
                 json_number(d.delta.y as f64),
-                d.release_to_final_ms.map_or("null".into(), json_number)
+                d.release_to_final_ms.map_or("null".into(), json_number),
+                match (&d.shot.image, &self.screenshot) {
+                    (Some(_), Some(job)) => json_string(
+                        &drag_path(&job.path).file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default()
+                    ),
+                    _ => "null".into(),
+                },
+                d.shot.requested.as_deref().map_or("null".into(), json_string)
             ),
             None => "null".into(),
         };
@@ -124,13 +131,44 @@ impl ViewerApp {
             let pos = d.start + d.delta * (d.step as f32 / d.frames as f32);
             raw.events.push(egui::Event::PointerMoved(pos));
             d.step += 1;
-        } else if d.released.is_none() {
+        } else if d.released.is_none() && d.shot.image.is_some() {
+            // Released once the window at the last moving frame is captured (drive_drag_shot).
             raw.events.push(button(d.start + d.delta, false));
             d.released = Some(Instant::now());
         }
     }
 
+    /// With the drag's last move done and the button still down (so the moving frame stays on
+    /// screen), captures the window once that frame's numbers are in the panel; the release waits
+    /// for the capture.
+    fn drive_drag_shot(&mut self, ctx: &egui::Context) {
+        let frame = ctx.cumulative_frame_nr();
+        let quality = self.quality_label();
+        let drawn = self.shown.is_some_and(|s| s.ui_frame < frame && Some(s.key) == self.key());
+        let Some(d) = &mut self.drag else { return };
+        if d.step <= d.frames || d.released.is_some() || d.shot.image.is_some() {
+            return;
+        }
+        if d.shot.requested.is_none() {
+            if drawn {
+                let slot = d.shot.slot.clone();
+                ctx.send_viewport_cmd(egui::ViewportCommand::Screenshot(egui::ScreenshotCallback::new(
+                    move |image| {
+                        if let Ok(mut s) = slot.lock() {
+                            *s = Some(image);
+                        }
+                    },
+                )));
+                d.shot.requested = Some(quality);
+            }
+        } else if let Some(image) = d.shot.slot.lock().ok().and_then(|mut s| s.take()) {
+            d.shot.image = Some(image);
+        }
+        ctx.request_repaint();
+    }
+
     pub(super) fn drive_screenshot(&mut self, ctx: &egui::Context) {
+        self.drive_drag_shot(ctx);
         if let (Some(d), Some(s)) = (&mut self.drag, &self.shown) {
             if let (Some(released), None) = (d.released, d.release_to_final_ms) {
                 if s.is_final() && s.at > released && !self.moving {
@@ -156,7 +194,7 @@ impl ViewerApp {
             if !(ready && frame >= job.frames_before as u64) {
                 // A drag waiting for the bake: its progress asks for repaints; drawing the window
                 // meanwhile would only take CPU from the bake.
-                let waiting = self.drag.is_some_and(|d| d.step == 0) && self.bake_running();
+                let waiting = self.drag.as_ref().is_some_and(|d| d.step == 0) && self.bake_running();
                 ctx.request_repaint_after(if waiting { BAKE_WAIT_REPAINT } else { Duration::ZERO });
                 return;
             }
@@ -197,7 +235,8 @@ impl ViewerApp {
         };
         let captured = job.requested.as_ref().expect("requested");
         let report = self.report(&captured.quality);
-        let result = save_screenshot(&job.path, &image, &captured.view, &captured.render, &report);
+        let drag = self.drag.as_ref().and_then(|d| d.shot.image.as_deref());
+        let result = save_screenshot(&job.path, &image, &captured.view, &captured.render, drag, &report);
         self.finish_screenshot(ctx, result);
     }
 
