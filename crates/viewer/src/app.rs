@@ -29,6 +29,7 @@ use crate::orbit::Orbit;
 use crate::quality::{FrameTimes, Ladder, Rung};
 use crate::screenshot::{drag_path, json_number, json_string, save_screenshot, RenderImage, ViewRect};
 use record::{FrameRecord, Phase, Shown};
+use scripted::DragScript;
 
 /// How long the view must stay unchanged (with no pointer button held) before refining.
 const SETTLE: Duration = Duration::from_millis(200);
@@ -70,31 +71,6 @@ struct Target {
     view: wgpu::TextureView,
     id: egui::TextureId,
     size: u32,
-}
-
-/// `--drag-frames`: a synthetic left-button drag injected into egui's input, one step per UI
-/// frame, so tests and benchmarks drive the same code path as a mouse.
-#[derive(Debug, Clone)]
-struct DragScript {
-    frames: u32,
-    /// 0: waiting for the first final image (and the bake); 1..=frames: moving; frames + 1:
-    /// released.
-    step: u32,
-    start: egui::Pos2,
-    delta: egui::Vec2,
-    released: Option<Instant>,
-    /// Release to the refined image on screen.
-    release_to_final_ms: Option<f64>,
-    /// The window at the last moving frame, captured before the release (saved with the
-    /// screenshot as `drag_path`), and the quality it showed.
-    shot: DragShot,
-}
-
-#[derive(Debug, Clone, Default)]
-struct DragShot {
-    requested: Option<String>,
-    slot: Arc<Mutex<Option<Arc<egui::ColorImage>>>>,
-    image: Option<Arc<egui::ColorImage>>,
 }
 
 pub struct ViewerApp {
@@ -237,15 +213,7 @@ impl ViewerApp {
             });
         }
         if options.drag_frames > 0 {
-            app.drag = Some(DragScript {
-                frames: options.drag_frames,
-                step: 0,
-                start: egui::Pos2::ZERO,
-                delta: egui::Vec2::ZERO,
-                released: None,
-                release_to_final_ms: None,
-                shot: DragShot::default(),
-            });
+            app.drag = Some(DragScript::new(options.drag_frames));
         }
         Ok(app)
     }

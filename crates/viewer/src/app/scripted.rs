@@ -6,6 +6,45 @@ use super::*;
 /// How often a scripted drag waiting for the bake looks again (besides the bake's own repaints).
 const BAKE_WAIT_REPAINT: Duration = Duration::from_millis(250);
 
+/// `--drag-frames`: a synthetic left-button drag injected into egui's input, one step per UI
+/// frame, so tests and benchmarks drive the same code path as a mouse.
+#[derive(Debug, Clone)]
+pub(super) struct DragScript {
+    frames: u32,
+    /// 0: waiting for the first final image (and the bake); 1..=frames: moving; frames + 1:
+    /// released.
+    step: u32,
+    start: egui::Pos2,
+    delta: egui::Vec2,
+    released: Option<Instant>,
+    /// Release to the refined image on screen.
+    release_to_final_ms: Option<f64>,
+    /// The window at the last moving frame, captured before the release (saved with the
+    /// screenshot as `drag_path`), and the quality it showed.
+    shot: DragShot,
+}
+
+impl DragScript {
+    pub(super) fn new(frames: u32) -> DragScript {
+        DragScript {
+            frames,
+            step: 0,
+            start: egui::Pos2::ZERO,
+            delta: egui::Vec2::ZERO,
+            released: None,
+            release_to_final_ms: None,
+            shot: DragShot::default(),
+        }
+    }
+}
+
+#[derive(Debug, Clone, Default)]
+pub(super) struct DragShot {
+    requested: Option<String>,
+    slot: Arc<Mutex<Option<Arc<egui::ColorImage>>>>,
+    image: Option<Arc<egui::ColorImage>>,
+}
+
 impl ViewerApp {
     /// Reads the texture on screen back (for the screenshot's render image).
     pub(super) fn read_shown(&self) -> Result<RenderImage, String> {
@@ -144,7 +183,8 @@ impl ViewerApp {
     fn drive_drag_shot(&mut self, ctx: &egui::Context) {
         let frame = ctx.cumulative_frame_nr();
         let quality = self.quality_label();
-        let drawn = self.shown.is_some_and(|s| s.ui_frame < frame && Some(s.key) == self.key());
+        // The last move's frame is rendered in the UI frame that moved (or failed: nothing shown).
+        let drawn = self.shown.is_none_or(|s| s.ui_frame < frame);
         let Some(d) = &mut self.drag else { return };
         if d.step <= d.frames || d.released.is_some() || d.shot.image.is_some() {
             return;
