@@ -181,30 +181,33 @@ impl ViewerApp {
     /// screen), captures the window once that frame's numbers are in the panel; the release waits
     /// for the capture.
     fn drive_drag_shot(&mut self, ctx: &egui::Context) {
-        let frame = ctx.cumulative_frame_nr();
-        let quality = self.quality_label();
-        // The last move's frame is rendered in the UI frame that moved (or failed: nothing shown).
-        let drawn = self.shown.is_none_or(|s| s.ui_frame < frame);
-        let Some(d) = &mut self.drag else { return };
+        let Some(d) = &self.drag else { return };
         if d.step <= d.frames || d.released.is_some() || d.shot.image.is_some() {
             return;
         }
-        if d.shot.requested.is_none() {
-            if drawn {
-                let slot = d.shot.slot.clone();
-                ctx.send_viewport_cmd(egui::ViewportCommand::Screenshot(egui::ScreenshotCallback::new(
-                    move |image| {
-                        if let Ok(mut s) = slot.lock() {
-                            *s = Some(image);
-                        }
-                    },
-                )));
-                d.shot.requested = Some(quality);
-            }
-        } else if let Some(image) = d.shot.slot.lock().ok().and_then(|mut s| s.take()) {
-            d.shot.image = Some(image);
-        }
         ctx.request_repaint();
+        if d.shot.requested.is_some() {
+            let image = d.shot.slot.lock().ok().and_then(|mut s| s.take());
+            if let (Some(image), Some(d)) = (image, &mut self.drag) {
+                d.shot.image = Some(image);
+            }
+            return;
+        }
+        // The last move's frame is rendered in the UI frame that moved (or failed: nothing shown).
+        if self.shown.is_some_and(|s| s.ui_frame >= ctx.cumulative_frame_nr()) {
+            return;
+        }
+        let quality = self.quality_label();
+        let Some(d) = &mut self.drag else { return };
+        let slot = d.shot.slot.clone();
+        ctx.send_viewport_cmd(egui::ViewportCommand::Screenshot(egui::ScreenshotCallback::new(
+            move |image| {
+                if let Ok(mut s) = slot.lock() {
+                    *s = Some(image);
+                }
+            },
+        )));
+        d.shot.requested = Some(quality);
     }
 
     pub(super) fn drive_screenshot(&mut self, ctx: &egui::Context) {
