@@ -29,7 +29,7 @@ ALLOWED = {
     "images": {"atomic"},
     "outputs": {"atomic", "errors"},
     "render": {"atomic", "errors"},
-    "photo": {"errors"},
+    "photo": {"errors", "render"},
     "nets": set(),
     "teachers": {"render", "nets", "images", "atomic", "errors"},
     "lift": {"render", "nets", "array_cache", "atomic", "errors"},
@@ -48,7 +48,7 @@ ALLOWED = {
         "outputs",
     },
     # Beside training, each its own job (issue 24): they use the trained student, never the reverse.
-    "evaluation": {"training", "render", "nets", "lift", "teachers", "atomic", "errors", "images"},
+    "evaluation": {"training", "render", "nets", "lift", "teachers", "photo", "atomic", "errors", "images"},
     "superres_fit": {
         "training",
         "render",

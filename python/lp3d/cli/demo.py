@@ -76,6 +76,8 @@ class Portrait:
     crop: np.ndarray
     description: str
     truth: Any = None  # lp3d.render.triplane.TriplaneData
+    #: (yaw, pitch) of the portrait's camera: known for the teacher's, found from the face for a photo.
+    pose: tuple[float, float] | None = None
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -124,15 +126,17 @@ def teacher_portrait(size: int, samples: tuple[int, int]) -> Portrait:
         outputs=["rgb"],
     )
     crop = rgb_to_uint8(out["rgb"])
-    return Portrait("teacher_portrait", crop, f"procedural teacher, held-out seed {TEACHER_SEED}", truth)
+    return Portrait(
+        "teacher_portrait", crop, f"procedural teacher, held-out seed {TEACHER_SEED}", truth, (0.0, 0.0)
+    )
 
 
 def astronaut_portrait(size: int) -> Portrait:
-    """scikit-image's astronaut, face detected, levelled and cropped as ``lp3d encode`` does."""
+    """scikit-image's astronaut, face found, aligned and cropped as ``lp3d encode`` does."""
     from skimage import data
 
-    crop, desc = prepare_photo(data.astronaut(), size, detect=True, name="skimage astronaut")
-    return Portrait("astronaut", crop, f"scikit-image astronaut: {desc}")
+    prep = prepare_photo(data.astronaut(), size, detect=True, name="skimage astronaut")
+    return Portrait("astronaut", prep.image, f"scikit-image astronaut: {prep.description}", pose=prep.pose)
 
 
 def _views(tri: Any, cams: np.ndarray, resolution: int, samples: tuple[int, int]) -> list[np.ndarray]:
@@ -252,7 +256,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         how = "raw volume renders (the model has no super-resolution network)"
     print(f"views: {describe_size(sr, r)}; {how}")
-    print("preparing the inputs (the first render compiles the shader: up to a few minutes on a CPU)")
+    print("preparing the inputs")
     portraits = [teacher_portrait(pkg.image_size, samples), astronaut_portrait(pkg.image_size)]
     for p in portraits:
         print(f"  {p.name}: {p.description}")
@@ -272,7 +276,11 @@ def run(args: argparse.Namespace) -> int:
     refined: list[Any] = []
     if args.refine > 0:
         refined = refine_triplanes(
-            lifted, [p.crop for p in portraits], args.refine, [p.name for p in portraits]
+            lifted,
+            [p.crop for p in portraits],
+            args.refine,
+            [p.name for p in portraits],
+            [p.pose for p in portraits],
         )
     native_refined = [native_triplane(tri) for tri in refined]
     sheet = _side_by_side(portraits, native, args, sr, r, native_refined or None)

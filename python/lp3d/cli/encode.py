@@ -29,8 +29,9 @@ from lp3d.cli.refining import add_refine_argument, refine_triplanes
 HELP = "photo(s) -> triplane .npz (detect, align, crop, encode)"
 DESCRIPTION = (
     "Encode portrait photos into triplane files. Each photo is read, the "
-    "largest face is detected (OpenCV Haar cascades), levelled by its eye line and "
-    "cropped to the training framing, then encoded."
+    "largest face and its five landmarks are found (dlib, offline), its camera is estimated from them "
+    "and it is cropped to the training framing, then encoded; --refine fits the head to the photo at "
+    "that camera."
 )
 
 
@@ -74,7 +75,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def _collect_images(inputs: Sequence[Path]) -> list[Path]:
+def collect_images(inputs: Sequence[Path]) -> list[Path]:
     """Files as given; folders expand to their images (non-recursive, sorted)."""
     from lp3d.photo import PHOTO_SUFFIXES
 
@@ -131,12 +132,40 @@ def _encode(encoder: Any, crops: Sequence[np.ndarray], batch_size: int, flip_ave
     )
 
 
+def _prepare_all(
+    images: Sequence[Path], size: int, *, detect: bool
+) -> tuple[list[np.ndarray], list[tuple[float, float] | None]]:
+    """Each photo read, its face found and cropped (:func:`lp3d.photo.prepare_photo`), with its pose;
+    one CLIError listing every photo that cannot be used."""
+    from lp3d.photo import PhotoError, load_image, prepare_photo
+
+    crops: list[np.ndarray] = []
+    poses: list[tuple[float, float] | None] = []
+    failures: list[str] = []
+    for img in images:
+        try:
+            rgb, notes = load_image(img)
+            for note in notes:
+                warn(note)
+            prep = prepare_photo(rgb, size, detect=detect, name=str(img))
+        except PhotoError as e:
+            failures.append(str(e))
+            continue
+        crops.append(prep.image)
+        poses.append(prep.pose)
+        say(f"{img}: {prep.description}")
+    if failures:
+        if len(failures) == 1:
+            raise CLIError(failures[0])
+        raise CLIError(f"{len(failures)} of {len(images)} photos cannot be used:\n  " + "\n  ".join(failures))
+    return crops, poses
+
+
 def run(args: argparse.Namespace) -> int:
     from lp3d.lift.inference import load_encoder
-    from lp3d.photo import PhotoError, load_image, prepare_photo
     from lp3d.render.triplane_io import save_triplane
 
-    images = _collect_images(args.inputs)
+    images = collect_images(args.inputs)
     destinations, new_folder = _plan_outputs(images, args.output)
     crop_paths = [_crop_path(dest) for dest in destinations] if args.save_crop else []
     check_distinct(
@@ -155,23 +184,7 @@ def run(args: argparse.Namespace) -> int:
 
     # Read, detect and crop everything first: one bad photo fails the run before anything is written.
     t0 = time.perf_counter()
-    crops: list[np.ndarray] = []
-    failures: list[str] = []
-    for img in images:
-        try:
-            rgb, notes = load_image(img)
-            for note in notes:
-                warn(note)
-            crop, desc = prepare_photo(rgb, pkg.image_size, detect=not args.no_detect, name=str(img))
-        except PhotoError as e:
-            failures.append(str(e))
-            continue
-        crops.append(crop)
-        say(f"{img}: {desc}")
-    if failures:
-        if len(failures) == 1:
-            raise CLIError(failures[0])
-        raise CLIError(f"{len(failures)} of {len(images)} photos cannot be used:\n  " + "\n  ".join(failures))
+    crops, poses = _prepare_all(images, pkg.image_size, detect=not args.no_detect)
     t_prep = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -185,7 +198,7 @@ def run(args: argparse.Namespace) -> int:
     ]
     t0 = time.perf_counter()
     if args.refine > 0:
-        tris = refine_triplanes(tris, crops, args.refine, [str(img) for img in images])
+        tris = refine_triplanes(tris, crops, args.refine, [str(img) for img in images], poses)
     t_refine = time.perf_counter() - t0
 
     t0 = time.perf_counter()

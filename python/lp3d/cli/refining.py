@@ -40,22 +40,28 @@ def require_torch() -> None:
 
 
 def refine_triplanes(
-    triplanes: Sequence[Any], crops: Sequence[np.ndarray], steps: int, names: Sequence[str]
+    triplanes: Sequence[Any],
+    crops: Sequence[np.ndarray],
+    steps: int,
+    names: Sequence[str],
+    poses: Sequence[tuple[float, float] | None],
 ) -> list[Any]:
-    """Each ``TriplaneData`` fitted to its crop (S, S, 3) uint8 for ``steps`` steps; one progress bar
-    over all of them and a line per image (estimated pose, input-view PSNR before and after)."""
+    """Each ``TriplaneData`` fitted to its crop (S, S, 3) uint8 for ``steps`` steps, starting from its
+    pose ``(yaw, pitch)`` (found from the face's landmarks; None: searched for); one progress bar over
+    all of them and a line per image (the pose, input-view PSNR before and after)."""
     require_torch()
     from lp3d.lift.refine import refine
 
     settings = RefineSettings(steps=steps)
-    bar = progress(settings.total_steps() * len(triplanes), "refine", unit="step")
+    total = sum(settings.total_steps(pose is not None) for pose in poses)
+    bar = progress(total, "refine", unit="step")
     out = []
     try:
-        for tri, crop, name in zip(triplanes, crops, names, strict=True):
-            result = refine(tri, crop, settings, on_step=bar.update)
+        for tri, crop, name, pose in zip(triplanes, crops, names, poses, strict=True):
+            result = refine(tri, crop, settings, pose=pose, on_step=bar.update)
             say(
-                f"{name}: refined {steps} steps in {result.seconds:.1f} s; camera found at "
-                f"yaw {result.yaw_deg:+.0f}°, "
+                f"{name}: refined {steps} steps in {result.seconds:.1f} s; camera "
+                f"{'from the face' if pose is not None else 'searched for'} at yaw {result.yaw_deg:+.0f}°, "
                 f"pitch {result.pitch_deg:+.0f}°; input view {result.psnr_before:.1f} -> "
                 f"{result.psnr_after:.1f} dB"
             )

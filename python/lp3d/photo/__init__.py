@@ -1,30 +1,26 @@
-"""Photos in: safe image loading, face detection, levelling and the crop the encoder was trained on.
+"""Photos in: safe image loading, faces and their landmarks, the camera and the crop the encoder
+was trained on.
 
-The encoder only works on images framed like its training data (the teacher's frontal renders), so a
-photo is read, detected, levelled and cropped to that framing before encoding:
+The encoder only works on images framed like its training data (the teacher's renders by EG3D's FFHQ
+look-at camera), so a photo is read, its face found and put in that framing before encoding:
 
 1. :mod:`~lp3d.photo.load`: :func:`load_image` reads any Pillow format safely, with notes;
-2. :mod:`~lp3d.photo.detect`: :func:`detect_face` finds the largest face and its eye line;
-3. :mod:`~lp3d.photo.framing`: :func:`crop_for_face` and :func:`crop_image` make the training framing;
-4. :mod:`~lp3d.photo.prepare`: :func:`prepare_photo` does 2-3 for one photo, with a description;
-5. :mod:`~lp3d.photo.video`: :func:`read_video` reads a video's frames (bundled ffmpeg) and
+2. :mod:`~lp3d.photo.faces`: :func:`find_faces` finds faces and their five landmarks (dlib, offline);
+3. :mod:`~lp3d.photo.alignment`: :func:`align_face` finds the face's camera (yaw, pitch) and the crop
+   that frames it as in training;
+4. :mod:`~lp3d.photo.framing`: :class:`Crop`, :func:`crop_image` resamples it, levelled;
+5. :mod:`~lp3d.photo.prepare`: :func:`prepare_photo` does 2-4 for one photo, with a description;
+6. :mod:`~lp3d.photo.video`: :func:`read_video` reads a video's frames (bundled ffmpeg) and
    :func:`smooth_crops` steadies the per-frame crops.
 
-May import: :mod:`lp3d.errors` only (OpenCV, Pillow and imageio-ffmpeg lazily). The names below are
-re-exported so ``from lp3d.photo import load_image`` works.
+May import: :mod:`lp3d.errors` and :mod:`lp3d.render` (the camera convention); dlib, OpenCV, Pillow
+and imageio-ffmpeg lazily. The names below are re-exported so ``from lp3d.photo import load_image``
+works.
 """
 
-from lp3d.photo.detect import DETECT_MAX_SIDE, FaceDetection, detect_face
-from lp3d.photo.framing import (
-    FACE_BOX_CENTER_OFFSET_Y,
-    FACE_BOX_WIDTH_FRACTION,
-    MAX_ROLL_DEG,
-    Crop,
-    centre_crop,
-    crop_for_face,
-    crop_image,
-    to_encoder_input,
-)
+from lp3d.photo.alignment import FACE_TEMPLATE, FaceAlignment, align_face
+from lp3d.photo.faces import DETECT_MAX_SIDE, LANDMARK_NAMES, Face, face_descriptor, find_faces
+from lp3d.photo.framing import Crop, centre_crop, crop_image, to_encoder_input
 from lp3d.photo.load import (
     IMAGE_SUFFIXES,
     MAX_PIXELS,
@@ -35,26 +31,30 @@ from lp3d.photo.load import (
     PhotoError,
     load_image,
 )
-from lp3d.photo.prepare import prepare_photo
+from lp3d.photo.prepare import FaceDetection, PreparedPhoto, detect_face, prepare_photo
 
 __all__ = [
     "DETECT_MAX_SIDE",
-    "FACE_BOX_CENTER_OFFSET_Y",
-    "FACE_BOX_WIDTH_FRACTION",
+    "FACE_TEMPLATE",
     "IMAGE_SUFFIXES",
+    "LANDMARK_NAMES",
     "MAX_PIXELS",
-    "MAX_ROLL_DEG",
     "MAX_SIDE",
     "MIN_SIDE",
     "PHOTO_SUFFIXES",
     "Crop",
+    "Face",
+    "FaceAlignment",
     "FaceDetection",
     "NoFaceError",
     "PhotoError",
+    "PreparedPhoto",
+    "align_face",
     "centre_crop",
-    "crop_for_face",
     "crop_image",
     "detect_face",
+    "face_descriptor",
+    "find_faces",
     "load_image",
     "prepare_photo",
     "to_encoder_input",

@@ -1,9 +1,8 @@
-"""The framing the encoder was trained on: a square crop around the face, levelled by the eye line.
+"""A square, levelled region of a photo (:class:`Crop`), resampled to the encoder's size.
 
-:func:`crop_for_face` turns a face box into a square :class:`Crop` with the framing constants below
-(measured on the teacher's frontal renders); :func:`crop_image` resamples it, rotated so the eyes are
-level, to the encoder's size; :func:`to_encoder_input` makes the network's input. The framing constants
-live here and nowhere else.
+:mod:`lp3d.photo.alignment` decides where the crop lies (from the face's landmarks);
+:func:`crop_image` resamples it, rotated so the face is upright; :func:`to_encoder_input` makes the
+network's input.
 """
 
 from __future__ import annotations
@@ -14,27 +13,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 __all__ = [
-    "FACE_BOX_CENTER_OFFSET_Y",
-    "FACE_BOX_WIDTH_FRACTION",
-    "MAX_ROLL_DEG",
     "Crop",
     "centre_crop",
-    "crop_for_face",
     "crop_image",
     "to_encoder_input",
 ]
-
-# --------------------------------------------------------------------------------------- framing
-#: Width of OpenCV's frontal-face Haar box as a fraction of the square crop side. Measured on the
-#: procedural teacher's frontal renders (EG3D's FFHQ camera: radius 2.7, focal 4.2647, looking at
-#: (0, 0, 0.2)): the median over 17 identities is 0.48 (range 0.40-0.68, the box size is noisy).
-FACE_BOX_WIDTH_FRACTION = 0.48
-#: Vertical position of the face box centre relative to the crop centre, as a fraction of the crop
-#: side; negative is above the centre (the camera looks slightly below the face centre). Same
-#: measurement: median -0.045 (range -0.066 to -0.016). Horizontally the face box is centred.
-FACE_BOX_CENTER_OFFSET_Y = -0.045
-#: Eye-line angles beyond this are treated as a failed eye detection (no rotation).
-MAX_ROLL_DEG = 30.0
 
 
 @dataclass(frozen=True)
@@ -63,19 +46,6 @@ def centre_crop(shape: tuple[int, ...]) -> Crop:
     """The largest centred square of an image of ``shape`` (H, W, ...) (used with ``--no-detect``)."""
     h, w = int(shape[0]), int(shape[1])
     return Crop(cx=(w - 1) / 2.0, cy=(h - 1) / 2.0, side=float(min(h, w)))
-
-
-def crop_for_face(box: tuple[float, float, float, float], angle_deg: float = 0.0) -> Crop:
-    """The training framing around a face box ``(x, y, w, h)``: side ``w / FACE_BOX_WIDTH_FRACTION``,
-    the box centre at ``FACE_BOX_CENTER_OFFSET_Y * side`` from the crop centre along the levelled
-    vertical."""
-    x, y, w, h = box
-    side = w / FACE_BOX_WIDTH_FRACTION
-    fx, fy = x + (w - 1) / 2.0, y + (h - 1) / 2.0
-    # Crop centre = face centre - R(angle) @ (0, offset * side): the offset is vertical in the level frame.
-    a = math.radians(angle_deg)
-    d = FACE_BOX_CENTER_OFFSET_Y * side
-    return Crop(cx=fx + math.sin(a) * d, cy=fy - math.cos(a) * d, side=side, angle_deg=angle_deg)
 
 
 def crop_image(rgb: np.ndarray, crop: Crop, size: int) -> np.ndarray:

@@ -2,8 +2,8 @@
 
 :func:`read_video` validates the file (size limits as for photos, :mod:`lp3d.photo.load`) and yields
 (H, W, 3) uint8 frames; :func:`count_video_frames` counts the container's frames without decoding.
-Faces are detected per frame (:mod:`lp3d.photo.detect`); frames without one borrow the nearest
-detection (:func:`nearest_hits`) and :func:`smooth_crops` damps the Haar box's jitter.
+Faces are detected per frame (:func:`lp3d.photo.detect_face`); frames without one borrow the nearest
+detection (:func:`nearest_hits`) and :func:`smooth_crops` damps the landmarks' frame-to-frame jitter.
 """
 
 from __future__ import annotations
@@ -15,9 +15,9 @@ from typing import Any
 
 import numpy as np
 
-from lp3d.photo.detect import detect_face
 from lp3d.photo.framing import Crop
 from lp3d.photo.load import MAX_PIXELS, MAX_SIDE, NoFaceError, PhotoError
+from lp3d.photo.prepare import detect_face
 
 __all__ = [
     "VIDEO_CROP_SMOOTHING",
@@ -36,7 +36,7 @@ class VideoError(PhotoError):
     """A video that cannot be used; the message names the file and what is wrong."""
 
 
-#: Crop smoothing in ``lp3d video`` (exponential, per frame): damps the Haar box's frame-to-frame jitter.
+#: Crop smoothing in ``lp3d video`` (exponential, per frame): damps the landmarks' frame-to-frame jitter.
 VIDEO_CROP_SMOOTHING = 0.6
 
 
