@@ -39,6 +39,7 @@ __all__ = [
     "estimate_pose",
     "find_camera",
     "fit_pose",
+    "mirrored_camera",
     "moved_camera",
     "photo_target",
     "render_rgb",
@@ -90,6 +91,18 @@ def _rotation(axis_angle: Tensor) -> Tensor:
     a = torch.where(small, 1.0 - theta2 / 6.0, torch.sin(theta) / theta)
     b = torch.where(small, 0.5 - theta2 / 24.0, (1.0 - torch.cos(theta)) / theta.clamp_min(1e-4).square())
     return torch.eye(3, dtype=axis_angle.dtype) + a * k + b * (k @ k)
+
+
+def mirrored_camera(camera: Tensor) -> Tensor:
+    """``camera`` (25,) mirrored in the world's x = 0 plane (the face's plane of symmetry): it sees the
+    mirror image of what ``camera`` sees, so a photo flipped left to right is its view. The camera's
+    x axis is flipped too (the frame stays right-handed) and the principal point moves to 1 - cx."""
+    flip = torch.diag(torch.tensor([-1.0, 1.0, 1.0, 1.0], dtype=camera.dtype))
+    cam2world = flip @ camera[:16].reshape(4, 4) @ flip
+    k = camera[16:25].reshape(3, 3).clone()
+    k[0, 2] = 1.0 - k[0, 2]
+    k[0, 1] = -k[0, 1]
+    return torch.cat([cam2world.reshape(-1), k.reshape(-1)])
 
 
 def moved_camera(camera: Tensor, delta: Tensor) -> Tensor:

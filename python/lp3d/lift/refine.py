@@ -9,6 +9,10 @@ renderer (:mod:`lp3d.render.torch_twin`) on the input view, with two terms:
 * **photo**: L1 between the raw RGB render and the photo (downsampled to ``resolution``), on
   ``rays_per_step`` random rays of the view per step; a quarter of the rays per step makes each
   step 4x cheaper, and over the steps every pixel is seen;
+* **mirror** (``mirror``, on by default): the same for the photo flipped left to right, seen from the
+  mirrored camera (:func:`~lp3d.lift.pose.mirrored_camera`). Faces are nearly symmetric, so this
+  second view is nearly true, and it holds the side of the head that the photo turns away from,
+  which a fit to one view would smear with the seen side's colours;
 * **prior**: the mean squared change of the planes, in units of each channel's spread in the
   encoder's output, times ``prior_weight``. The input view sees only one side of the head and the
   three planes are shared by all sides, so an unheld fit buys the input view with broken side views;
@@ -35,7 +39,15 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from lp3d.lift.pose import camera_at, estimate_pose, find_camera, fit_pose, photo_target, render_rgb
+from lp3d.lift.pose import (
+    camera_at,
+    estimate_pose,
+    find_camera,
+    fit_pose,
+    mirrored_camera,
+    photo_target,
+    render_rgb,
+)
 from lp3d.lift.refine_settings import MAX_STEPS, RefineSettings
 from lp3d.render.camera import camera_summary, validate_camera
 from lp3d.render.psnr import psnr_db
@@ -84,8 +96,12 @@ def refine_planes(
     """``planes`` (3, 32, T, T) float32 fitted to ``image`` (3, S, S) seen from ``camera`` (25,) by
     :class:`RefineSettings` (module docstring); returns new planes, the input untouched."""
     r = settings.resolution
-    target = photo_target(image, r).reshape(3, -1).T  # (M, 3)
-    origins, dirs = rays_from_cameras(camera.float()[None], r)
+    photo = photo_target(image, r)
+    views = [(photo, camera.float())]
+    if settings.mirror:
+        views.append((photo.flip(-1), mirrored_camera(camera.float())))
+    targets = torch.stack([t.reshape(3, -1).T for t, _ in views])  # (V, M, 3)
+    origins, dirs = rays_from_cameras(torch.stack([c for _, c in views]), r)
     start = planes.detach().float()
     # The prior's unit: each channel's spread over the encoder's planes, so that weight 1 means "a
     # change of one standard deviation everywhere costs as much as an L1 photo error of 1".
@@ -96,11 +112,13 @@ def refine_planes(
     n = min(settings.rays_per_step, r * r)
     rs = settings.render_settings(r)
     for _ in range(settings.steps):
-        idx = torch.randperm(r * r, generator=gen)[:n]
-        rgb = render_rgb(x[None], decoder, origins[:, idx], dirs[:, idx], bounds, rs)[0]
-        photo = (rgb - target[idx]).abs().mean()
+        # Each view gets its own random rays; the steps' cost is split between the views.
+        idx = torch.stack([torch.randperm(r * r, generator=gen)[: max(1, n // len(views))] for _ in views])
+        pick = idx[..., None].expand(-1, -1, 3)
+        rgb = render_rgb(x[None], decoder, origins.gather(1, pick), dirs.gather(1, pick), bounds, rs)
+        fit = (rgb - targets.gather(1, pick)).abs().mean()
         prior = ((x - start) / spread).square().mean()
-        loss = photo + settings.prior_weight * prior
+        loss = fit + settings.prior_weight * prior
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()

@@ -24,6 +24,9 @@ class RefineSettings:
     steps: int = 30
     lr: float = 0.03
     prior_weight: float = 0.1
+    #: Also fit the photo flipped left to right, seen from the mirrored camera: faces are nearly
+    #: symmetric, and the second view holds the side the photo turns away from.
+    mirror: bool = True
     resolution: int = 64
     rays_per_step: int = 1024
     depth_resolution: int = 16
@@ -56,6 +59,8 @@ class RefineSettings:
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or isinstance(v, bool) or not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"RefineSettings.{name} must be a finite number >= 0, got {v!r}")
+        if not isinstance(self.mirror, bool):
+            raise ValueError(f"RefineSettings.mirror must be a bool, got {self.mirror!r}")
         for name in ("search_yaws_deg", "search_pitches_deg"):
             v = getattr(self, name)
             if not v or not all(isinstance(a, (int, float)) and math.isfinite(a) and abs(a) < 90 for a in v):
