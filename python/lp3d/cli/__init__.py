@@ -10,6 +10,7 @@
     lp3d view head.npz                           the interactive viewer (also: lp3d-view)
     lp3d demo                                    the end-to-end demo
     lp3d train | eval | export                   python -m lp3d.train | eval | export (need torch)
+    lp3d eval-photos photos/ --out report/       identity and pose of lifted real photos (needs torch)
 
 **Super-resolution.** When the model package has a super-resolution network (SR; see
 ``docs/model-package.md``), ``render``, ``orbit``, ``video`` and ``demo`` draw the raw feature image at
@@ -132,6 +133,7 @@ COMMANDS: dict[str, ModuleType] = {
         "demo",
         "train",
         "eval",
+        "eval-photos",
         "export",
         "superres-fit",
     )
