@@ -27,7 +27,6 @@ from lp3d.images import rgb_to_uint8
 from lp3d.lift.inference import LoadedEncoder, LoadedSuperres
 from lp3d.photo import (
     align_face,
-    detect_face,
     face_descriptor,
     find_faces,
     load_image,
@@ -156,16 +155,14 @@ def evaluate_photo(
     without a usable face."""
     import torch
 
-    from lp3d.photo import NoFaceError
     from lp3d.training.losses import ssim
 
     pkg = encoder.package
     rgb, _ = load_image(path)
-    photo_face = detect_face(rgb)
-    if photo_face is None:
-        raise NoFaceError(f"{path}: no face found")
+    prep = prepare_photo(rgb, pkg.image_size, detect=True, name=str(path))  # NoFaceError without one
+    photo_face = prep.detection
+    assert photo_face is not None  # detect=True: a prepared photo has its face
     reference = face_descriptor(rgb, photo_face.face)
-    prep = prepare_photo(rgb, pkg.image_size, detect=True, name=str(path))
     tri = pkg.triplane(encoder.encode(to_encoder_input(prep.image[None]))[0])
     yaw, pitch = prep.pose  # type: ignore[misc]
     camera = look_at_camera(yaw_deg=yaw, pitch_deg=pitch)

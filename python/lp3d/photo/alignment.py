@@ -21,6 +21,7 @@ May import :mod:`lp3d.render` (the camera convention).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -64,6 +65,8 @@ PRIOR_YAW_DEG = 30.0
 PRIOR_PITCH_DEG = 10.0
 _COARSE_STEP = 1.0
 _FINE_STEP = 0.1
+_COARSE_YAWS = np.arange(-MAX_YAW_DEG, MAX_YAW_DEG + 1e-9, _COARSE_STEP)
+_COARSE_PITCHES = np.arange(-MAX_PITCH_DEG, MAX_PITCH_DEG + 1e-9, _COARSE_STEP)
 
 
 @dataclass(frozen=True)
@@ -103,12 +106,31 @@ def _procrustes(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return a, resid.sum(axis=1)
 
 
-def _best_pose(
-    landmarks: np.ndarray, yaws: np.ndarray, pitches: np.ndarray, template: np.ndarray, prior: bool
-) -> tuple[int, np.ndarray, np.ndarray]:
+@functools.lru_cache(maxsize=4)
+def _coarse_projections(template_bytes: bytes) -> np.ndarray:
+    """The template's projections on the coarse grid (every face of a video shares them)."""
+    template = np.frombuffer(template_bytes).reshape(-1, 3)
+    yy, pp = _grid(_COARSE_YAWS, _COARSE_PITCHES)
+    return project_template(yy, pp, template)
+
+
+def _grid(yaws: np.ndarray, pitches: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     yy, pp = np.meshgrid(yaws, pitches, indexing="ij")
-    yy, pp = yy.ravel(), pp.ravel()
-    a, resid = _procrustes(landmarks, project_template(yy, pp, template))
+    return yy.ravel(), pp.ravel()
+
+
+def _best_pose(
+    landmarks: np.ndarray,
+    yaws: np.ndarray,
+    pitches: np.ndarray,
+    template: np.ndarray,
+    prior: bool,
+    projections: np.ndarray | None = None,
+) -> tuple[int, np.ndarray, np.ndarray]:
+    yy, pp = _grid(yaws, pitches)
+    if projections is None:
+        projections = project_template(yy, pp, template)
+    a, resid = _procrustes(landmarks, projections)
     cost = resid / LANDMARK_NOISE**2
     if prior:
         cost = cost + (yy / PRIOR_YAW_DEG) ** 2 + (pp / PRIOR_PITCH_DEG) ** 2
@@ -126,9 +148,8 @@ def align_face(
     if pts.shape != (5, 2) or not np.isfinite(pts).all():
         raise ValueError(f"landmarks must be (5, 2) finite pixel positions, got shape {pts.shape}")
     tpl = FACE_TEMPLATE if template is None else np.asarray(template, np.float64)
-    coarse = np.arange(-MAX_YAW_DEG, MAX_YAW_DEG + 1e-9, _COARSE_STEP)
-    coarse_p = np.arange(-MAX_PITCH_DEG, MAX_PITCH_DEG + 1e-9, _COARSE_STEP)
-    _, (y0, p0, _), _ = _best_pose(pts, coarse, coarse_p, tpl, prior)
+    coarse = _coarse_projections(np.ascontiguousarray(tpl, np.float64).tobytes())
+    _, (y0, p0, _), _ = _best_pose(pts, _COARSE_YAWS, _COARSE_PITCHES, tpl, prior, coarse)
     fine = np.arange(-1.0, 1.0 + 1e-9, _FINE_STEP)
     yaws = np.clip(y0 + fine, -MAX_YAW_DEG, MAX_YAW_DEG)
     pitches = np.clip(p0 + fine, -MAX_PITCH_DEG, MAX_PITCH_DEG)
