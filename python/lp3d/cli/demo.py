@@ -59,7 +59,7 @@ DESCRIPTION = (
 #: The teacher portrait: the first held-out evaluation identity (``TrainConfig.eval_seed_start``).
 TEACHER_SEED = 1_000_000
 #: The procedural teacher version the shipped ``small`` model was distilled from: it is shown a head of
-#: the teacher it learnt (v2 since issue 20).
+#: the teacher it learnt (v2).
 SHIPPED_TEACHER_VERSION = 2
 #: Yaws of the side-by-side views, degrees.
 VIEW_YAWS = (-35.0, -15.0, 0.0, 15.0, 35.0)
