@@ -4,7 +4,7 @@ hybrid encoders GOAE and TriPlaneNet start from an encoder's output too).
 
 The encoder gets the head's shape and rough colours; it misses what its training never showed it.
 :func:`refine` starts from its planes and takes ``steps`` Adam steps through the torch twin of the
-renderer (:mod:`lp3d.render.torch_twin`) on the input view, with two terms:
+renderer (:mod:`lp3d.render.torch_twin`) on the input view, with three terms:
 
 * **photo**: L1 between the raw RGB render and the photo (downsampled to ``resolution``), on
   ``rays_per_step`` random rays of the view per step; a quarter of the rays per step makes each
