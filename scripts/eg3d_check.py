@@ -691,7 +691,8 @@ def _step_eval(check: Check, config: str) -> list[Row]:
     start = time.perf_counter()
     check.lp3d(
         name,
-        "lp3d.eval",
+        "lp3d.cli",
+        "eval",
         _run_dir(config),
         *("--teacher-pkl", str(check.pkl), "--eg3d-source", str(check.eg3d_source)),
         *("--n-identities", "2", "--baseline-steps", "0", "--out", f"eval-{config}"),

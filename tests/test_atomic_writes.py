@@ -12,8 +12,9 @@ from pathlib import Path
 import pytest
 
 from lp3d.atomic import StagedFiles, atomic_path, create_temp
-from lp3d.cli import CLIError, Staged
+from lp3d.errors import UserError
 from lp3d.lift.model_package import save_model_package
+from lp3d.outputs import Staged
 from lp3d.render.sample_scenes import coloured_sphere
 from lp3d.render.triplane_io import save_triplane
 
@@ -66,7 +67,7 @@ def test_every_writer_gives_the_usual_permissions(
         tmp_path / "m.onnx", (tri.w0, tri.b0, tri.w1, tri.b1), config, bounds
     )
 
-    for name, group in (("atomic.StagedFiles", StagedFiles), ("cli.Staged", Staged)):
+    for name, group in (("atomic.StagedFiles", StagedFiles), ("outputs.Staged", Staged)):
         written[name] = tmp_path / f"{name}.png"
         with group() as staged:
             staged.temp(written[name]).write_bytes(b"png")
@@ -86,7 +87,7 @@ def test_temporary_files_are_new_and_distinct(umask: int, tmp_path: Path) -> Non
 
 
 @pytest.mark.parametrize(
-    ("group", "error"), [(StagedFiles, OSError), (Staged, CLIError)], ids=["StagedFiles", "cli.Staged"]
+    ("group", "error"), [(StagedFiles, OSError), (Staged, UserError)], ids=["StagedFiles", "outputs.Staged"]
 )
 def test_staged_outputs_are_published_all_or_none(tmp_path: Path, group: type, error: type) -> None:
     (tmp_path / "second.png" / "inside").mkdir(parents=True)  # a folder where a file should go

@@ -198,13 +198,12 @@ def test_train_eval_export_are_the_module_commands() -> None:
     "module, prog",
     [
         ("lp3d.train", "python -m lp3d.train"),
-        ("lp3d.eval", "python -m lp3d.eval"),
         ("lp3d.export", "python -m lp3d.export"),
         ("lp3d.superres_fit", "python -m lp3d.superres_fit"),
     ],
 )
 def test_the_library_commands_run_with_python_m(module: str, prog: str) -> None:
-    """The entry points README names for the torch commands (each a package's ``__main__`` or an alias)."""
+    """The entry points README names for the torch commands (lp3d/train.py or a package's __main__)."""
     import subprocess
     import sys
 
@@ -235,7 +234,7 @@ def test_a_closed_stdout_is_no_error_message(tmp_path) -> None:
 
 def test_one_exit_code_policy_for_every_entry_point(capsys, tmp_path) -> None:
     """0 ok, 1 a runtime error (one line, no traceback), 2 a usage error: in ``lp3d`` and in the
-    ``python -m lp3d.train|eval|export`` aliases alike."""
+    ``python -m lp3d.train|export`` and ``lp3d.cli.eval.main`` alike."""
     from lp3d.cli.eval import main as eval_main
     from lp3d.cli.export import main as export_main
     from lp3d.train import main as train_main

@@ -350,7 +350,7 @@ def test_missing_pickle_says_what_to_pass(tmp_path: Path) -> None:
             EG3DTeacher.from_pickle(path, eg3d_source=fake_eg3d_source(tmp_path / f"src{path is None}"))
         msg = str(e.value)
         assert EG3D_HINT in msg
-        # The flags the hint names are the ones lp3d.train and lp3d.eval really have.
+        # The flags the hint names are the ones lp3d train and lp3d eval really have.
         assert "--teacher-pkl" in msg and "--eg3d-source" in msg and "ffhqrebalanced512-128.pkl" in msg
         assert "--eg3d-pkl" not in msg
         if path is not None:

@@ -1,22 +1,19 @@
 """The package's layout (docs/architecture.md): subpackages import only the layers below them, no
-module imports itself back through a cycle or imports another module's private names, and the old
-module names still import, with a DeprecationWarning, as the same module objects, until the release
-that removes them."""
+module imports itself back through a cycle or imports another module's private names, and no module
+answers to an old path or re-exports another's names for old imports (CHANGELOG.md lists what went)."""
 
 from __future__ import annotations
 
 import ast
 import importlib
+import importlib.util
 import re
-import subprocess
 import sys
-import warnings
 from pathlib import Path
 
 import pytest
 
 import lp3d
-from lp3d import _moved
 
 ROOT = Path(lp3d.__file__).parent
 
@@ -61,9 +58,8 @@ ALLOWED = {
         "images",
     },
     "export": {"training", "superres_fit", "render", "nets", "lift", "atomic", "errors", "outputs"},
-    # python -m lp3d.train, the README's command: an entry point that runs lp3d.cli.train (and keeps
-    # older imports of the training names working).
-    "train": {"training", "cli"},
+    # python -m lp3d.train, the README's command: an entry point that runs lp3d.cli.train, nothing else.
+    "train": {"cli"},
     # The library commands (train, eval, export, superres-fit) are imported inside the functions that
     # parse or run them, so that lp3d encode never imports torch.
     "cli": {
@@ -82,8 +78,7 @@ ALLOWED = {
         "atomic",
         "__version__",
     },
-    "__init__": {"_moved"},
-    "_moved": set(),
+    "__init__": set(),
 }
 
 
@@ -188,69 +183,26 @@ def test_no_import_cycle(top_level_only: bool) -> None:
     assert _cycles(graph) == []
 
 
-@pytest.mark.parametrize("old", sorted(_moved.MOVED))
-def test_old_module_names_still_import(old: str) -> None:
-    new = _moved.MOVED[old]
-    sys.modules.pop(f"lp3d.{old}", None)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        module = importlib.import_module(f"lp3d.{old}")
-    assert module is importlib.import_module(new)
-    assert module.__spec__.name == new  # the shared module keeps its own spec
-    assert any(issubclass(w.category, DeprecationWarning) and new in str(w.message) for w in caught)
+#: Some old module paths, once aliases of moved modules (CHANGELOG.md lists them all): a module is
+#: imported by its own path only.
+REMOVED_PATHS = ("lp3d._moved", "lp3d.camera", "lp3d.render_torch", "lp3d.eval", "lp3d.training.cli")
+#: What each entry point exports: its command, not other modules' names.
+ENTRY_POINT_NAMES = {
+    "lp3d.train": {"main"},
+    "lp3d.cli": {"COMMANDS", "build_parser", "main", "standalone_parser"},
+}
 
 
-#: Old names kept for users beside the moved modules, each gone in ``_moved.REMOVED_IN`` too:
-#: (module, name). The repo's own code does not use them (checked below).
-OLD_NAMES = [
-    ("lp3d.cli", "render_triplane"),
-    ("lp3d.cli", "render_views"),
-    ("lp3d.training.config", "_scaled_schedule"),
-    ("lp3d.train", "run_cli"),
-]
-
-
-def test_old_module_names_end_at_their_stated_release() -> None:
-    """The shims of :mod:`lp3d._moved` and :data:`OLD_NAMES` go away in ``REMOVED_IN``: a release
-    that reaches it must drop them."""
-
-    def version(text: str) -> tuple[int, ...]:
-        return tuple(int(part) for part in text.split(".")[:2])
-
-    if version(lp3d.__version__) >= version(_moved.REMOVED_IN):
-        assert not _moved.MOVED
-        for module, name in OLD_NAMES:
-            assert not hasattr(importlib.import_module(module), name), f"{module}.{name}"
-
-
-def test_the_command_line_names_left_lp3d_training_with_a_pointer() -> None:
-    """``lp3d.training.main`` (and the other names of the old ``training/cli.py``) now live in
-    ``lp3d.train`` / :mod:`lp3d.cli.train`; asking the library for them says where they went."""
-    import lp3d.train
-    import lp3d.training
-
-    for name in lp3d.training._COMMAND_LINE:
-        with pytest.raises(AttributeError, match=f"lp3d.train.{name} .*lp3d.training.train"):
-            getattr(lp3d.training, name)
-        assert hasattr(lp3d.train, name), name
-    assert callable(lp3d.training.train) and "train" in lp3d.training.__all__
-
-
-def test_the_repo_uses_no_old_name() -> None:
-    """lp3d's own modules, tests, benches and scripts import the moved modules and renamed names by
-    their new paths only."""
-    old_modules = {f"lp3d.{old}" for old in _moved.MOVED}
-    found = []
-    files = dict(MODULES)
-    for folder in ("tests", "bench", "scripts"):
-        files |= {str(p.relative_to(REPO)): p for p in (REPO / folder).rglob("*.py")}
-    for name, path in files.items():
-        if name in ("lp3d._moved", "lp3d.train"):
-            continue  # the shims themselves
-        for target in lp3d_imports(path):
-            if target in old_modules or any(target == f"{m}.{n}" for m, n in OLD_NAMES):
-                found.append(f"{name} imports {target}")
-    assert found == []
+def test_no_alias_of_an_old_path_or_name() -> None:
+    """No import hook of lp3d's on ``sys.meta_path``, no module at an old path, and the entry points
+    ``lp3d.train`` (``python -m lp3d.train``) and ``lp3d.cli`` (``lp3d``) export only their own names."""
+    assert not [f for f in sys.meta_path if type(f).__module__.startswith("lp3d")]
+    for old in REMOVED_PATHS:
+        assert importlib.util.find_spec(old) is None, old
+    for name, own in ENTRY_POINT_NAMES.items():
+        assert set(importlib.import_module(name).__all__) == own, name
+    train = importlib.import_module("lp3d.train")
+    assert {n for n in vars(train) if not n.startswith("_")} == {"annotations", "main"}
 
 
 def private_imports(modules: dict[str, Path]) -> list[str]:
@@ -261,7 +213,7 @@ def private_imports(modules: dict[str, Path]) -> list[str]:
             if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("lp3d"):
                 for alias in node.names:
                     private = alias.name.startswith("_") and not alias.name.startswith("__")
-                    # A package's own private submodule (lp3d._moved, lp3d.cli._startup) is its own.
+                    # A package's own private submodule (lp3d.cli._startup) is its own.
                     own = (
                         f"{node.module}.{alias.name}" in modules
                         and node.module == name.rpartition(".")[0]
@@ -400,13 +352,6 @@ def test_the_one_definition_check_catches_a_second(tmp_path) -> None:
     assert definitions(probe) == set(ONE_HOME)
     probe.write_text("from lp3d.render.psnr import psnr\ndef score(a, b):\n    return psnr(a, b).mean()\n")
     assert definitions(probe) == set()
-
-
-def test_old_module_names_still_run_with_python_m() -> None:
-    done = subprocess.run(
-        [sys.executable, "-m", "lp3d.demo", "--help"], capture_output=True, text=True, timeout=120
-    )
-    assert done.returncode == 0 and done.stdout.startswith("usage: lp3d demo"), done.stderr
 
 
 #: Longest module, and longest function body (docstring excluded), that need no written reason.

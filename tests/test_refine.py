@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 import torch
 
-from lp3d.lift.pose import camera_at, fit_pose, moved_camera
-from lp3d.lift.refine import RefineSettings, estimate_pose, psnr_db, refine
+from lp3d.lift.pose import camera_at, estimate_pose, fit_pose, moved_camera
+from lp3d.lift.refine import RefineSettings, refine
 from lp3d.render.camera import camera_summary, look_at_camera
+from lp3d.render.psnr import psnr_db
 from lp3d.render.sample_scenes import coloured_sphere
 from lp3d.render.torch_twin import render_torch
 

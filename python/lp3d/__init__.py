@@ -6,12 +6,7 @@ The package follows the data flow (``docs/architecture.md``): :mod:`lp3d.photo` 
 :mod:`lp3d.teachers`, :mod:`lp3d.training` and :mod:`lp3d.cli`, with the plumbing modules
 :mod:`lp3d.errors`, :mod:`lp3d.atomic`, :mod:`lp3d.array_cache`, :mod:`lp3d.images` and
 :mod:`lp3d.outputs`. Subpackages are imported on demand, so ``import lp3d`` stays cheap and never
-pulls in torch or the native renderer. The old flat module names (``lp3d.camera``, ...) still import,
-with a DeprecationWarning (:mod:`lp3d._moved`).
+pulls in torch or the native renderer.
 """
 
-from lp3d import _moved
-
 __version__ = "0.1.0"
-
-_moved.install()

@@ -1,6 +1,6 @@
 """Errors a user sees, and the one exit-code policy of every lp3d entry point.
 
-``lp3d COMMAND``, ``lp3d-view`` and ``python -m lp3d.train|eval|export|superres_fit|demo`` all end
+``lp3d COMMAND``, ``lp3d-view`` and ``python -m lp3d.train|export|superres_fit`` all end
 through :func:`run_command`, so they agree:
 
 * **0** success;

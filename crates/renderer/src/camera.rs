@@ -123,25 +123,6 @@ impl Camera {
     pub fn lookat_pose(h: f64, v: f64, radius: f64, lookat: [f64; 3], focal: f64) -> Camera {
         Camera(look_at_label(h, v, radius, lookat, focal).map(|v| v as f32))
     }
-
-    /// The old name of [`Camera::look_at_camera`].
-    #[deprecated(note = "renamed to Camera::look_at_camera, as in Python")]
-    pub fn orbit(
-        yaw_deg: f64,
-        pitch_deg: f64,
-        roll_deg: f64,
-        radius: f64,
-        lookat: [f64; 3],
-        focal: f64,
-    ) -> Camera {
-        Camera::look_at_camera(yaw_deg, pitch_deg, roll_deg, radius, lookat, focal)
-    }
-
-    /// The old name of [`Camera::lookat_pose`].
-    #[deprecated(note = "renamed to Camera::lookat_pose, as in Python")]
-    pub fn look_at(h: f64, v: f64, radius: f64, lookat: [f64; 3], focal: f64) -> Camera {
-        Camera::lookat_pose(h, v, radius, lookat, focal)
-    }
 }
 
 /// What label index `i` holds, for error messages.

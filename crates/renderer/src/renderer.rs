@@ -20,21 +20,15 @@ use crate::camera::Camera;
 use crate::device::GpuContext;
 use crate::error::{Error, Result};
 use crate::gpu_types::{DecoderUniform, DisplayUniform, Params, FLAG_HALF_PLANES, FLAG_JITTER};
-use crate::kernel::{build_render_pipeline, fast_kernel_marker};
+use crate::kernel::{build_render_pipeline, fast_kernel_marker, Kernel, KernelChoice};
 use crate::occupancy::Occupancy;
-use crate::settings::{Outputs, RenderSettings};
+use crate::settings::{Display, Outputs, RenderSettings};
 use crate::shaders;
 use crate::triplane::{PlaneDtype, SceneInfo, Triplane, N_CHANNELS};
 use background::spawn_fast_kernel_compile;
 use layouts::Layouts;
 
 pub use baking::{GpuBaked, BAKE_CHUNK};
-
-// Old paths for users until lp3d 0.2 (the repo's own code uses `crate::kernel`, `crate::settings`
-// and the crate root): `lp3d_renderer::renderer::{KernelChoice, Kernel, check_decoder_range, Display}`.
-pub use crate::kernel::{Kernel, KernelChoice};
-pub use crate::settings::Display;
-pub use upload::check_decoder_range;
 
 const WORKGROUP: u32 = 64;
 /// Texel format of `render_to_texture` targets (an sRGB-unaware 8-bit RGBA storage texture).

@@ -9,7 +9,7 @@
     lp3d video in.mp4 -o out.mp4 --yaw 20        lift a talking-head video frame by frame
     lp3d view head.npz                           the interactive viewer (also: lp3d-view)
     lp3d demo                                    the end-to-end demo
-    lp3d train | eval | export                   python -m lp3d.train | eval | export (need torch)
+    lp3d train | eval | export | superres-fit    training and its tools (need torch; python -m lp3d.train)
     lp3d eval-photos photos/ --out report/       identity and pose of lifted real photos (needs torch)
 
 **Super-resolution.** When the model package has a super-resolution network (SR; see
@@ -42,79 +42,10 @@ from collections.abc import Sequence
 from types import ModuleType
 
 from lp3d.cli import _startup  # noqa: F401  (first: Ctrl-C during the imports below)
-from lp3d.cli.common import (
-    IMAGE_SUFFIXES,
-    MESH_SUFFIXES,
-    PROG,
-    VIDEO_SUFFIXES,
-    CLIError,
-    Staged,
-    VideoWriter,
-    check_distinct,
-    check_output,
-    choose_superres,
-    final_images,
-    load_triplane_file,
-    make_camera,
-    native_triplane,
-    parse_samples,
-    progress,
-    render_file_views,
-    render_gpu_views,
-    render_triplane_file,
-    renderer,
-    resize_image,
-    write_image,
-)
+from lp3d.cli.common import PROG
 from lp3d.errors import EXIT_ERROR, run_command
-from lp3d.photo import prepare_photo
-from lp3d.photo.video import VIDEO_CROP_SMOOTHING, count_video_frames, read_video
-from lp3d.render.camera import camera_summary, orbit_angles
-from lp3d.render.triplane_io import triplane_info
 
-# Old names, removed in lp3d 0.2: render_triplane converts (it does not render), and render_views
-# meant a torch render in lp3d.training.
-render_triplane = native_triplane
-render_views = render_gpu_views
-
-# The names ``from lp3d.cli import X`` has always given, kept working.
-__all__ = [
-    "COMMANDS",
-    "IMAGE_SUFFIXES",
-    "MESH_SUFFIXES",
-    "PROG",
-    "VIDEO_CROP_SMOOTHING",
-    "VIDEO_SUFFIXES",
-    "CLIError",
-    "Staged",
-    "VideoWriter",
-    "build_parser",
-    "camera_summary",
-    "check_distinct",
-    "check_output",
-    "choose_superres",
-    "count_video_frames",
-    "final_images",
-    "load_triplane_file",
-    "main",
-    "make_camera",
-    "orbit_angles",
-    "parse_samples",
-    "prepare_photo",
-    "progress",
-    "read_video",
-    "render_file_views",
-    "native_triplane",
-    "render_gpu_views",
-    "render_triplane",
-    "render_triplane_file",
-    "render_views",
-    "renderer",
-    "resize_image",
-    "standalone_parser",
-    "triplane_info",
-    "write_image",
-]
+__all__ = ["COMMANDS", "build_parser", "main", "standalone_parser"]
 
 #: The subcommands in ``lp3d --help`` order: each module has ``HELP``, ``add_arguments(parser)`` and
 #: ``run(args) -> int``, and ``DESCRIPTION`` unless its ``add_arguments`` sets it; ``LAZY`` ones import

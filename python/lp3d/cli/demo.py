@@ -304,13 +304,3 @@ def run(args: argparse.Namespace) -> int:
         f"or open {written[1]} in a WebGPU browser"
     )
     return 0
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``lp3d demo`` on its own (``python -m lp3d.demo``, the old alias, calls this)."""
-    import sys
-
-    from lp3d.cli import standalone_parser
-    from lp3d.errors import run_command
-
-    return run_command(standalone_parser(sys.modules[__name__], "lp3d demo"), argv)

@@ -1,4 +1,4 @@
-"""``lp3d eval`` (and ``python -m lp3d.eval``): evaluate a trained encoder on held-out teacher
+"""``lp3d eval``: evaluate a trained encoder on held-out teacher
 identities with :func:`lp3d.evaluation.evaluate_checkpoint`.
 
 The library needs torch (the ``train`` extra), so it is imported only when this subcommand is parsed
@@ -25,7 +25,7 @@ DESCRIPTION = (
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The evaluation options, shared by ``lp3d eval`` and ``python -m lp3d.eval``."""
+    """The evaluation options of ``lp3d eval``."""
     from lp3d.evaluation import EvalSettings
     from lp3d.lift.refine_settings import MAX_STEPS as REFINE_MAX_STEPS
     from lp3d.training.teacher_factory import TEACHERS
@@ -137,14 +137,14 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser(prog: str = "python -m lp3d.eval") -> argparse.ArgumentParser:
-    """This command's parser on its own (as ``lp3d-view``'s and ``lp3d demo``'s are)."""
+def build_parser(prog: str = "lp3d eval") -> argparse.ArgumentParser:
+    """This command's parser on its own (as ``lp3d-view``'s is)."""
     from lp3d.cli import standalone_parser
 
     return standalone_parser(sys.modules[__name__], prog)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m lp3d.eval`` (the same as ``lp3d eval``); exit status 0, 1 (an error, one line) or
+    """``lp3d eval`` on its own; exit status 0, 1 (an error, one line) or
     2 (usage), as :mod:`lp3d.errors` says."""
     return run_command(build_parser(), None if argv is None else list(argv))

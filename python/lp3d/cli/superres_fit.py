@@ -76,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def build_parser(prog: str = "python -m lp3d.superres_fit") -> argparse.ArgumentParser:
-    """This command's parser on its own (as ``lp3d-view``'s and ``lp3d demo``'s are)."""
+    """This command's parser on its own (as ``lp3d-view``'s is)."""
     from lp3d.cli import standalone_parser
 
     return standalone_parser(sys.modules[__name__], prog)

@@ -193,7 +193,7 @@ def _error(e: BaseException | str) -> None:
 
 
 def build_parser(prog: str = "python -m lp3d.train") -> argparse.ArgumentParser:
-    """This command's parser on its own (as ``lp3d-view``'s and ``lp3d demo``'s are)."""
+    """This command's parser on its own (as ``lp3d-view``'s is)."""
     from lp3d.cli import standalone_parser
 
     return standalone_parser(sys.modules[__name__], prog)

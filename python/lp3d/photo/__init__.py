@@ -22,7 +22,6 @@ from lp3d.photo.alignment import FACE_TEMPLATE, FaceAlignment, align_face
 from lp3d.photo.faces import DETECT_MAX_SIDE, LANDMARK_NAMES, Face, face_descriptor, find_faces
 from lp3d.photo.framing import Crop, centre_crop, crop_image, to_encoder_input
 from lp3d.photo.load import (
-    IMAGE_SUFFIXES,
     MAX_PIXELS,
     MAX_SIDE,
     MIN_SIDE,
@@ -36,7 +35,6 @@ from lp3d.photo.prepare import FaceDetection, PreparedPhoto, detect_face, prepar
 __all__ = [
     "DETECT_MAX_SIDE",
     "FACE_TEMPLATE",
-    "IMAGE_SUFFIXES",
     "LANDMARK_NAMES",
     "MAX_PIXELS",
     "MAX_SIDE",

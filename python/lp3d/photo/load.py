@@ -15,7 +15,6 @@ from pathlib import Path
 import numpy as np
 
 __all__ = [
-    "IMAGE_SUFFIXES",
     "MAX_PIXELS",
     "PHOTO_SUFFIXES",
     "MAX_SIDE",
@@ -34,9 +33,6 @@ MIN_SIDE = 16
 MAX_SIDE = 32766
 #: File suffixes taken from a folder of photos.
 PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".webp", ".tif", ".tiff")
-#: The old name of :data:`PHOTO_SUFFIXES` (``lp3d.outputs.IMAGE_SUFFIXES`` are output formats); removed
-#: in lp3d 0.2.
-IMAGE_SUFFIXES = PHOTO_SUFFIXES
 
 
 class PhotoError(ValueError):

@@ -16,7 +16,7 @@ from lp3d.render.settings import RenderSettings, resolve_settings
 if TYPE_CHECKING:
     from lp3d.render.triplane import TriplaneData
 
-__all__ = ["native_triplane", "render", "render_triplane", "renderer"]
+__all__ = ["native_triplane", "render", "renderer"]
 
 
 def renderer() -> Any:
@@ -35,10 +35,6 @@ def native_triplane(tri: TriplaneData) -> Any:
     one-line error naming the fix when the renderer is not installed."""
     renderer()
     return tri.to_native()
-
-
-#: The old name of :func:`native_triplane` (it converts, it does not render); removed in lp3d 0.2.
-render_triplane = native_triplane
 
 
 def render(

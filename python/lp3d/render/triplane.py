@@ -9,7 +9,6 @@ applied, see :func:`effective_decoder_weights`).
 from __future__ import annotations
 
 import math
-import warnings
 import zlib
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -170,13 +169,6 @@ class TriplaneData:
     def plane_size(self) -> tuple[int, int]:
         """``(plane_h, plane_w)``, texels of each plane (``resolution`` is the rays per side of a render)."""
         return int(self.planes.shape[2]), int(self.planes.shape[3])
-
-    @property
-    def resolution(self) -> tuple[int, int]:
-        """Deprecated (lp3d 0.2 removes it): :attr:`plane_size`, renamed so that ``resolution`` means
-        one thing, the rays per side of a render."""
-        warnings.warn("TriplaneData.resolution is now plane_size", DeprecationWarning, stacklevel=2)
-        return self.plane_size
 
     def validate(self) -> None:
         """Raise :class:`TriplaneError` (a ValueError) naming the first bad field."""

@@ -119,8 +119,8 @@ become its arguments). No module imports another one's private names.
 Beside it: ``camera_sampling``, ``synthetic_data``, ``run_dir``, ``distributed`` and
 ``tensorboard_log``. What uses a trained student lives in packages of its own beside this one:
 :mod:`lp3d.evaluation` (``lp3d eval``), :mod:`lp3d.export` (``lp3d export``) and
-:mod:`lp3d.superres_fit` (``lp3d superres-fit``). ``lp3d.train`` re-exports the public names below
-for ``python -m lp3d.train`` and older imports.
+:mod:`lp3d.superres_fit` (``lp3d superres-fit``). The command line, ``lp3d train`` and
+``python -m lp3d.train``, is :mod:`lp3d.cli.train`.
 
 May import: :mod:`lp3d.teachers`, :mod:`lp3d.nets`, :mod:`lp3d.render`, :mod:`lp3d.lift` and the
 plumbing modules. Not the command line (:mod:`lp3d.cli`).
@@ -166,17 +166,8 @@ _EXPORTS = {
 __all__ = sorted(_EXPORTS)
 
 
-#: Names of the command line that left this package for :mod:`lp3d.cli.train` (issue 24).
-_COMMAND_LINE = ("DESCRIPTION", "add_arguments", "build_parser", "main", "run_cli")
-
-
 def __getattr__(name: str) -> Any:
     module = _EXPORTS.get(name)
-    if module is None and name in _COMMAND_LINE:
-        raise AttributeError(
-            f"lp3d.training.{name} moved with the command line: lp3d.train.{name} (python -m lp3d.train) "
-            "has it; the library's call is lp3d.training.train()"
-        )
     if module is None:
         raise AttributeError(f"module 'lp3d.training' has no attribute {name!r}")
     value = getattr(importlib.import_module(f"lp3d.training.{module}"), name)

@@ -290,10 +290,6 @@ def scaled_schedule(total: int, base: TrainConfig | None = None) -> dict[str, in
     return out
 
 
-#: The old private name, kept for ``lp3d.train``'s re-export until ``lp3d._moved.REMOVED_IN``.
-_scaled_schedule = scaled_schedule
-
-
 def _cpu_config(
     name: str, *, samples: int, batch_size: int, total_steps: int, lr_rampup_steps: int, sizes: str = ""
 ) -> TrainConfig:

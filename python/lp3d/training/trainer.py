@@ -49,7 +49,6 @@ from lp3d.training.run_dir import (
     remove_stale_temporaries,
     set_aside_checkpoints_after,
 )
-from lp3d.training.run_log import LOG_COLUMNS as LOG_COLUMNS  # re-exported for older imports
 from lp3d.training.run_log import append_log, start_log
 from lp3d.training.run_teacher import RunTeacher
 from lp3d.training.steps import Batch, Ranks, TrainingSteps

@@ -51,7 +51,7 @@ const F32_MAX: f64 = f32::MAX as f64;
 /// proof for every camera and setting, checked once per upload (one pass over the planes)
 /// and covering every path, the viewer's `render_to_texture` included, whose results never
 /// come back to the CPU. Real triplanes sit ~30 orders of magnitude below the limit.
-pub fn check_decoder_range(tri: &Triplane) -> Result<()> {
+fn check_decoder_range(tri: &Triplane) -> Result<()> {
     let p = tri.planes.iter().fold(0f64, |m, &v| m.max((v as f64).abs()));
     let d = &tri.decoder;
     let n_in = N_CHANNELS;
