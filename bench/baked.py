@@ -114,17 +114,6 @@ SETTINGS = [
         )
         for skips in variants
     ),
-    # The field as the decoder's guide (docs/baked.md, "The guide"): exact where it finds density.
-    *(
-        Setting(
-            f"guided k {k} 48+48{', all skips' if t else ''}",
-            (48, 48),
-            {"occupancy_epsilon": EPS, "baked_subdivisions": k, "baked_guide": True}
-            | (ALL_SKIPS if t else {}),
-        )
-        for k in (4, 6)
-        for t in (False, True)
-    ),
 ]
 
 
@@ -222,7 +211,6 @@ def measure(
             {
                 "setting": st.name,
                 "baked": k,  # (k, k_f) or None
-                "guided": bool(st.kwargs.get("baked_guide")),
                 "ms": ms,
                 "psnr": statistics.mean(psnr_db(rgb[i], ref[i]) for i in range(len(cams))),
                 "max_err": float(np.abs(rgb - ref).max()),
@@ -264,7 +252,7 @@ def report(results: list[dict], args: argparse.Namespace) -> str:
             "|---|---|---|---|---|---|",
         ]
         for k, b in res["bakes"].items():
-            own = [r for r in rows if r["baked"] == k and not r["guided"]]
+            own = [r for r in rows if r["baked"] == k]
             if not own:
                 continue
             saved = exact48["ms"] - min(own, key=lambda r: r["ms"])["ms"]
@@ -274,31 +262,29 @@ def report(results: list[dict], args: argparse.Namespace) -> str:
             lines.append(f"| {label} | {size} | {b['s']:.2f} | {frames} |")
         lines.append("")
         for bar, ref in (("exact 48+48", exact48), ("exact 24+24", exact24)):
-            for kind, guided in (("baked", False), ("guided", True)):
-                mine = [r for r in rows if r["baked"] and r["guided"] == guided]
-                if not mine:
-                    continue
-                ok = [r for r in mine if r["psnr"] >= ref["psnr"]]
-                if ok:
-                    best = min(ok, key=lambda r: r["ms"])
-                    vs = f", {eg3d / best['ms']:.1f}× EG3D" if eg3d else ""
-                    lines.append(
-                        f"- fastest {kind} setting at {bar}'s error ({ref['psnr']:.2f} dB) or better: "
-                        f"{best['setting']}, {best['ms']:.1f} ms ({ref['ms'] / best['ms']:.1f}× {bar}{vs})"
-                    )
-                else:
-                    top = max(mine, key=lambda r: r["psnr"])
-                    lines.append(
-                        f"- no {kind} setting reaches {bar}'s error ({ref['psnr']:.2f} dB); the best is "
-                        f"{top['setting']} at {top['psnr']:.2f} dB"
-                    )
+            mine = [r for r in rows if r["baked"]]
+            if not mine:
+                continue
+            ok = [r for r in mine if r["psnr"] >= ref["psnr"]]
+            if ok:
+                best = min(ok, key=lambda r: r["ms"])
+                vs = f", {eg3d / best['ms']:.1f}× EG3D" if eg3d else ""
+                lines.append(
+                    f"- fastest baked setting at {bar}'s error ({ref['psnr']:.2f} dB) or better: "
+                    f"{best['setting']}, {best['ms']:.1f} ms ({ref['ms'] / best['ms']:.1f}× {bar}{vs})"
+                )
+            else:
+                top = max(mine, key=lambda r: r["psnr"])
+                lines.append(
+                    f"- no baked setting reaches {bar}'s error ({ref['psnr']:.2f} dB); the best is "
+                    f"{top['setting']} at {top['psnr']:.2f} dB"
+                )
         lines.append("")
     return "\n".join(lines)
 
 
 def plot(results: list[dict], path: Path) -> None:
-    """Time (log) against PSNR per scene: exact settings as circles, baked as squares, guided as
-    diamonds."""
+    """Time (log) against PSNR per scene: exact settings as circles, baked as squares."""
     from PIL import Image, ImageDraw
 
     w, h, m = 960, 600, 70
@@ -344,15 +330,9 @@ def plot(results: list[dict], path: Path) -> None:
         for r in res["rows"]:
             x, y = xy(r)
             box = [x - 4, y - 4, x + 4, y + 4]
-            if r["guided"]:
-                d.polygon([(x, y - 6), (x + 6, y), (x, y + 6), (x - 6, y)], fill=c, outline=c)
-            else:
-                (d.rectangle if r["baked"] else d.ellipse)(box, fill=c if r["baked"] else None, outline=c)
+            (d.rectangle if r["baked"] else d.ellipse)(box, fill=c if r["baked"] else None, outline=c)
         d.text((lx, ly + 16 * i), res["scene"], fill=c)
-    title = (
-        "baked field (squares), guided by it (diamonds), exact mode (circles; dotted: exact 48+48): "
-        "ms per 128x128 frame vs PSNR"
-    )
+    title = "baked field (squares), exact mode (circles; dotted: exact 48+48): ms per 128x128 frame vs PSNR"
     d.text((m, 20), title, fill="black")
     d.text((lx, ly + 16 * len(results)), "PSNR against exact 192+192", fill="black")
     img.save(path)

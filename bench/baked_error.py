@@ -31,7 +31,6 @@ from lp3d.render.baked import (
     brick_points,
     colour_weight,
     decode_brick_points,
-    near_dense,
 )
 from lp3d.render.camera import look_at_camera
 from lp3d.render.psnr import psnr_db
@@ -184,6 +183,16 @@ Evaluate = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
 Select = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+
+
+def near_dense(sigma_raw: np.ndarray, above: float) -> np.ndarray:
+    """Where a sample of sorted rays (rays, M) or a neighbour along its ray (none past the ends) has
+    a raw density above ``above``."""
+    dense = sigma_raw > above
+    near = dense.copy()
+    near[:, 1:] |= dense[:, :-1]
+    near[:, :-1] |= dense[:, 1:]
+    return near
 
 
 def dense_and_visible(raw_above: float, t_above: float) -> Select:

@@ -13,12 +13,9 @@ import pytest
 
 import lp3d_render
 from lp3d.render.baked import (
-    COARSE_CACHE,
     COLOUR_FLOOR,
     COLOUR_RAMP,
     EMPTY_RAW,
-    GUIDE_RAW,
-    GUIDE_TRANSMITTANCE,
     bake_reference,
     baked_lookup,
     colour_weight,
@@ -26,7 +23,6 @@ from lp3d.render.baked import (
     render_baked_reference,
 )
 from lp3d.render.camera import look_at_camera
-from lp3d.render.reference import render_reference
 from lp3d.render.settings import RenderSettings, Skips
 from lp3d.render.triplane import TriplaneData
 from lp3d.teachers import ProceduralTeacher
@@ -102,20 +98,19 @@ def test_the_bake_is_the_decoder_rounded_to_float16(head, field) -> None:
     assert np.any(want[..., 0] > 5.0) and np.any(want[..., 0] < -5.0)  # surfaces and empty space
 
 
-def _baked_and_reference(head, native, importance: int, guided: bool = False) -> tuple[dict, dict]:
+def _baked_and_reference(head, native, importance: int) -> tuple[dict, dict]:
     """The GPU's baked render (three views) and the float64 reference with the same field (its float16
-    values read back), with ``importance`` samples after S coarse ones; ``guided``: the field as the
-    decoder's guide."""
+    values read back), with ``importance`` samples after S coarse ones."""
     field = lp3d_render.bake(native, subdivisions=K, occupancy_epsilon=EPS, depth_resolution=S)
     cams = np.stack([look_at_camera(yaw_deg=y, pitch_deg=p) for y, p in VIEWS])
-    baked = Skips(occupancy_epsilon=EPS, baked_subdivisions=K, baked_guide=guided)
+    baked = Skips(occupancy_epsilon=EPS, baked_subdivisions=K)
     settings = RenderSettings(
         resolution=R, depth_resolution=S, depth_resolution_importance=importance, skips=baked
     )
     outputs = ["rgb", "depth", "weights_sum"]
     got = lp3d_render.render(native, cams, **settings.native_kwargs(), outputs=outputs)
     exact_settings = dataclasses.replace(settings, skips=Skips())
-    want = render_baked_reference(head, field.index, field.values, K, cams, exact_settings, guided=guided)
+    want = render_baked_reference(head, field.index, field.values, K, cams, exact_settings)
     assert float(want["weights_sum"].max()) > 0.9  # the head is in view
     return got, want
 
@@ -154,52 +149,6 @@ def test_a_baked_render_is_close_to_exact_mode(native) -> None:
     baked = lp3d_render.render(native, cam, **kw, occupancy_epsilon=EPS, baked_subdivisions=4)["rgb"]
     psnr = 10 * np.log10(4.0 / np.mean((exact - baked) ** 2))
     assert psnr > 30.0, psnr
-
-
-@pytest.mark.parametrize("importance", [0, N])
-def test_a_guided_render_is_the_reference(head, native, importance) -> None:
-    """The guide on the GPU and in the float64 reference (guide_walk) decode the same samples, look
-    up the rest and composite alike. Where samples are decoded, the float32 decoder's own error on
-    this sharp teacher adds to the lookups' 1e-4: the bound per pixel is 1e-4 plus exact mode's
-    distance from the float64 reference there (up to 1.6e-4 on two rays of the 3,072 here). A sample
-    decided differently would cost far more: the k = 2 field is percents off the decoder at a
-    surface. With the importance draw, RGB is held to that on the rays whose draw float32 and
-    float64 agree on, as for the baked render."""
-    got, want = _baked_and_reference(head, native, importance=importance, guided=True)
-    kw = {"resolution": R, "depth_resolution": S, "depth_resolution_importance": importance}
-    cams = np.stack([look_at_camera(yaw_deg=y, pitch_deg=p) for y, p in VIEWS])
-    names = ("rgb", "depth", "weights_sum")
-    exact_gpu = lp3d_render.render(native, cams, **kw, outputs=list(names))
-    exact_ref = render_reference(head, cams, RenderSettings(**kw))
-    decoder_err = {name: np.abs(exact_gpu[name] - exact_ref[name]) for name in names}
-    assert float(decoder_err["rgb"].max()) < 5e-4  # the float32 decoder is close, not exact
-    for name in ("depth", "weights_sum"):
-        err = np.abs(got[name] - want[name])
-        assert np.all(err <= 1e-4 + decoder_err[name]), (name, float(np.max(err - decoder_err[name])))
-    depth_err = np.abs(got["depth"] - want["depth"])
-    agree = np.broadcast_to((depth_err <= 1e-5)[:, None], got["rgb"].shape)
-    assert agree.mean() > 0.99
-    rgb_err = np.abs(got["rgb"] - want["rgb"])
-    bound = 1e-4 + decoder_err["rgb"]
-    assert np.all(rgb_err[agree] <= bound[agree]), float(np.max(rgb_err - bound))
-    assert np.all(rgb_err <= bound + 3.0 * depth_err[:, None]), float(np.max(rgb_err - bound))
-
-
-def test_the_guide_brings_a_baked_render_to_exact_mode(native) -> None:
-    """Decoding the samples the field finds dense recovers exact mode's image, from a field far too
-    coarse to stand in for the decoder (k = 2; bench/baked.py measures both at the users' settings)."""
-    cam = look_at_camera(yaw_deg=20, pitch_deg=5)
-    kw = {"resolution": R, "depth_resolution": S, "depth_resolution_importance": N, "outputs": ["rgb"]}
-    exact = lp3d_render.render(native, cam, **kw)["rgb"]
-    field = {"occupancy_epsilon": EPS, "baked_subdivisions": K}
-    baked = lp3d_render.render(native, cam, **kw, **field)["rgb"]
-    guided = lp3d_render.render(native, cam, **kw, **field, baked_guide=True)["rgb"]
-
-    def psnr(a: np.ndarray) -> float:
-        return float(10 * np.log10(4.0 / np.mean((exact - a) ** 2)))
-
-    # Measured: 86.7 dB guided, 29.2 dB baked.
-    assert psnr(guided) > 70.0 and psnr(baked) < 40.0, (psnr(guided), psnr(baked))
 
 
 def test_a_transparent_corner_does_not_tint_an_opaque_one() -> None:
@@ -307,13 +256,6 @@ def test_one_baked_setting_in_both_languages() -> None:
     assert BAKED.occupancy_epsilon == pytest.approx(native.BAKED_OCCUPANCY_EPSILON, rel=1e-7)
     plain = dataclasses.replace(BAKED, occupancy_epsilon=0.0, baked_subdivisions=0, baked_fine_subdivisions=0)
     assert plain == Skips()  # nothing else
-    # The guide's thresholds.
-    (wgsl,) = re.findall(r"const GUIDE_RAW: f32 = (-?[0-9.]+);", source)
-    assert float(wgsl) == GUIDE_RAW
-    (wgsl,) = re.findall(r"const GUIDE_TRANSMITTANCE: f32 = ([0-9.e-]+);", source)
-    assert float(wgsl) == GUIDE_TRANSMITTANCE
-    (wgsl,) = re.findall(r"const COARSE_CACHE: u32 = ([0-9]+)u;", lp3d_render.shader_sources()["render.wgsl"])
-    assert int(wgsl) == COARSE_CACHE
 
 
 def test_bad_baked_arguments_are_named(native) -> None:
@@ -333,11 +275,5 @@ def test_bad_baked_arguments_are_named(native) -> None:
         lp3d_render.bake("head.npz")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="baked_subdivisions needs occupancy_epsilon"):
         RenderSettings(skips=Skips(baked_subdivisions=2)).validate()
-    with pytest.raises(ValueError, match="baked_guide: needs baked_subdivisions > 0"):
-        lp3d_render.render(native, cam, **kw, occupancy_epsilon=EPS, baked_guide=True)
-    with pytest.raises(TypeError, match="baked_guide: must be a bool"):
-        lp3d_render.render(native, cam, **kw, occupancy_epsilon=EPS, baked_subdivisions=2, baked_guide=1)
-    with pytest.raises(ValueError, match="baked_guide needs baked_subdivisions"):
-        RenderSettings(skips=Skips(occupancy_epsilon=EPS, baked_guide=True)).validate()
     with pytest.raises(ValueError, match="baked_subdivisions must be an int"):
         RenderSettings(skips=Skips(occupancy_epsilon=EPS, baked_subdivisions=True)).validate()  # type: ignore[arg-type]

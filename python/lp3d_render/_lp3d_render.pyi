@@ -92,7 +92,6 @@ def render(
     occupancy_coarse: bool = False,
     baked_subdivisions: int = 0,
     baked_fine_subdivisions: int = 0,
-    baked_guide: bool = False,
 ) -> dict[str, npt.NDArray[np.float32]]: ...
 
 class BakedField:

@@ -32,9 +32,6 @@ use crate::triplane::Triplane;
 /// density and RGB only, so ``features`` cannot be asked for (docs/baked.md); it needs
 /// ``occupancy_epsilon`` > 0. ``baked_fine_subdivisions`` > k makes it a two-level field: the
 /// bricks a surface crosses get that many points per cell edge (docs/baked.md, "Two levels").
-/// ``baked_guide=True`` uses that field as a guide instead: samples it
-/// finds dense (or next to a dense one) on a still-visible ray are decoded exactly, the rest
-/// looked up (docs/baked.md, "The guide").
 ///
 /// Every argument is checked here, before any GPU work: a wrong type is a TypeError and a bad
 /// value a ValueError, each naming the argument and the value (`resolution=True` and
@@ -46,9 +43,8 @@ use crate::triplane::Triplane;
                  outputs=None, white_back=Arg::Default(false), *,
                  transmittance_threshold=Arg::Default(0.0), empty_threshold=Arg::Default(0.0),
                  occupancy_epsilon=Arg::Default(0.0), occupancy_coarse=Arg::Default(false),
-                 baked_subdivisions=Arg::Default(0), baked_fine_subdivisions=Arg::Default(0),
-                 baked_guide=Arg::Default(false)),
-    text_signature = "(triplane, camera, resolution=128, depth_resolution=48, depth_resolution_importance=48, deterministic=True, seed=None, outputs=None, white_back=False, *, transmittance_threshold=0.0, empty_threshold=0.0, occupancy_epsilon=0.0, occupancy_coarse=False, baked_subdivisions=0, baked_fine_subdivisions=0, baked_guide=False)"
+                 baked_subdivisions=Arg::Default(0), baked_fine_subdivisions=Arg::Default(0)),
+    text_signature = "(triplane, camera, resolution=128, depth_resolution=48, depth_resolution_importance=48, deterministic=True, seed=None, outputs=None, white_back=False, *, transmittance_threshold=0.0, empty_threshold=0.0, occupancy_epsilon=0.0, occupancy_coarse=False, baked_subdivisions=0, baked_fine_subdivisions=0)"
 )]
 #[allow(clippy::too_many_arguments)]
 // Long because: every argument is checked here, before any GPU work, one after another in the
@@ -70,7 +66,6 @@ pub fn render<'py>(
     occupancy_coarse: Arg<'py, bool>,
     baked_subdivisions: Arg<'py, i64>,
     baked_fine_subdivisions: Arg<'py, i64>,
-    baked_guide: Arg<'py, bool>,
 ) -> PyResult<Bound<'py, PyDict>> {
     guarded(|| {
         let tri = Triplane::arg(triplane)?;
@@ -119,7 +114,6 @@ pub fn render<'py>(
                     0,
                     MAX_FINE_SUBDIVISIONS as i64,
                 )? as u32,
-                baked_guide: bool_arg(&baked_guide, "baked_guide")?,
             },
         };
         settings.validate().map_err(to_py)?;

@@ -6,19 +6,12 @@
 // so that at a surface the corners in empty space (whose decoded colour is anything) do not
 // tint it.
 // needs: params, baked, baked_fine, halves_to_f32, plane_coords
-// provides: BAKED, GUIDED, GUIDE_RAW, GUIDE_TRANSMITTANCE, BAKED_EMPTY, BAKED_FINE, BAKED_EMPTY_RAW,
-// provides: BAKED_COLOUR_FLOOR, BAKED_COLOUR_RAMP, baked_colour_weight, baked_word, baked_words,
-// provides: BakedSpot, baked_spot, BakedCorners, baked_corners, baked_trilinear, baked_sample,
-// provides: baked_raw, guide_decodes
+// provides: BAKED, BAKED_EMPTY, BAKED_FINE, BAKED_EMPTY_RAW, BAKED_COLOUR_FLOOR, BAKED_COLOUR_RAMP,
+// provides: baked_colour_weight, baked_word, baked_words, BakedSpot, baked_spot, BakedCorners,
+// provides: baked_corners, baked_trilinear, baked_sample
 
 // true: render_rays looks samples up in the baked field (a pipeline of its own).
 override BAKED: bool = false;
-// true: render_rays decodes only the samples the baked field finds significant and looks the rest
-// up (guide_decodes; a pipeline of its own).
-override GUIDED: bool = false;
-// The guide's thresholds (guide_decodes; lp3d.render.baked has the same).
-const GUIDE_RAW: f32 = 0.0;
-const GUIDE_TRANSMITTANCE: f32 = 1e-3;
 
 // baked_index of a cell without a brick.
 const BAKED_EMPTY: u32 = 0xffffffffu;
@@ -171,23 +164,4 @@ fn baked_sample(pos: vec3<f32>, dst: ptr<function, array<vec4<f32>, 8>>) -> f32 
     let weight = mix(cy.x, cy.y, f.x);
     (*dst)[0] = vec4<f32>(acc.yzw / weight, 0.0); // un-premultiplied
     return acc.x;
-}
-
-// baked_sample's raw density alone: what the guide tests (the compiler drops the colour's math).
-fn baked_raw(pos: vec3<f32>) -> f32 {
-    let spot = baked_spot(pos);
-    if (spot.base == BAKED_EMPTY) {
-        return BAKED_EMPTY_RAW;
-    }
-    return baked_trilinear(baked_corners(spot), spot.f).x;
-}
-
-// The guide (a render setting of its own, docs/baked.md): the baked field decides which samples
-// the decoder evaluates. A sample is decoded exactly when the field finds it or a neighbour along
-// the ray dense (raw density above GUIDE_RAW) and the ray's transmittance before it is above
-// GUIDE_TRANSMITTANCE; every other sample keeps the field's values. An interval with a dense end
-// thus has both ends decoded; the rest are faint (alpha <= 1 - exp(-softplus(GUIDE_RAW - 1) delta))
-// or behind the surface.
-fn guide_decodes(dense_near: bool, transmittance: f32) -> bool {
-    return dense_near && transmittance > GUIDE_TRANSMITTANCE;
 }

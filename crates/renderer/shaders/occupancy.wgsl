@@ -1,9 +1,7 @@
 // Stage: occupancy (docs/occupancy.md). The occupancy grid test, and the walk over a ray's
 // merged coarse + fine samples that skips the samples no decoded interval needs.
-// needs: params, occupancy_bits, MAX_SAMPLES, Ray, coarse_depth, plane_coords, GUIDED, GUIDE_RAW,
-// needs: baked_raw
-// provides: occupied, NOT_COARSE, Walk, next_depth, guide_dense, walk_start, walk_advance,
-// provides: walk_to_needed
+// needs: params, occupancy_bits, MAX_SAMPLES, Ray, coarse_depth, plane_coords
+// provides: occupied, NOT_COARSE, Walk, next_depth, walk_start, walk_advance, walk_to_needed
 
 // Whether `pos` lies in a cell of the occupancy grid that may hold density (always, when the
 // skip is off). Outside the box the index clamps to the edge cells, which the bake extends to
@@ -46,16 +44,6 @@ struct Walk {
     k_cur: u32,
     k_next: u32,
     k_last: u32,
-    // With the baked guide (GUIDED): whether the field finds samples i - 1, i and i + 1 dense.
-    dense_prev: bool,
-    dense_cur: bool,
-    dense_next: bool,
-}
-
-// Whether the baked guide finds the sample at `pos` dense (never without the guide, and never in
-// a cell the walk skips).
-fn guide_dense(pos: vec3<f32>, occ: bool) -> bool {
-    return GUIDED && occ && baked_raw(pos) > GUIDE_RAW;
 }
 
 // The next depth of the merged coarse + fine list (both ascending), advancing k or j.
@@ -84,18 +72,16 @@ fn walk_start(
     use_grid: bool,
     t_fine: ptr<function, array<f32, MAX_SAMPLES>>,
 ) -> Walk {
-    var w = Walk(use_grid, 0u, 0u, 0u, params.depth_resolution + n, 0.0, 0.0, false, false, false, NOT_COARSE, NOT_COARSE, NOT_COARSE, false, false, false);
+    var w = Walk(use_grid, 0u, 0u, 0u, params.depth_resolution + n, 0.0, 0.0, false, false, false, NOT_COARSE, NOT_COARSE, NOT_COARSE);
     w.t_cur = next_depth(&w, ray_index, n, t_fine);
     w.k_cur = w.k_last;
     let pos_cur = ray.origin + w.t_cur * ray.dir;
     w.occ_cur = !use_grid || occupied(pos_cur);
-    w.dense_cur = guide_dense(pos_cur, w.occ_cur);
     if (w.total > 1u) {
         w.t_next = next_depth(&w, ray_index, n, t_fine);
         w.k_next = w.k_last;
         let pos_next = ray.origin + w.t_next * ray.dir;
         w.occ_next = !use_grid || occupied(pos_next);
-        w.dense_next = guide_dense(pos_next, w.occ_next);
     }
     return w;
 }
@@ -113,15 +99,11 @@ fn walk_advance(
     (*w).occ_next = false;
     (*w).k_cur = (*w).k_next;
     (*w).k_next = NOT_COARSE;
-    (*w).dense_prev = (*w).dense_cur;
-    (*w).dense_cur = (*w).dense_next;
-    (*w).dense_next = false;
     if ((*w).i + 2u < (*w).total) {
         (*w).t_next = next_depth(w, ray_index, n, t_fine);
         (*w).k_next = (*w).k_last;
         let pos = ray.origin + (*w).t_next * ray.dir;
         (*w).occ_next = !(*w).use_grid || occupied(pos);
-        (*w).dense_next = guide_dense(pos, (*w).occ_next);
     }
     (*w).i += 1u;
 }

@@ -9,7 +9,7 @@
 // needs: params, out_features, out_depth, out_weights_sum, depth_bounds, MAX_SAMPLES,
 // needs: FLAG_OCCUPANCY_COARSE, FLAG_WHITE_BACK, camera_ray, importance_depths, sample_triplane,
 // needs: decode, interval_alpha, transmit, Walk, walk_start, walk_advance, walk_to_needed,
-// needs: BAKED, GUIDED, baked_sample, guide_decodes, FLAG_FULL_WALK
+// needs: BAKED, baked_sample, FLAG_FULL_WALK
 // provides: COARSE_CACHE, Composite, composite_sample, ABSORB_TEST_BELOW, PDF_ABSORBED,
 // provides: FEATURE_BOUND, eighth_ulp, composite_absorbed, coarse_absorbed, walk_ends, ray_pixel,
 // provides: render_rays
@@ -153,7 +153,7 @@ fn walk_ends(
     // With the skip's threshold (the viewer's 1e-3), the skip ends a walk long before the exact
     // test would: no need to test. Nor with the baked field, whose un-premultiplied colours have
     // no bound as tight as the decoder's features (and which its skips end anyway).
-    if (thr > 0.0 || BAKED || GUIDED || (params.flags & FLAG_FULL_WALK) != 0u) {
+    if (thr > 0.0 || BAKED || (params.flags & FLAG_FULL_WALK) != 0u) {
         return (*c).transmittance < thr;
     }
     if (coarse) {
@@ -199,8 +199,8 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
     let s = params.depth_resolution;
     let n_feat = params.feature_channels;
     // All 32 decoded features per sample, or RGB in the first vec4 only. Never with the baked
-    // lookup or the guide (RGB only): a constant there, so the compiler drops the 32-feature copies.
-    let wide = !BAKED && !GUIDED && n_feat == 32u;
+    // lookup (RGB only): a constant there, so the compiler drops the 32-feature copies.
+    let wide = !BAKED && n_feat == 32u;
     let thr = params.transmittance_threshold;
     // No sample lies farther than this (the depth sum's addends are below T times it).
     let t_bound = 2.0 * (max(abs(params.ray_start), abs(params.ray_end)) + abs(params.jitter_step));
@@ -240,9 +240,8 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
     // sample evaluation; the outer loop runs it once per walk.
     loop {
         loop {
-            // The samples that need no decoding, in a loop of their own: the composite walk's
-            // cached coarse samples and, with the baked guide, the samples it leaves to the field.
-            // lavapipe runs 8 rays in lock-step, so each ray composites these up to its next
+            // The composite walk's cached coarse samples, in a loop of their own: lavapipe runs
+            // 8 rays in lock-step, so each ray composites its cached samples up to its next
             // sample to decode, and the 8 decode together. Early ray termination ends both loops:
             // the skip's (its threshold 0 in exact mode) or the exact one (walk_ends), tested once
             // per sample here: the loop ends either there (`ended`) or at a sample to decode.
@@ -254,28 +253,15 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
                     break;
                 }
                 let k = walk.k_cur;
-                let decodes = !GUIDED || guide_decodes(walk.dense_prev || walk.dense_cur || walk.dense_next, c.transmittance);
-                // A cached sample is reused unless the guide wants it decoded and the coarse walk
-                // only looked it up (cache_rgb's w: 1 decoded, 0 looked up; RGB needs xyz only).
-                if (!coarse && k < n_cached && (!GUIDED || !decodes || cache_rgb[k].w != 0.0)) {
-                    if (wide) {
-                        cur_feat = cache_feat[k];
-                    } else {
-                        cur_feat[0] = cache_rgb[k];
-                    }
-                    composite_sample(&c, walk, walk.t_cur, cache_sigma_raw[k], &cur_feat, false, wide, &scratch);
-                } else if (decodes) {
+                if (coarse || k >= n_cached) {
                     break;
-                } else {
-                    // The guide leaves this sample to the baked field.
-                    let sigma_raw = baked_sample(ray.origin + walk.t_cur * ray.dir, &cur_feat);
-                    if (coarse && k == n_cached && n_cached < COARSE_CACHE) {
-                        cache_sigma_raw[n_cached] = sigma_raw;
-                        cache_rgb[n_cached] = cur_feat[0];
-                        n_cached++;
-                    }
-                    composite_sample(&c, walk, walk.t_cur, sigma_raw, &cur_feat, coarse, wide, &scratch);
                 }
+                if (wide) {
+                    cur_feat = cache_feat[k];
+                } else {
+                    cur_feat[0] = cache_rgb[k];
+                }
+                composite_sample(&c, walk, walk.t_cur, cache_sigma_raw[k], &cur_feat, false, wide, &scratch);
                 walk_advance(&walk, ray, ray_index, n, &t_fine);
             }
             if (ended) {
@@ -291,9 +277,6 @@ fn render_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
                 // Only the requested decoder rows: all 32 features or the 4 that hold RGB (also in
                 // the coarse walk, for the cache).
                 sigma_raw = decode(n_feat, &feat, &cur_feat);
-                if (GUIDED) {
-                    cur_feat[0].w = 1.0; // decoded (the guide's RGB has no fourth channel)
-                }
             }
             if (coarse && walk.k_cur == n_cached && n_cached < COARSE_CACHE) {
                 cache_sigma_raw[n_cached] = sigma_raw;

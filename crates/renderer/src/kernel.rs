@@ -75,13 +75,12 @@ impl KernelChoice {
     }
 }
 
-/// How render_rays uses a baked field (`shaders/baked.wgsl`'s override constants `BAKED` and
-/// `GUIDED`): not at all (exact mode and its skips), in place of the decoder, or as its guide.
+/// How render_rays uses a baked field (`shaders/baked.wgsl`'s override constant `BAKED`): not at
+/// all (exact mode and its skips), or in place of the decoder.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum FieldUse {
     None,
     Lookup,
-    Guide,
 }
 
 /// render_rays specialised for `kernel`.
@@ -110,8 +109,6 @@ pub(crate) fn build_render_variant(
         (FieldUse::None, Kernel::Fast) => ("lp3d render_rays (fast kernel)", None),
         (FieldUse::None, Kernel::Quick) => ("lp3d render_rays (quick kernel)", None),
         (FieldUse::Lookup, _) => ("lp3d render_rays (baked)", Some("BAKED")),
-        (FieldUse::Guide, Kernel::Fast) => ("lp3d render_rays (guided, fast kernel)", Some("GUIDED")),
-        (FieldUse::Guide, Kernel::Quick) => ("lp3d render_rays (guided, quick kernel)", Some("GUIDED")),
     };
     let mut constants = vec![("ROLLED_DECODER", rolled)];
     constants.extend(flag.map(|f| (f, 1.0)));

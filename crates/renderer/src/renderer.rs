@@ -84,8 +84,6 @@ struct Frame {
     chunk: usize,
     /// Device bytes allocated for this frame (outputs, uniforms, cameras).
     bytes: u64,
-    /// The baked field guides the decoder (`Skips::baked_guide`).
-    guided: bool,
 }
 
 pub struct Renderer {

@@ -58,11 +58,6 @@ pub struct Skips {
     /// `baked_subdivisions`; the rest keep that many. The error falls with the square of the
     /// sub-cell and those bricks are where it is (`docs/baked.md`, "Two levels"). 0 = one level.
     pub baked_fine_subdivisions: u32,
-    /// Use the baked field as a guide, not in place of the decoder: decode exactly the samples
-    /// it finds dense (or next to a dense one along the ray) while the ray is still visible, and
-    /// look up the rest (`docs/baked.md`, "The guide"). Needs `baked_subdivisions` > 0; RGB,
-    /// depth and weights only.
-    pub baked_guide: bool,
 }
 
 impl Skips {
@@ -73,7 +68,6 @@ impl Skips {
         occupancy_coarse: false,
         baked_subdivisions: 0,
         baked_fine_subdivisions: 0,
-        baked_guide: false,
     };
 
     /// The baked field as the viewer's moving frames and `lp3d orbit --baked` use it
@@ -118,12 +112,6 @@ impl Skips {
                      (baked_subdivisions {k})",
                     crate::baked::MAX_FINE_SUBDIVISIONS
                 ),
-            ));
-        }
-        if self.baked_guide && k == 0 {
-            return Err(Error::invalid(
-                "baked_guide",
-                "needs baked_subdivisions > 0 (the field it is guided by)",
             ));
         }
         Ok(())

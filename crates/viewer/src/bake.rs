@@ -100,7 +100,6 @@ pub fn baked_settings(chosen: &RenderSettings, field: Field) -> RenderSettings {
             occupancy_coarse: true,
             baked_subdivisions: field.subdivisions,
             baked_fine_subdivisions: field.fine_subdivisions,
-            baked_guide: false,
         },
         ..*chosen
     }

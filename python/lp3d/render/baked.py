@@ -33,8 +33,8 @@ from typing import Any
 import numpy as np
 
 from lp3d.atomic import atomic_path
-from lp3d.render.reference import decode, interval_alpha, render_with, sample_triplane
-from lp3d.render.settings import TRANSMITTANCE_EPS, RenderSettings
+from lp3d.render.reference import decode, render_with, sample_triplane
+from lp3d.render.settings import RenderSettings
 from lp3d.render.triplane import TriplaneData
 
 #: The raw density of a point in a cell without a brick (``BAKED_EMPTY_RAW`` in ``baked.wgsl``).
@@ -209,63 +209,6 @@ def _lookup_level(
     return sigma_raw, rgb
 
 
-#: The guide (``baked_guide``, docs/baked.md): a sample is decoded exactly when the field's raw density
-#: there or at a neighbour along the ray is above ``GUIDE_RAW`` and the ray's transmittance before it
-#: is above ``GUIDE_TRANSMITTANCE`` (``baked.wgsl`` has the same constants).
-GUIDE_RAW = 0.0
-GUIDE_TRANSMITTANCE = 1e-3
-#: Coarse samples the GPU keeps from the coarse walk for the composite (``COARSE_CACHE`` in
-#: ``render.wgsl``); the guided reference models renders with at most this many.
-COARSE_CACHE = 64
-
-
-def near_dense(sigma_raw: np.ndarray, above: float = GUIDE_RAW) -> np.ndarray:
-    """Where a sample of sorted rays (rays, M) or a neighbour along its ray (none past the ends) has
-    a raw density above ``above``: the samples the guide decodes while the ray is visible."""
-    dense = sigma_raw > above
-    near = dense.copy()
-    near[:, 1:] |= dense[:, :-1]
-    near[:, :-1] |= dense[:, 1:]
-    return near
-
-
-def guide_walk(
-    tri: TriplaneData,
-    index: np.ndarray,
-    values: np.ndarray,
-    k: int,
-    o: np.ndarray,
-    d: np.ndarray,
-    t: np.ndarray,
-    sigma_raw: np.ndarray,
-    feat: np.ndarray,
-    exact: np.ndarray,
-    *,
-    fine_values: np.ndarray | None = None,
-    fine_k: int = 0,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """One walk of the guided render over sorted samples ``t`` (rays, M) holding looked-up values
-    (or, where ``exact``, decoded ones the coarse walk kept): front to back, each sample the guide
-    picks (:data:`GUIDE_RAW`, :data:`GUIDE_TRANSMITTANCE`, judged on the transmittance of the values
-    as revised so far) is decoded, unless it already is. Returns the revised values and ``exact``."""
-    points = o[:, None, :] + t[..., None] * d[:, None, :]
-    near = near_dense(baked_lookup(index, values, k, tri.box_warp, points, fine_values, fine_k)[0])
-    sigma_raw, feat, exact = sigma_raw.copy(), feat.copy(), exact.copy()
-    planes = tri.planes.astype(np.float64)
-    transmittance = np.ones(t.shape[0])  # through the intervals before the previous sample
-    for i in range(t.shape[1]):
-        todo = near[:, i] & (transmittance > GUIDE_TRANSMITTANCE) & ~exact[:, i]
-        if todo.any():
-            f = sample_triplane(planes, points[todo, i][None], box_warp=tri.box_warp)
-            s, out = decode(f, tri.w0, tri.b0, tri.w1, tri.b1)
-            sigma_raw[todo, i], feat[todo, i] = s[0], out[0, :, : feat.shape[-1]]
-            exact[todo, i] = True
-        if i > 0:
-            alpha = interval_alpha(sigma_raw[:, i - 1], sigma_raw[:, i], t[:, i] - t[:, i - 1])
-            transmittance = transmittance * ((1.0 - alpha) + TRANSMITTANCE_EPS)
-    return sigma_raw, feat, exact
-
-
 def render_baked_reference(
     tri: TriplaneData,
     index: np.ndarray,
@@ -274,13 +217,11 @@ def render_baked_reference(
     camera: np.ndarray,
     settings: RenderSettings,
     *,
-    guided: bool = False,
     fine_values: np.ndarray | None = None,
     fine_k: int = 0,
 ) -> dict[str, np.ndarray]:
     """:func:`lp3d.render.reference.render_reference` with every sample looked up in the field
-    instead of decoded (the same sampler and compositing); ``rgb``, ``depth`` and ``weights_sum``.
-    ``guided``: the field guides the decoder instead (:func:`guide_walk`, ``baked_guide=True``). A
+    instead of decoded (the same sampler and compositing); ``rgb``, ``depth`` and ``weights_sum``. A
     two-level field gives ``fine_values`` and ``fine_k`` too."""
 
     def evaluate(o: np.ndarray, d: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -288,14 +229,7 @@ def render_baked_reference(
         sigma_raw, rgb = baked_lookup(index, values, k, tri.box_warp, points, fine_values, fine_k)
         return sigma_raw, rgb
 
-    def guide(o, d, t, sigma_raw, feat, exact):  # type: ignore[no-untyped-def]
-        return guide_walk(
-            tri, index, values, k, o, d, t, sigma_raw, feat, exact, fine_values=fine_values, fine_k=fine_k
-        )
-
-    if guided and settings.depth_resolution > COARSE_CACHE:
-        raise ValueError(f"the guided reference models depth_resolution <= {COARSE_CACHE}")
-    out = render_with(tri, camera, settings, evaluate, guide if guided else None)
+    out = render_with(tri, camera, settings, evaluate)
     del out["features"]  # the three RGB channels, as out["rgb"]
     return out
 

@@ -320,26 +320,12 @@ def render_reference(
 Evaluate = Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
-#: A walk's second look at its samples (the baked guide, :func:`lp3d.render.baked.guide_walk`):
-#: ``(o, d, t, sigma_raw, feat, exact)`` -> the samples' new ``sigma_raw``, ``feat`` and ``exact``
-#: (which hold the decoder's values rather than ``evaluate``'s).
-Guide = Callable[
-    [np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
-    tuple[np.ndarray, np.ndarray, np.ndarray],
-]
-
-
 def render_with(
-    tri: TriplaneData,
-    camera: np.ndarray,
-    settings: RenderSettings,
-    evaluate: Evaluate,
-    guide: Guide | None = None,
+    tri: TriplaneData, camera: np.ndarray, settings: RenderSettings, evaluate: Evaluate
 ) -> dict[str, np.ndarray]:
     """:func:`render_reference`'s sampler and compositing around any field ``evaluate`` (the decoder
     in :func:`render_reference`, the baked field's lookup in :mod:`lp3d.render.baked`); ``settings``
-    resolved and the scene bounds ``tri``'s. ``guide``, if given, revises each walk's samples (the
-    coarse walk's before the importance draw, then the merged list's) before they are composited."""
+    resolved and the scene bounds ``tri``'s."""
     cams, batched = validate_camera(camera)
     B, R = cams.shape[0], settings.resolution
     S, N = settings.depth_resolution, settings.depth_resolution_importance
@@ -365,9 +351,6 @@ def render_with(
             jitter=None if jitter is None else jitter[sl],
         )
         sigma_raw, feat = evaluate(o, d, t)
-        exact = np.zeros(t.shape, bool)
-        if guide is not None:
-            sigma_raw, feat, exact = guide(o, d, t, sigma_raw, feat, exact)
         if N > 0:
             coarse = march(t, sigma_raw, feat, white_back=settings.white_back)
             t_fine = sample_importance(t, coarse.weights, N, None if u_all is None else u_all[sl])
@@ -379,9 +362,6 @@ def render_with(
             both = np.concatenate([sigma_raw, sigma_raw_fine], axis=-1)
             sigma_raw = np.take_along_axis(both, order, axis=-1)
             feat = np.take_along_axis(np.concatenate([feat, feat_fine], axis=-2), order[..., None], axis=-2)
-            exact = np.take_along_axis(np.concatenate([exact, np.zeros(t_fine.shape, bool)], -1), order, -1)
-            if guide is not None:
-                sigma_raw, feat, exact = guide(o, d, t, sigma_raw, feat, exact)
         result = march(t, sigma_raw, feat, white_back=settings.white_back)
         t_min, t_max = min(t_min, float(t.min())), max(t_max, float(t.max()))
         if features is None:

@@ -57,10 +57,6 @@ class Skips:
     #: A two-level field (docs/baked.md, "Two levels"): the bricks a surface crosses (or a colour edge
     #: under one) get this many points per cell edge instead, more than baked_subdivisions. 0 = one level.
     baked_fine_subdivisions: int = 0
-    #: Use that field as a guide instead (docs/baked.md, "The guide"): decode exactly the samples it
-    #: finds dense, or next to a dense one, while the ray is still visible; look up the rest. Needs
-    #: baked_subdivisions > 0.
-    baked_guide: bool = False
 
     @property
     def exact(self) -> bool:
@@ -86,10 +82,6 @@ class Skips:
             )
         if fine and k == 0:
             raise ValueError("baked_fine_subdivisions needs baked_subdivisions > 0")
-        if not isinstance(self.baked_guide, bool):
-            raise ValueError(f"baked_guide must be a bool, got {self.baked_guide!r}")
-        if self.baked_guide and k == 0:
-            raise ValueError("baked_guide needs baked_subdivisions > 0 (the field it is guided by)")
 
 
 #: The baked field as ``lp3d orbit --baked`` and the viewer's moving frames use it (docs/baked.md):

@@ -38,8 +38,6 @@ pub(super) struct BakePass<'a> {
 pub(super) struct BakedPipelines {
     /// render_rays looking samples up in a baked field (`BAKED`).
     lookup: OnceLock<wgpu::ComputePipeline>,
-    /// render_rays guided by a baked field (`GUIDED`), with the fast [0] and the quick [1] decoder.
-    guided: [OnceLock<wgpu::ComputePipeline>; 2],
     /// The bake kernel, with the fast [0] and the quick [1] decoder, and its bindings.
     bake: [OnceLock<wgpu::ComputePipeline>; 2],
     bake_layout: wgpu::BindGroupLayout,
@@ -57,7 +55,6 @@ impl BakedPipelines {
     ) -> Self {
         Self {
             lookup: OnceLock::new(),
-            guided: [OnceLock::new(), OnceLock::new()],
             bake: [OnceLock::new(), OnceLock::new()],
             bake_layout,
             bake_pipeline_layout,
@@ -427,7 +424,7 @@ impl Renderer {
     }
 
     /// The kernel exact renders use now (`Renderer::render_pipeline`, which takes a finished
-    /// background compile): the field's pipelines that decode use its decoder.
+    /// background compile): the bake kernel uses its decoder (`bake_pipeline`).
     fn decoding_kernel(&self) -> Kernel {
         let quick = self.quick_pipeline.as_ref().is_some_and(|q| std::ptr::eq(q, self.render_pipeline()));
         if quick {
@@ -435,15 +432,6 @@ impl Renderer {
         } else {
             Kernel::Fast
         }
-    }
-
-    /// render_rays guided by the baked field (`GUIDED`), built on first use, with the decoder of
-    /// the kernel the exact renders use now: the guide decodes.
-    pub(super) fn guided_pipeline(&self) -> &wgpu::ComputePipeline {
-        let kernel = self.decoding_kernel();
-        self.baked.guided[(kernel == Kernel::Quick) as usize].get_or_init(|| {
-            build_render_variant(&self.device, &self.module, &self.pipeline_layout, kernel, FieldUse::Guide)
-        })
     }
 
     /// The bake kernel with `kernel`'s decoder (`decoding_kernel`: that of the kernel the exact

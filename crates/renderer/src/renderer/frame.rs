@@ -160,7 +160,6 @@ impl Renderer {
             fc,
             chunk,
             bytes,
-            guided: settings.skips.baked_guide,
         })
     }
 
@@ -189,9 +188,7 @@ impl Renderer {
                     pass.dispatch_workgroups(1, 1, 1);
                 }
             }
-            if frame.guided {
-                pass.set_pipeline(self.guided_pipeline());
-            } else if frame.params.baked_subdivisions > 0 {
+            if frame.params.baked_subdivisions > 0 {
                 pass.set_pipeline(self.baked_pipeline());
             } else {
                 pass.set_pipeline(self.render_pipeline());
