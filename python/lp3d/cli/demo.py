@@ -281,6 +281,7 @@ def run(args: argparse.Namespace) -> int:
             args.refine,
             [p.name for p in portraits],
             [p.pose for p in portraits],
+            pkg,
         )
     native_refined = [native_triplane(tri) for tri in refined]
     sheet = _side_by_side(portraits, native, args, sr, r, native_refined or None)

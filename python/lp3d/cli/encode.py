@@ -198,7 +198,7 @@ def run(args: argparse.Namespace) -> int:
     ]
     t0 = time.perf_counter()
     if args.refine > 0:
-        tris = refine_triplanes(tris, crops, args.refine, [str(img) for img in images], poses)
+        tris = refine_triplanes(tris, crops, args.refine, [str(img) for img in images], poses, pkg)
     t_refine = time.perf_counter() - t0
 
     t0 = time.perf_counter()

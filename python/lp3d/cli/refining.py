@@ -13,7 +13,7 @@ from lp3d.cli.common import CLIError, int_in, progress, say
 from lp3d.lift.refine_settings import MAX_STEPS, RefineSettings
 
 #: The steps a user who asks for refinement without a number gets: ``RefineSettings``' default
-#: (``bench/RESULTS.md``, "Refinement": within 5 s per image on a 2-core CPU).
+#: (how they were chosen: docs/photos-and-video.md).
 DEFAULT_STEPS = RefineSettings().steps
 
 
@@ -25,8 +25,9 @@ def add_refine_argument(p: argparse.ArgumentParser, what: str = "each photo") ->
         const=DEFAULT_STEPS,
         default=0,
         metavar="N",
-        help=f"fit the lifted head to {what} for N optimisation steps (PyTorch; about 0.1 s a step on a "
-        f"CPU): sharper likeness, same decoder. Without N: {DEFAULT_STEPS}. Default 0: encoder only",
+        help=f"fit the lifted head to {what} for N optimisation steps (PyTorch), the last ones through "
+        f"the model's super-resolution network when it has one: more likeness, same decoder. Without "
+        f"N: {DEFAULT_STEPS}. Default 0: encoder only",
     )
 
 
@@ -45,22 +46,28 @@ def refine_triplanes(
     steps: int,
     names: Sequence[str],
     poses: Sequence[tuple[float, float] | None],
+    package: Any = None,
 ) -> list[Any]:
     """Each ``TriplaneData`` fitted to its crop (S, S, 3) uint8 for ``steps`` steps, starting from its
-    pose ``(yaw, pitch)`` (found from the face's landmarks; None: searched for); one progress bar over
-    all of them and a line per image (the pose, input-view PSNR before and after)."""
+    pose ``(yaw, pitch)`` (found from the face's landmarks; None: searched for), through the
+    super-resolution network of the model ``package`` when it has one; one progress bar over all of
+    them and a line per image (the pose, input-view PSNR before and after)."""
     require_torch()
-    from lp3d.lift.refine import refine
+    from lp3d.lift.refine import refine, superres_module
 
     settings = RefineSettings(steps=steps)
+    superres = superres_module(package) if package is not None else None
     total = sum(settings.total_steps(pose is not None) for pose in poses)
     bar = progress(total, "refine", unit="step")
     out = []
     try:
         for tri, crop, name, pose in zip(triplanes, crops, names, poses, strict=True):
-            result = refine(tri, crop, settings, pose=pose, on_step=bar.update)
+            result = refine(tri, crop, settings, pose=pose, superres=superres, on_step=bar.update)
+            sr_steps = settings.superres_steps(superres is not None)
             say(
-                f"{name}: refined {steps} steps in {result.seconds:.1f} s; camera "
+                f"{name}: refined {steps} steps"
+                + (f" (the last {sr_steps} on the super-resolved image)" if sr_steps else "")
+                + f" in {result.seconds:.1f} s; camera "
                 f"{'from the face' if pose is not None else 'searched for'} at yaw {result.yaw_deg:+.0f}°, "
                 f"pitch {result.pitch_deg:+.0f}°; input view {result.psnr_before:.1f} -> "
                 f"{result.psnr_after:.1f} dB"

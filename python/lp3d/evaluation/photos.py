@@ -7,7 +7,10 @@ compared with the photo by an independent face-recognition model, dlib's ResNet 
 (:func:`lp3d.photo.face_descriptor`): the distance (dlib calls two faces one person below
 :data:`SAME_PERSON_DISTANCE`) and the cosine similarity of the descriptors. Also per view: whether a
 face is found at all, and its pose error (the landmark camera of :mod:`lp3d.photo.alignment` on the
-render against the yaw asked); per photo, the input view's PSNR and SSIM on the face region.
+render against the yaw asked); per photo, the input view's PSNR, SSIM and ID distance on the face
+region, and the face's depth relief (the spread of the rendered depth over the face region at the
+photo's camera) of the final head and of the encoder's: a refine that flattens the head into a photo
+on a card shows as a relief far below the encoder's.
 
 May import :mod:`lp3d.photo`, :mod:`lp3d.lift`, :mod:`lp3d.render` and :mod:`lp3d.training` (SSIM).
 """
@@ -25,8 +28,10 @@ import numpy as np
 
 from lp3d.images import rgb_to_uint8
 from lp3d.lift.inference import LoadedEncoder, LoadedSuperres
+from lp3d.lift.refine_settings import RefineSettings
 from lp3d.photo import (
     align_face,
+    crop_image,
     face_descriptor,
     find_faces,
     load_image,
@@ -64,6 +69,8 @@ class PhotoSettings:
     refine_steps: int = 0
     yaws_deg: tuple[float, ...] = NOVEL_YAWS_DEG
     samples: tuple[int, int] = (48, 48)
+    #: How the refine fits (its ``steps`` replaced by ``refine_steps``); None: ``RefineSettings()``.
+    refine: RefineSettings | None = None
 
 
 @dataclass
@@ -102,6 +109,9 @@ class PhotoEval:
     pitch_deg: float
     input_psnr: float
     input_ssim: float
+    input_distance: float | None
+    depth_relief: float
+    encoder_depth_relief: float
     views: list[ViewScore]
     images: list[np.ndarray] = field(default_factory=list, repr=False)
 
@@ -110,7 +120,12 @@ class PhotoEval:
             "name": self.name,
             "description": self.description,
             "camera": {"yaw_deg": self.yaw_deg, "pitch_deg": self.pitch_deg},
-            "input_view": {"face_psnr_db": self.input_psnr, "face_ssim": self.input_ssim},
+            "input_view": {
+                "face_psnr_db": self.input_psnr,
+                "face_ssim": self.input_ssim,
+                "distance": self.input_distance,
+            },
+            "depth_relief": {"head": self.depth_relief, "encoder": self.encoder_depth_relief},
             "views": [v.to_dict() for v in self.views],
         }
 
@@ -131,16 +146,53 @@ def _face_box(crop_landmarks: np.ndarray, size: int) -> tuple[int, int, int, int
 
 def _images(
     tri: Any, cameras: np.ndarray, sr: LoadedSuperres | None, resolution: int, samples: tuple[int, int]
-) -> list[np.ndarray]:
-    """The final images (R, R, 3) uint8 of ``cameras`` (B, 25): super-resolved when ``sr`` is given."""
+) -> tuple[list[np.ndarray], np.ndarray]:
+    """The final images (R, R, 3) uint8 of ``cameras`` (B, 25), super-resolved when ``sr`` is given,
+    and the raw depth images (B, r, r) (r: the SR network's input side, or R)."""
     settings = RenderSettings(
         resolution=sr.input_resolution if sr is not None else resolution,
         depth_resolution=samples[0],
         depth_resolution_importance=samples[1],
     )
-    out = native_render(native_triplane(tri), cameras, settings, outputs=["features" if sr else "rgb"])
+    out = native_render(
+        native_triplane(tri), cameras, settings, outputs=["features" if sr else "rgb", "depth"]
+    )
     rgb = sr(out["features"]) if sr is not None else out["rgb"]
-    return [rgb_to_uint8(x) for x in rgb]
+    r = settings.resolution
+    return [rgb_to_uint8(x) for x in rgb], np.asarray(out["depth"]).reshape(len(cameras), r, r)
+
+
+def depth_relief(depth: np.ndarray, box: tuple[int, int, int, int], size: int) -> float:
+    """The spread (95th minus 5th percentile) of ``depth`` (r, r) over ``box`` (x0, y0, x1, y1), given
+    in a ``size``² image's pixels: how far the face stands out, nose tip to cheeks, in world units."""
+    r = depth.shape[0]
+    x0, y0, x1, y1 = (int(round(v * r / size)) for v in box)
+    region = depth[y0 : max(y1, y0 + 1), x0 : max(x1, x0 + 1)]
+    lo, hi = np.percentile(region, [5.0, 95.0])
+    return float(hi - lo)
+
+
+def _score_views(
+    yaws: Sequence[float], images: Sequence[np.ndarray], reference: np.ndarray
+) -> list[ViewScore]:
+    """Each view at its yaw against the photo's descriptor ``reference``: found, distance, pose."""
+    views = []
+    for y, img in zip(yaws, images, strict=True):
+        faces = find_faces(img)
+        if not faces:
+            views.append(ViewScore(y, False))
+            continue
+        d = face_descriptor(img, faces[0])
+        views.append(
+            ViewScore(
+                y,
+                True,
+                distance=float(np.linalg.norm(d - reference)),
+                cosine=_descriptor_similarity(d, reference),
+                found_yaw_deg=align_face(faces[0].landmarks).yaw_deg,
+            )
+        )
+    return views
 
 
 def evaluate_photo(
@@ -163,27 +215,29 @@ def evaluate_photo(
     photo_face = prep.detection
     assert photo_face is not None  # detect=True: a prepared photo has its face
     reference = face_descriptor(rgb, photo_face.face)
-    tri = pkg.triplane(encoder.encode(to_encoder_input(prep.image[None]))[0])
+    tri = encoded = pkg.triplane(encoder.encode(to_encoder_input(prep.image[None]))[0])
+    resolution = sr.output_resolution if sr is not None else 256
+    # The photo's crop at the output's side, cut from the photo itself (not the encoder's smaller crop
+    # scaled up): what the input view is scored against. The refine fits the encoder's crop, as
+    # `lp3d encode --refine` does.
+    crop = crop_image(rgb, photo_face.crop, resolution)
     yaw, pitch = prep.pose  # type: ignore[misc]
     camera = look_at_camera(yaw_deg=yaw, pitch_deg=pitch)
     if settings.refine_steps > 0:
-        from lp3d.lift.refine import RefineSettings, refine
+        import dataclasses
 
+        from lp3d.lift.refine import refine, superres_module
+
+        how = dataclasses.replace(settings.refine or RefineSettings(), steps=settings.refine_steps)
         result = refine(
-            tri, prep.image, RefineSettings(steps=settings.refine_steps), pose=(yaw, pitch), on_step=on_step
+            tri, prep.image, how, pose=(yaw, pitch), superres=superres_module(pkg), on_step=on_step
         )
         tri, camera = result.triplane, result.camera
-    resolution = sr.output_resolution if sr is not None else 256
     cams = np.stack([camera] + [look_at_camera(yaw_deg=y) for y in settings.yaws_deg])
-    images = _images(tri, cams, sr, resolution, settings.samples)
+    images, depths = _images(tri, cams, sr, resolution, settings.samples)
 
     # The input view against the photo's crop, on the face region only (the backdrop is easy).
-    crop = np.asarray(prep.image)
-    if crop.shape[0] != resolution:
-        from PIL import Image
-
-        crop = np.asarray(Image.fromarray(crop).resize((resolution, resolution), Image.Resampling.LANCZOS))
-    m = prep.detection.crop.matrix(resolution)  # type: ignore[union-attr]
+    m = photo_face.crop.matrix(resolution)
     x0, y0, x1, y1 = _face_box(photo_face.face.landmarks @ m[:, :2].T + m[:, 2], resolution)
 
     def face(img: np.ndarray) -> np.ndarray:
@@ -193,23 +247,19 @@ def evaluate_photo(
     input_psnr = psnr_db(a, b)
     to_t = lambda x: torch.from_numpy(x.transpose(2, 0, 1)[None].copy())  # noqa: E731
     input_ssim = float(ssim(to_t(a), to_t(b))[0])
+    input_faces = find_faces(images[0])
+    input_distance = (
+        float(np.linalg.norm(face_descriptor(images[0], input_faces[0]) - reference)) if input_faces else None
+    )
+    box = (x0, y0, x1, y1)
+    relief = depth_relief(depths[0], box, resolution)
+    if encoded is tri:
+        encoder_relief = relief
+    else:
+        _, encoder_depth = _images(encoded, camera[None], sr, resolution, settings.samples)
+        encoder_relief = depth_relief(encoder_depth[0], box, resolution)
 
-    views = []
-    for y, img in zip(settings.yaws_deg, images[1:], strict=True):
-        faces = find_faces(img)
-        if not faces:
-            views.append(ViewScore(y, False))
-            continue
-        d = face_descriptor(img, faces[0])
-        views.append(
-            ViewScore(
-                y,
-                True,
-                distance=float(np.linalg.norm(d - reference)),
-                cosine=_descriptor_similarity(d, reference),
-                found_yaw_deg=align_face(faces[0].landmarks).yaw_deg,
-            )
-        )
+    views = _score_views(settings.yaws_deg, images[1:], reference)
     angles = camera_summary(camera)
     return PhotoEval(
         name=path.name,
@@ -218,6 +268,9 @@ def evaluate_photo(
         pitch_deg=angles["pitch_deg"],
         input_psnr=input_psnr,
         input_ssim=input_ssim,
+        input_distance=input_distance,
+        depth_relief=relief,
+        encoder_depth_relief=encoder_relief,
         views=views,
         images=[crop, *images[1:]],
     )
@@ -234,6 +287,10 @@ def summarise(evals: Sequence[PhotoEval]) -> dict[str, Any]:
         "photos": len(evals),
         "input_face_psnr_db": _mean([e.input_psnr for e in evals]),
         "input_face_ssim": _mean([e.input_ssim for e in evals]),
+        "input_distance": _mean([e.input_distance for e in evals if e.input_distance is not None]),
+        # The refined head's relief as a share of the encoder's, photo by photo: below about a half,
+        # the fit has flattened the face onto its photo.
+        "depth_relief_ratio": _mean([e.depth_relief / max(e.encoder_depth_relief, 1e-9) for e in evals]),
         "by_yaw": {},
     }
     yaws = sorted({abs(v.yaw_deg) for e in evals for v in e.views})
@@ -271,7 +328,10 @@ def summary_lines(summary: dict[str, Any]) -> list[str]:
         )
     lines.append(
         f"input view, face region: {num(summary['input_face_psnr_db'], '.2f')} dB PSNR, "
-        f"SSIM {num(summary['input_face_ssim'], '.3f')} ({summary['photos']} photos)"
+        f"SSIM {num(summary['input_face_ssim'], '.3f')}, "
+        f"ID distance {num(summary['input_distance'], '.3f')}; "
+        f"face depth relief {num(summary['depth_relief_ratio'], '.2f')}× the encoder's "
+        f"({summary['photos']} photos)"
     )
     return lines
 

@@ -18,8 +18,16 @@ renderer (:mod:`lp3d.render.torch_twin`) on the input view, with three terms:
   three planes are shared by all sides, so an unheld fit buys the input view with broken side views;
   the prior keeps what the photo does not ask to change at the encoder's prediction.
 
-Only the planes change: the decoder and scene bounds are the model package's, so the refined head
-still renders the feature space its super-resolution network was made for.
+With the package's super-resolution network (:func:`superres_module`), the last
+``superres_share`` of the steps swap the photo terms' raw rays for the final image: the whole
+feature image of each view (photo and mirror) rendered and super-resolved, against the photo at the
+network's output side. A raw fit at 64² leaves the face as blurred as its rays; the network then
+paints the stylised detail it learnt on the teacher's heads over it. Fitting what the network makes
+of the planes puts the photo's detail where `lp3d render` shows it (``docs/photos-and-video.md``
+has what it buys in likeness).
+
+Only the planes change: the decoder, scene bounds and super-resolution network are the model
+package's, so the refined head renders in every tool that renders the package's heads.
 
 The photo's camera is not known: :func:`lp3d.lift.pose.find_camera` fits it first, with the
 encoder's planes held fixed (a grid search, then gradient descent on a small move of the camera).
@@ -39,33 +47,36 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from lp3d.lift.model_package import ModelPackage, verify_superres_file
 from lp3d.lift.pose import (
     camera_at,
-    estimate_pose,
     find_camera,
     fit_pose,
     mirrored_camera,
     photo_target,
     render_rgb,
 )
-from lp3d.lift.refine_settings import MAX_STEPS, RefineSettings
+from lp3d.lift.refine_settings import RefineSettings
 from lp3d.render.camera import camera_summary, validate_camera
 from lp3d.render.psnr import psnr_db
 from lp3d.render.settings import SceneBounds
 from lp3d.render.torch_stages import rays_from_cameras
+from lp3d.render.torch_twin import render_rays
 from lp3d.render.triplane import TriplaneData
 
-__all__ = [
-    "MAX_STEPS",
-    "RefineResult",
-    "RefineSettings",
-    "estimate_pose",
-    "find_camera",
-    "fit_pose",
-    "psnr_db",
-    "refine",
-    "refine_planes",
-]
+__all__ = ["RefineResult", "RefineSettings", "refine", "refine_planes", "superres_module"]
+
+
+def superres_module(package: ModelPackage) -> torch.nn.Module | None:
+    """The package's super-resolution network as a torch module (gradients through it, weights
+    frozen), read from its checked ONNX file; None for a package without one. Raises
+    ModelPackageError for a missing or altered file, ValueError for a graph of another shape."""
+    if package.superres is None:
+        return None
+    from lp3d.nets.superres_onnx import read_superres_onnx
+
+    verify_superres_file(package.superres)
+    return read_superres_onnx(package.superres.path)
 
 
 @dataclass
@@ -91,32 +102,31 @@ def refine_planes(
     camera: Tensor,
     settings: RefineSettings,
     *,
+    superres: torch.nn.Module | None = None,
     on_step: Callable[[], Any] | None = None,
 ) -> Tensor:
     """``planes`` (3, 32, T, T) float32 fitted to ``image`` (3, S, S) seen from ``camera`` (25,) by
-    :class:`RefineSettings` (module docstring); returns new planes, the input untouched."""
+    :class:`RefineSettings` (module docstring); with ``superres`` (the package's network as a torch
+    module, :func:`superres_module`) the last ``settings.superres_share`` of the steps fit the
+    super-resolved image. Returns new planes, the input untouched."""
+    cameras = [camera.float()] + ([mirrored_camera(camera.float())] if settings.mirror else [])
+
+    def photos(side: int) -> Tensor:
+        """The photo (and its mirror image) at ``side``², (V, 3, side, side)."""
+        photo = photo_target(image, side)
+        return torch.stack([photo, photo.flip(-1)][: len(cameras)])
+
     r = settings.resolution
-    photo = photo_target(image, r)
-    views = [(photo, camera.float())]
-    if settings.mirror:
-        views.append((photo.flip(-1), mirrored_camera(camera.float())))
-    targets = torch.stack([t.reshape(3, -1).T for t, _ in views])  # (V, M, 3)
-    origins, dirs = rays_from_cameras(torch.stack([c for _, c in views]), r)
+    targets = photos(r).flatten(2).transpose(1, 2)  # (V, M, 3)
+    origins, dirs = rays_from_cameras(torch.stack(cameras), r)
     start = planes.detach().float()
     # The prior's unit: each channel's spread over the encoder's planes, so that weight 1 means "a
     # change of one standard deviation everywhere costs as much as an L1 photo error of 1".
     spread = start.std(dim=(-2, -1), keepdim=True).clamp_min(1e-6)
     x = start.clone().requires_grad_(True)
     opt = torch.optim.Adam([x], lr=settings.lr)
-    gen = torch.Generator().manual_seed(settings.seed)
-    n = min(settings.rays_per_step, r * r)
-    rs = settings.render_settings(r)
-    for _ in range(settings.steps):
-        # Each view gets its own random rays; the steps' cost is split between the views.
-        idx = torch.stack([torch.randperm(r * r, generator=gen)[: max(1, n // len(views))] for _ in views])
-        pick = idx[..., None].expand(-1, -1, 3)
-        rgb = render_rgb(x[None], decoder, origins.gather(1, pick), dirs.gather(1, pick), bounds, rs)
-        fit = (rgb - targets.gather(1, pick)).abs().mean()
+
+    def step(fit: Tensor) -> None:
         prior = ((x - start) / spread).square().mean()
         loss = fit + settings.prior_weight * prior
         opt.zero_grad(set_to_none=True)
@@ -124,6 +134,32 @@ def refine_planes(
         opt.step()
         if on_step is not None:
             on_step()
+
+    gen = torch.Generator().manual_seed(settings.seed)
+    n = min(settings.rays_per_step, r * r)
+    rs = settings.render_settings(r)
+    sr_steps = settings.superres_steps(superres is not None)
+    for _ in range(settings.steps - sr_steps):
+        # Each view gets its own random rays; the steps' cost is split between the views.
+        idx = torch.stack(
+            [torch.randperm(r * r, generator=gen)[: max(1, n // len(cameras))] for _ in cameras]
+        )
+        pick = idx[..., None].expand(-1, -1, 3)
+        rgb = render_rgb(x[None], decoder, origins.gather(1, pick), dirs.gather(1, pick), bounds, rs)
+        step((rgb - targets.gather(1, pick)).abs().mean())
+
+    if superres is not None and sr_steps > 0:
+        # The whole feature image of every view through the network: what `lp3d render` will show.
+        side_in, side_out = superres.config.input_resolution, superres.config.output_resolution
+        sr_targets = photos(side_out)
+        o, d = rays_from_cameras(torch.stack(cameras), side_in)
+        srs = settings.render_settings(side_in, settings.superres_samples)
+        for group in opt.param_groups:
+            group["lr"] = settings.superres_lr
+        for _ in range(sr_steps):
+            out = render_rays(x[None], *decoder, o, d, bounds=bounds, settings=srs, clamp=False)
+            features = out["features"].transpose(1, 2).reshape(len(cameras), -1, side_in, side_in)
+            step((superres(features) - sr_targets).abs().mean())
     return x.detach()
 
 
@@ -149,15 +185,17 @@ def refine(
     *,
     pose: tuple[float, float] | None = None,
     start_camera: np.ndarray | None = None,
+    superres: torch.nn.Module | None = None,
     on_step: Callable[[], Any] | None = None,
 ) -> RefineResult:
     """Fit ``triplane`` (the encoder's output) to ``image``, the photo it was lifted from: (3, S, S)
     float in [-1, 1] (``lp3d.photo.to_encoder_input`` of the crop) or (S, S, 3) uint8 (the crop).
     ``pose`` ``(yaw, pitch)`` in degrees, when known, is used as it is; else the camera is found
     (:func:`lp3d.lift.pose.find_camera`), or fitted from ``start_camera`` (25,) when given (a video's
-    previous frame: no grid search). ``on_step`` is called after every pose and plane step
-    (``settings.total_steps(pose is not None)`` calls: a progress bar). Raises ValueError for a bad
-    image or settings."""
+    previous frame: no grid search). ``superres``: the package's SR network as a torch module, for the
+    super-resolved fit (:func:`refine_planes`). ``on_step`` is called after every pose and plane step
+    (``settings.total_steps(pose is not None)`` calls: a progress bar). Raises
+    ValueError for a bad image or settings."""
     settings = settings if settings is not None else RefineSettings()
     img = np.asarray(image)
     if img.ndim == 3 and img.shape[-1] == 3 and img.dtype == np.uint8:
@@ -181,10 +219,14 @@ def refine(
     else:
         camera = find_camera(planes, decoder, bounds, img, settings, on_step=on_step)
     before = _input_view_psnr(planes, decoder, bounds, camera, target, settings)
-    refined = refine_planes(planes, decoder, bounds, img, camera, settings, on_step=on_step)
+    refined = refine_planes(
+        planes, decoder, bounds, img, camera, settings, superres=superres, on_step=on_step
+    )
     after = _input_view_psnr(refined, decoder, bounds, camera, target, settings)
     out_planes = refined.numpy().astype(triplane.planes.dtype)
-    source = (triplane.source or "lp3d") + f"; refined {settings.steps} steps"
+    sr_steps = settings.superres_steps(superres is not None)
+    how = f" ({sr_steps} super-resolved)" if sr_steps else ""
+    source = (triplane.source or "lp3d") + f"; refined {settings.steps} steps{how}"
     label = camera.double().numpy()
     # The occupancy grid bounds the old planes' density, not the refined ones': it is dropped.
     result = dataclasses.replace(

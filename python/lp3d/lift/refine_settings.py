@@ -21,7 +21,7 @@ class RefineSettings:
     """How :func:`refine` fits a triplane to its photo (module docstring). The defaults are the ones
     ``bench/refine.py`` measured on held-out teacher identities (``bench/RESULTS.md``)."""
 
-    steps: int = 30
+    steps: int = 60
     lr: float = 0.03
     prior_weight: float = 0.1
     #: Also fit the photo flipped left to right, seen from the mirrored camera: faces are nearly
@@ -29,6 +29,15 @@ class RefineSettings:
     mirror: bool = True
     resolution: int = 64
     rays_per_step: int = 1024
+    #: The share of ``steps`` (the last ones) that fit the *super-resolved* image, when :func:`refine`
+    #: has the package's SR network: the network run on the whole feature image of each view, against
+    #: the photo at the network's output side. The raw fit before them gets the colours and shape
+    #: cheaply; these get what the raw render at ``resolution`` cannot hold and `lp3d render` shows.
+    superres_share: float = 2 / 3
+    #: Adam's step size in those steps (the network's gradients are smaller than the raw rays').
+    superres_lr: float = 0.05
+    #: Samples (coarse, fine) per ray of those whole-image renders.
+    superres_samples: tuple[int, int] = (12, 12)
     depth_resolution: int = 16
     depth_resolution_importance: int = 16
     search_yaws_deg: tuple[float, ...] = (-40.0, -30.0, -20.0, -10.0, 0.0, 10.0, 20.0, 30.0, 40.0)
@@ -55,10 +64,25 @@ class RefineSettings:
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= hi:
                 raise ValueError(f"RefineSettings.{name} must be an int in [{lo}, {hi}], got {v!r}")
-        for name in ("lr", "prior_weight", "pose_lr"):
+        for name in ("lr", "superres_lr", "prior_weight", "pose_lr"):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or isinstance(v, bool) or not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"RefineSettings.{name} must be a finite number >= 0, got {v!r}")
+        if not (
+            isinstance(self.superres_share, (int, float))
+            and not isinstance(self.superres_share, bool)
+            and 0 <= self.superres_share <= 1
+        ):
+            raise ValueError(f"RefineSettings.superres_share must be in [0, 1], got {self.superres_share!r}")
+        n = self.superres_samples
+        if not (
+            isinstance(n, tuple)
+            and len(n) == 2
+            and all(isinstance(v, int) and not isinstance(v, bool) for v in n)
+            and 4 <= n[0] <= 256
+            and 0 <= n[1] <= 256
+        ):
+            raise ValueError(f"RefineSettings.superres_samples must be (coarse 4-256, fine 0-256), got {n!r}")
         if not isinstance(self.mirror, bool):
             raise ValueError(f"RefineSettings.mirror must be a bool, got {self.mirror!r}")
         for name in ("search_yaws_deg", "search_pitches_deg"):
@@ -70,12 +94,15 @@ class RefineSettings:
         """Optimisation steps of one :func:`refine` (the pose's, unless known, then the planes')."""
         return self.steps + (0 if pose_known else self.pose_steps)
 
+    def superres_steps(self, has_superres: bool) -> int:
+        """How many of ``steps`` fit the super-resolved image (none without the network)."""
+        return round(self.steps * self.superres_share) if has_superres else 0
+
     def to_dict(self) -> dict[str, Any]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
-    def render_settings(self, resolution: int) -> RenderSettings:
+    def render_settings(self, resolution: int, samples: tuple[int, int] | None = None) -> RenderSettings:
+        coarse, fine = samples or (self.depth_resolution, self.depth_resolution_importance)
         return RenderSettings(
-            resolution=resolution,
-            depth_resolution=self.depth_resolution,
-            depth_resolution_importance=self.depth_resolution_importance,
+            resolution=resolution, depth_resolution=coarse, depth_resolution_importance=fine
         )

@@ -315,33 +315,63 @@ class FoldedSuperResolution(nn.Module):
 
     def __init__(self, sr: SuperResolution) -> None:
         super().__init__()
-        cfg = sr.config
-        self.config = cfg
+        w = sr.w_const.detach().float().unsqueeze(0)
+        parts: dict[str, list[Tensor]] = {k: [] for k in self._PARTS}
+        with torch.no_grad():
+            for block in sr.blocks:
+                styles = block.torgb.affine(w) * block.torgb.weight_gain
+                parts["convs_up"].append(
+                    self._fold(block.conv0.weight, block.conv0.affine(w), demodulate=True)
+                )
+                parts["biases_up"].append(block.conv0.bias.detach().clone())
+                parts["convs"].append(self._fold(block.conv1.weight, block.conv1.affine(w), demodulate=True))
+                parts["biases"].append(block.conv1.bias.detach().clone())
+                parts["rgb_weights"].append(self._fold(block.torgb.weight, styles, demodulate=False))
+                parts["rgb_biases"].append(block.torgb.bias.detach().clone())
+        self._install(sr.config, parts)
+
+    #: The folded weights, one tensor per block each: ``convs_up`` (O, I, 3, 3) before the ×2 transposed
+    #: convolution, ``convs`` (O, O, 3, 3), ``rgb_weights`` (3, O, 1, 1) and their biases (O,), (O,), (3,).
+    _PARTS = ("convs_up", "biases_up", "convs", "biases", "rgb_weights", "rgb_biases")
+
+    @classmethod
+    def from_tensors(cls, config: SuperresConfig, **parts: list[Tensor]) -> FoldedSuperResolution:
+        """The folded network from its weights (:attr:`_PARTS`, as a package's ONNX file holds them:
+        :func:`lp3d.nets.superres_onnx.read_superres_onnx`). Raises ValueError when they do not chain
+        from ``config.in_channels`` through ``config.block_channels``."""
+        if sorted(parts) != sorted(cls._PARTS):
+            raise ValueError(f"the folded weights are {cls._PARTS}, got {sorted(parts)}")
+        cin = config.in_channels
+        for i, c in enumerate(config.block_channels):
+            want = {
+                "convs_up": (c, cin, 3, 3),
+                "biases_up": (c,),
+                "convs": (c, c, 3, 3),
+                "biases": (c,),
+                "rgb_weights": (3, c, 1, 1),
+                "rgb_biases": (3,),
+            }
+            for k, shape in want.items():
+                if len(parts[k]) != config.num_blocks or tuple(parts[k][i].shape) != shape:
+                    got = tuple(parts[k][i].shape) if i < len(parts[k]) else "missing"
+                    raise ValueError(f"block {i}'s {k} should be {shape}, got {got}")
+            cin = c
+        net = cls.__new__(cls)
+        nn.Module.__init__(net)
+        net._install(config, parts)
+        return net
+
+    def _install(self, config: SuperresConfig, parts: dict[str, list[Tensor]]) -> None:
+        self.config = config
         f = setup_filter()
         self.fir_width = f.shape[-1]
         # True convolution with the FIR filter (upfirdn2d flips it), gain 4 for ×2 upsampling.
         fir = (f * 4.0).flip([0, 1])
-        w = sr.w_const.detach().float().unsqueeze(0)
-        self.convs_up = nn.ParameterList()
-        self.convs = nn.ParameterList()
-        self.biases_up = nn.ParameterList()
-        self.biases = nn.ParameterList()
-        self.rgb_weights = nn.ParameterList()
-        self.rgb_biases = nn.ParameterList()
-        self.channels: list[int] = []
-        with torch.no_grad():
-            for block in sr.blocks:
-                w0 = self._fold(block.conv0.weight, block.conv0.affine(w), demodulate=True)
-                w1 = self._fold(block.conv1.weight, block.conv1.affine(w), demodulate=True)
-                styles = block.torgb.affine(w) * block.torgb.weight_gain
-                wr = self._fold(block.torgb.weight, styles, demodulate=False)
-                self.convs_up.append(nn.Parameter(w0, requires_grad=False))
-                self.biases_up.append(nn.Parameter(block.conv0.bias.detach().clone(), requires_grad=False))
-                self.convs.append(nn.Parameter(w1, requires_grad=False))
-                self.biases.append(nn.Parameter(block.conv1.bias.detach().clone(), requires_grad=False))
-                self.rgb_weights.append(nn.Parameter(wr, requires_grad=False))
-                self.rgb_biases.append(nn.Parameter(block.torgb.bias.detach().clone(), requires_grad=False))
-                self.channels.append(int(w0.shape[0]))
+        for k in self._PARTS:
+            setattr(
+                self, k, nn.ParameterList([nn.Parameter(t.float(), requires_grad=False) for t in parts[k]])
+            )
+        self.channels: list[int] = [int(w.shape[0]) for w in parts["convs_up"]]
         # Depthwise FIR kernels with the channel counts baked in (ONNX needs static kernel shapes).
         self.register_buffer("fir_rgb", fir.expand(3, 1, *fir.shape).clone())
         for i, c in enumerate(self.channels):
