@@ -1,4 +1,4 @@
-//! The baked field in the viewer (issue 23, `docs/baked.md`). After a file is opened, a background
+//! The baked field in the viewer (`docs/baked.md`). After a file is opened, a background
 //! thread bakes its occupancy grid (CPU) and then its baked fields (GPU, in dispatches of
 //! `BAKE_CHUNK` points, so the UI keeps drawing between them): a quick one (`QUICK_FIELD`, ~20 s),
 //! then a fine one (`FINE_FIELD`, ~1 minute more) that replaces it. Once a field is ready, frames
