@@ -43,8 +43,8 @@ import numpy as np
 
 from lp3d.lift.loaded import Backend, LoadedEncoder, LoadedSuperres
 from lp3d.lift.model_package import ModelPackageError, load_model_package
-from lp3d.lift.onnx_backend import _load_onnx, _load_onnx_superres
-from lp3d.lift.torch_backend import _load_torch
+from lp3d.lift.onnx_backend import load_onnx_encoder, load_onnx_superres
+from lp3d.lift.torch_backend import load_torch_encoder
 
 __all__ = [
     "DEFAULT_MODEL",
@@ -77,11 +77,11 @@ def load_encoder(
     if backend == "onnx":
         if p.suffix.lower() in (".pt", ".pth"):
             raise ModelPackageError(f"{p}: a torch checkpoint; use --backend torch (or export it to ONNX)")
-        return _load_onnx(p, superres=superres)
+        return load_onnx_encoder(p, superres=superres)
     if backend == "torch":
         if p.suffix.lower() == ".onnx":
             raise ModelPackageError(f"{p}: an ONNX model; use --backend onnx")
-        return _load_torch(p, superres=superres)
+        return load_torch_encoder(p, superres=superres)
     raise ModelPackageError(f"unknown backend {backend!r} (use onnx or torch)")
 
 
@@ -100,7 +100,7 @@ def load_superres(
         backend = "torch" if p.suffix.lower() in (".pt", ".pth") or p.is_dir() else "onnx"
     if backend == "onnx" and p.suffix.lower() not in (".pt", ".pth"):
         package = load_model_package(p)
-        return _load_onnx_superres(package, package.superres) if package.superres is not None else None
+        return load_onnx_superres(package, package.superres) if package.superres is not None else None
     return load_encoder(p, backend, superres=True).superres
 
 

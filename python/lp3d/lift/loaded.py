@@ -1,6 +1,6 @@
 """What :mod:`lp3d.lift.inference` hands back: :class:`LoadedEncoder` (images -> planes) and
 :class:`LoadedSuperres` (feature image -> image), with the checks on their inputs and outputs that
-both backends share (:func:`_reshape_planes`).
+both backends share (:func:`reshape_planes`).
 
 May import :mod:`lp3d.lift.model_package`, :mod:`lp3d.lift.flip_average` and :mod:`lp3d.render`; no
 backend (onnxruntime, torch)."""
@@ -98,7 +98,7 @@ class LoadedEncoder:
         return flip_averaged(self.run, images) if flip_average else self.run(images)
 
 
-def _reshape_planes(out: np.ndarray, batch: int, where: str, resolution: int) -> np.ndarray:
+def reshape_planes(out: np.ndarray, batch: int, where: str, resolution: int) -> np.ndarray:
     """Encoder output (B, 3, 32, T, T) or (B, 96, T, T) -> (B, 3, 32, T, T) float32, checked: T must
     be the package's ``resolution`` (its sidecar's ``triplane_resolution``)."""
     out = np.asarray(out, dtype=np.float32)

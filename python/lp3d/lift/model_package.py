@@ -44,21 +44,21 @@ import numpy as np
 from lp3d.array_cache import file_sha256
 from lp3d.atomic import atomic_path
 from lp3d.lift.sidecar import (
-    _DECODER_SHAPES,
+    DECODER_SHAPES,
     PACKAGE_FORMAT,
     PACKAGE_FORMAT_VERSION,
     ModelPackageError,
     SuperresEntry,
-    _check_array,
-    _check_bounds,
-    _check_decoder_range,
-    _check_sizes,
-    _parse_superres,
-    _read_sidecar,
-    _shown,
-    _sidecar_decoder,
-    _sidecar_field,
-    _sidecar_number,
+    check_decoder_array,
+    check_decoder_range,
+    check_scene_bounds,
+    check_sizes,
+    parse_superres,
+    read_sidecar,
+    short_repr,
+    sidecar_decoder,
+    sidecar_field,
+    sidecar_number,
     verify_superres_file,
 )
 from lp3d.render.settings import N_CHANNELS, SceneBounds
@@ -120,7 +120,7 @@ class ModelPackage:
         before the triplane is written."""
         peak = float(np.max(np.abs(planes))) if np.size(planes) else 0.0
         if np.isfinite(peak):  # NaN/Inf planes: TriplaneData names them
-            _check_decoder_range(str(self.model_path), self.decoder, peak)
+            check_decoder_range(str(self.model_path), self.decoder, peak)
         return TriplaneData(
             planes=planes,
             w0=self.w0,
@@ -165,9 +165,9 @@ def _decoder_arrays(decoder: Any) -> dict[str, np.ndarray]:
     Torch tensors (e.g. ``TriplaneDecoder.weights()``) are accepted through ``detach().cpu().numpy()``.
     """
     if isinstance(decoder, Mapping):
-        values = [decoder.get(k) for k in _DECODER_SHAPES]
-    elif all(hasattr(decoder, k) for k in _DECODER_SHAPES):
-        values = [getattr(decoder, k) for k in _DECODER_SHAPES]
+        values = [decoder.get(k) for k in DECODER_SHAPES]
+    elif all(hasattr(decoder, k) for k in DECODER_SHAPES):
+        values = [getattr(decoder, k) for k in DECODER_SHAPES]
     elif isinstance(decoder, Sequence) and len(decoder) == 4:
         values = list(decoder)
     else:
@@ -175,13 +175,13 @@ def _decoder_arrays(decoder: Any) -> dict[str, np.ndarray]:
             "decoder must be (w0, b0, w1, b1), a mapping with those keys or an object with those attributes"
         )
     out: dict[str, np.ndarray] = {}
-    for name, value in zip(_DECODER_SHAPES, values, strict=True):
+    for name, value in zip(DECODER_SHAPES, values, strict=True):
         if value is None:
             raise ModelPackageError(f"decoder.{name}: missing")
         if hasattr(value, "detach"):  # a torch tensor, without importing torch here
             value = value.detach().cpu().numpy()
         arr = np.asarray(value, dtype=np.float32)
-        _check_array(f"decoder.{name}", arr)
+        check_decoder_array(f"decoder.{name}", arr)
         out[name] = arr
     return out
 
@@ -196,7 +196,7 @@ def _bounds_of(bounds: Any) -> tuple[float, float, float]:
             scene = SceneBounds.of(bounds)
     except (AttributeError, KeyError, TypeError, ValueError) as e:
         raise ModelPackageError(f"bounds must have box_warp, ray_start and ray_end as numbers: {e}") from None
-    _check_bounds("bounds", scene.box_warp, scene.ray_start, scene.ray_end)
+    check_scene_bounds("bounds", scene.box_warp, scene.ray_start, scene.ray_end)
     return scene.box_warp, scene.ray_start, scene.ray_end
 
 
@@ -248,8 +248,8 @@ def save_model_package(
         triplane_resolution = int(cfg["triplane_resolution"])
     except (KeyError, TypeError, ValueError) as e:
         raise ModelPackageError(f"config needs image_size and triplane_resolution: {e}") from None
-    _check_sizes("config", image_size, triplane_resolution)
-    _check_decoder_range("decoder", tuple(arrays.values()))
+    check_sizes("config", image_size, triplane_resolution)
+    check_decoder_range("decoder", tuple(arrays.values()))
     data: dict[str, Any] = {
         "format": PACKAGE_FORMAT,
         "format_version": PACKAGE_FORMAT_VERSION,
@@ -270,7 +270,7 @@ def save_model_package(
         data["output_name"] = output_name
     path = sidecar_path(onnx_path)
     if superres is not None:
-        _parse_superres(str(path), dict(superres), path.parent)
+        parse_superres(str(path), dict(superres), path.parent)
         data["superres"] = dict(superres)
     _write_sidecar(path, data)
     return path
@@ -308,7 +308,7 @@ def superres_entry(
     }
     if about is not None:
         entry["about"] = json.loads(json.dumps(dict(about)))  # plain JSON values only
-    _parse_superres(str(p), entry, p.parent)
+    parse_superres(str(p), entry, p.parent)
     return entry
 
 
@@ -322,7 +322,7 @@ def set_package_superres(path: str | os.PathLike[str], superres: Mapping[str, An
     if superres is None:
         data.pop("superres", None)
     else:
-        _parse_superres(str(side), dict(superres), side.parent)
+        parse_superres(str(side), dict(superres), side.parent)
         data["superres"] = dict(superres)
     _write_sidecar(side, data)
     load_model_package(side)
@@ -340,29 +340,29 @@ def load_model_package(path: str | os.PathLike[str]) -> ModelPackage:
     """
     p = Path(path)
     side = p if p.suffix.lower() == ".json" else sidecar_path(p)
-    data = _read_sidecar(side)
+    data = read_sidecar(side)
 
     def field(name: str, kind: type | tuple[type, ...]) -> Any:
-        return _sidecar_field(side, data, name, kind)
+        return sidecar_field(side, data, name, kind)
 
     image_size = field("image_size", int)
     triplane_resolution = field("triplane_resolution", int)
-    _check_sizes(str(side), image_size, triplane_resolution)
+    check_sizes(str(side), image_size, triplane_resolution)
     box_warp, ray_start, ray_end = (
-        _sidecar_number(side, data, k) for k in ("box_warp", "ray_start", "ray_end")
+        sidecar_number(side, data, k) for k in ("box_warp", "ray_start", "ray_end")
     )
-    _check_bounds(str(side), box_warp, ray_start, ray_end)
-    arrays = _sidecar_decoder(side, field("decoder", dict))
-    _check_decoder_range(str(side), tuple(arrays.values()))
+    check_scene_bounds(str(side), box_warp, ray_start, ray_end)
+    arrays = sidecar_decoder(side, field("decoder", dict))
+    check_decoder_range(str(side), tuple(arrays.values()))
     model_name = field("model", str) if "model" in data else p.with_suffix(".onnx").name
     if Path(model_name).name != model_name:
         raise ModelPackageError(
-            f"{side}: field 'model' must be a file name beside the sidecar, got {_shown(model_name)}"
+            f"{side}: field 'model' must be a file name beside the sidecar, got {short_repr(model_name)}"
         )
     cfg = data.get("encoder_config")
     if cfg is not None and not isinstance(cfg, dict):
         raise ModelPackageError(f"{side}: field 'encoder_config' must be an object")
-    superres = _parse_superres(str(side), data["superres"], side.parent) if "superres" in data else None
+    superres = parse_superres(str(side), data["superres"], side.parent) if "superres" in data else None
     return ModelPackage(
         sidecar=side,
         model_path=p if p.suffix.lower() != ".json" else side.parent / model_name,

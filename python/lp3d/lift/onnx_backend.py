@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from lp3d.lift.loaded import LoadedEncoder, LoadedSuperres, _reshape_planes
+from lp3d.lift.loaded import LoadedEncoder, LoadedSuperres, reshape_planes
 from lp3d.lift.model_package import (
     ModelPackage,
     ModelPackageError,
@@ -65,7 +65,7 @@ def _check_output(path: Path, output: Any, resolution: int) -> None:
         )
 
 
-def _load_onnx_superres(package: ModelPackage, entry: SuperresEntry) -> LoadedSuperres:
+def load_onnx_superres(package: ModelPackage, entry: SuperresEntry) -> LoadedSuperres:
     """The package's SR network from its ONNX file, checked against the sidecar's entry."""
     verify_superres_file(entry)
     session = _ort_session(entry.path)
@@ -112,7 +112,8 @@ def _load_onnx_superres(package: ModelPackage, entry: SuperresEntry) -> LoadedSu
     )
 
 
-def _load_onnx(path: Path, *, superres: bool = False) -> LoadedEncoder:
+def load_onnx_encoder(path: Path, *, superres: bool = False) -> LoadedEncoder:
+    """The ``onnx`` backend of :func:`lp3d.lift.inference.load_encoder`: ``path`` and its sidecar."""
     package = load_model_package(path)
     if not path.is_file():
         raise ModelPackageError(f"{path}: no such model file")
@@ -143,7 +144,7 @@ def _load_onnx(path: Path, *, superres: bool = False) -> LoadedEncoder:
                 raise ModelPackageError(f"{path}: the model only accepts batches of exactly {fixed_batch}")
             return np.concatenate([run(x[i : i + 1]) for i in range(x.shape[0])])
         out = _run_session(session, {inp.name: x}, path)
-        return _reshape_planes(out, x.shape[0], str(path), package.triplane_resolution)
+        return reshape_planes(out, x.shape[0], str(path), package.triplane_resolution)
 
-    sr = _load_onnx_superres(package, package.superres) if superres and package.superres else None
+    sr = load_onnx_superres(package, package.superres) if superres and package.superres else None
     return LoadedEncoder(package, "onnx", run, f"{path.name} (onnxruntime {ort.__version__}, CPU)", sr)

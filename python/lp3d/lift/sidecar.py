@@ -25,7 +25,8 @@ PACKAGE_FORMAT = "lp3d-model-package"
 #: The only ``format_version`` this reader accepts (bump on incompatible changes).
 PACKAGE_FORMAT_VERSION = 1
 
-_DECODER_SHAPES: dict[str, tuple[int, ...]] = {
+#: The decoder's arrays (``w0, b0, w1, b1``, in this order) and their shapes.
+DECODER_SHAPES: dict[str, tuple[int, ...]] = {
     "w0": (HIDDEN, N_CHANNELS),
     "b0": (HIDDEN,),
     "w1": (N_OUT, HIDDEN),
@@ -48,7 +49,7 @@ class ModelPackageError(ValueError):
     """A missing, unreadable or inconsistent model package; the message names the file and the field."""
 
 
-def _shown(value: Any, limit: int = 80) -> str:
+def short_repr(value: Any, limit: int = 80) -> str:
     """``repr(value)`` for an error message, cut to about ``limit`` characters: a value from a package is
     outside input (a 16 MiB string, a 4,300-digit integer) and an error stays one short line."""
     try:
@@ -58,7 +59,7 @@ def _shown(value: Any, limit: int = 80) -> str:
     return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
 
 
-def _cut(text: object, limit: int = 400) -> str:
+def short_text(text: object, limit: int = 400) -> str:
     """A library's error message (which may quote the input) cut to about ``limit`` characters."""
     s = str(text)
     return s if len(s) <= limit else f"{s[:limit]}... ({len(s)} characters)"
@@ -87,24 +88,25 @@ class SuperresEntry:
         return self.output_resolution // self.input_resolution
 
 
-def _check_array(where: str, arr: np.ndarray) -> None:
+def check_decoder_array(where: str, arr: np.ndarray) -> None:
+    """The decoder array ``where`` (``decoder.w0`` ...) has its :data:`DECODER_SHAPES` shape and is finite."""
     name = where.rsplit(".", 1)[-1]
-    if arr.shape != _DECODER_SHAPES[name]:
-        raise ModelPackageError(f"{where}: shape must be {_DECODER_SHAPES[name]}, got {arr.shape}")
+    if arr.shape != DECODER_SHAPES[name]:
+        raise ModelPackageError(f"{where}: shape must be {DECODER_SHAPES[name]}, got {arr.shape}")
     if not np.all(np.isfinite(arr)):
         raise ModelPackageError(f"{where}: contains NaN/Inf")
 
 
-def _check_sizes(where: str, image_size: int, triplane_resolution: int) -> None:
+def check_sizes(where: str, image_size: int, triplane_resolution: int) -> None:
     """The encoder's input side and triplane side within :data:`MAX_IMAGE_SIZE` and
     :data:`MAX_TRIPLANE_RESOLUTION`, before anything is allocated from them."""
     if not 8 <= image_size <= MAX_IMAGE_SIZE:
         raise ModelPackageError(
-            f"{where}: image_size must be in [8, {MAX_IMAGE_SIZE}], got {_shown(image_size)}"
+            f"{where}: image_size must be in [8, {MAX_IMAGE_SIZE}], got {short_repr(image_size)}"
         )
     t, cap = triplane_resolution, MAX_TRIPLANE_RESOLUTION
     if not 2 <= t <= cap:
-        raise ModelPackageError(f"{where}: triplane_resolution must be in [2, {cap}], got {_shown(t)}")
+        raise ModelPackageError(f"{where}: triplane_resolution must be in [2, {cap}], got {short_repr(t)}")
 
 
 def decoder_bound(decoder: tuple[np.ndarray, ...], planes_max: float) -> float:
@@ -120,7 +122,7 @@ def decoder_bound(decoder: tuple[np.ndarray, ...], planes_max: float) -> float:
     return float(max(3.0 * p, out.max(), hidden.max()))
 
 
-def _check_decoder_range(where: str, decoder: tuple[np.ndarray, ...], planes_max: float = 1.0) -> None:
+def check_decoder_range(where: str, decoder: tuple[np.ndarray, ...], planes_max: float = 1.0) -> None:
     """Refuse a decoder that overflows float32 on planes up to ``planes_max`` (at load: 1, the scale of
     real planes, which sit ~30 orders of magnitude below the limit), as the renderer would, later."""
     bound = decoder_bound(decoder, planes_max)
@@ -131,7 +133,7 @@ def _check_decoder_range(where: str, decoder: tuple[np.ndarray, ...], planes_max
         )
 
 
-def _check_bounds(where: str, box_warp: float, ray_start: float, ray_end: float) -> None:
+def check_scene_bounds(where: str, box_warp: float, ray_start: float, ray_end: float) -> None:
     """The scene bounds with :class:`~lp3d.render.settings.SceneBounds`' one check, errors naming
     ``where`` (the sidecar or the argument) and the field."""
     bad = SceneBounds(box_warp, ray_start, ray_end).problem()
@@ -143,7 +145,7 @@ def _check_bounds(where: str, box_warp: float, ray_start: float, ray_end: float)
 _SHA256 = re.compile(r"[0-9a-f]{64}")
 
 
-def _parse_superres(where: str, entry: Any, folder: Path) -> SuperresEntry:
+def parse_superres(where: str, entry: Any, folder: Path) -> SuperresEntry:
     """Validate a ``superres`` object; errors name the sidecar (``where``) and the field."""
     if not isinstance(entry, dict):
         raise ModelPackageError(f"{where}: field 'superres' must be an object, got {type(entry).__name__}")
@@ -162,25 +164,25 @@ def _parse_superres(where: str, entry: Any, folder: Path) -> SuperresEntry:
     if Path(model).name != model or not model.lower().endswith(".onnx"):
         raise ModelPackageError(
             f"{where}: field 'superres.model' must be an .onnx file name beside the sidecar, "
-            f"got {_shown(model)}"
+            f"got {short_repr(model)}"
         )
     r_in = field("input_resolution", int)
     r_out = field("output_resolution", int)
     channels = field("in_channels", int)
     if not 8 <= r_in <= 4096:
         raise ModelPackageError(
-            f"{where}: field 'superres.input_resolution' must be in [8, 4096], got {_shown(r_in)}"
+            f"{where}: field 'superres.input_resolution' must be in [8, 4096], got {short_repr(r_in)}"
         )
     ratio = r_out // r_in if r_out > 0 else 0
     if r_out % r_in or ratio < 2 or ratio & (ratio - 1) or r_out > 8192:
         raise ModelPackageError(
-            f"{where}: field 'superres.output_resolution' ({_shown(r_out)}) must be input_resolution "
+            f"{where}: field 'superres.output_resolution' ({short_repr(r_out)}) must be input_resolution "
             f"({r_in}) times a power of two >= 2 (and at most 8192)"
         )
     if channels != N_CHANNELS:
         raise ModelPackageError(
             f"{where}: field 'superres.in_channels' must be {N_CHANNELS} (the renderer's feature image), "
-            f"got {_shown(channels)}"
+            f"got {short_repr(channels)}"
         )
     digest = field("sha256", str)
     if not _SHA256.fullmatch(digest):
@@ -215,22 +217,22 @@ def verify_superres_file(entry: SuperresEntry) -> None:
 # ------------------------------------------------------------------------------------------ reading
 
 
-def _read_sidecar(side: Path) -> dict[str, Any]:
+def read_sidecar(side: Path) -> dict[str, Any]:
     """The sidecar's JSON object, checked to be of this format and version."""
     if not side.is_file():
         raise ModelPackageError(
             f"{side}: model package sidecar not found (a .onnx model needs its {side.name} beside it, "
             "written by lp3d.lift.model_package.save_model_package; see docs/model-package.md)"
         )
-    data = _parse_json(side, _read_capped(side, MAX_SIDECAR_BYTES), "model package sidecar")
+    data = parse_json(side, _read_capped(side, MAX_SIDECAR_BYTES), "model package sidecar")
     if not isinstance(data, dict) or data.get("format") != PACKAGE_FORMAT:
         got = data.get("format") if isinstance(data, dict) else type(data).__name__
         raise ModelPackageError(
-            f"{side}: not an lp3d model package (format {_shown(got)}, expected {PACKAGE_FORMAT!r})"
+            f"{side}: not an lp3d model package (format {short_repr(got)}, expected {PACKAGE_FORMAT!r})"
         )
     if data.get("format_version") != PACKAGE_FORMAT_VERSION:
         raise ModelPackageError(
-            f"{side}: format_version {_shown(data.get('format_version'))} is not supported "
+            f"{side}: format_version {short_repr(data.get('format_version'))} is not supported "
             f"(this reader supports {PACKAGE_FORMAT_VERSION})"
         )
     return data
@@ -248,7 +250,7 @@ def _read_capped(path: Path, cap: int) -> str:
         raise ModelPackageError(f"{path}: unreadable model package sidecar ({e})") from None
 
 
-def _parse_json(where: Path | str, text: str, what: str) -> Any:
+def parse_json(where: Path | str, text: str, what: str) -> Any:
     """``json.loads`` with every way it fails as a :class:`ModelPackageError` naming ``where``: bad
     syntax, nesting deeper than Python's recursion limit, an integer of more than 4300 digits."""
     try:
@@ -259,7 +261,7 @@ def _parse_json(where: Path | str, text: str, what: str) -> Any:
         raise ModelPackageError(f"{where}: unreadable {what} ({e})") from None
 
 
-def _sidecar_field(side: Path, data: dict[str, Any], name: str, kind: type | tuple[type, ...]) -> Any:
+def sidecar_field(side: Path, data: dict[str, Any], name: str, kind: type | tuple[type, ...]) -> Any:
     """The sidecar's field ``name``, of type ``kind`` (a bool is never a number here)."""
     if name not in data:
         raise ModelPackageError(f"{side}: missing field {name!r}")
@@ -269,17 +271,17 @@ def _sidecar_field(side: Path, data: dict[str, Any], name: str, kind: type | tup
     return value
 
 
-def _sidecar_number(side: Path, data: dict[str, Any], name: str) -> float:
+def sidecar_number(side: Path, data: dict[str, Any], name: str) -> float:
     """The sidecar's number ``name`` as a float (an integer too large for one is refused here; the
-    ranges are :func:`_check_bounds`')."""
-    value = _sidecar_field(side, data, name, (int, float))
+    ranges are :func:`check_scene_bounds`')."""
+    value = sidecar_field(side, data, name, (int, float))
     try:
         return float(value)
     except OverflowError:
-        raise ModelPackageError(f"{side}: field {name!r} is too large ({_shown(value)})") from None
+        raise ModelPackageError(f"{side}: field {name!r} is too large ({short_repr(value)})") from None
 
 
-def _as_float32(where: str, value: Any) -> np.ndarray:
+def as_float32(where: str, value: Any) -> np.ndarray:
     """``value`` as a float32 array; a finite number beyond float32's range is refused, naming ``where``
     (a cast would make it Inf). Raises what ``np.asarray`` raises for values that are not numbers."""
     wide = np.asarray(value, dtype=np.float64)
@@ -289,20 +291,22 @@ def _as_float32(where: str, value: Any) -> np.ndarray:
     return wide.astype(np.float32)
 
 
-def _sidecar_decoder(side: Path, dec: dict[str, Any]) -> dict[str, np.ndarray]:
+def sidecar_decoder(side: Path, dec: dict[str, Any]) -> dict[str, np.ndarray]:
     """The sidecar's ``decoder`` object as float32 arrays of the decoder's shapes, finite."""
     arrays: dict[str, np.ndarray] = {}
-    for name in _DECODER_SHAPES:
+    for name in DECODER_SHAPES:
         if name not in dec:
             raise ModelPackageError(f"{side}: decoder.{name} missing")
         try:
-            arr = _as_float32(f"{side}: decoder.{name}", dec[name])
+            arr = as_float32(f"{side}: decoder.{name}", dec[name])
         except (TypeError, ValueError, OverflowError) as e:
             if isinstance(e, ModelPackageError):
                 raise
-            raise ModelPackageError(f"{side}: decoder.{name} is not a numeric array ({_cut(e)})") from None
+            raise ModelPackageError(
+                f"{side}: decoder.{name} is not a numeric array ({short_text(e)})"
+            ) from None
         try:
-            _check_array(f"decoder.{name}", arr)
+            check_decoder_array(f"decoder.{name}", arr)
         except ModelPackageError as e:
             raise ModelPackageError(f"{side}: {e}") from None
         arrays[name] = arr

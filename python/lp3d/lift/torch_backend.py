@@ -15,18 +15,18 @@ from typing import Any
 
 import numpy as np
 
-from lp3d.lift.loaded import LoadedEncoder, LoadedSuperres, _reshape_planes
+from lp3d.lift.loaded import LoadedEncoder, LoadedSuperres, reshape_planes
 from lp3d.lift.model_package import ModelPackage, ModelPackageError, load_model_package, sidecar_path
 from lp3d.lift.run_checkpoints import newest_readable
 from lp3d.lift.sidecar import (
-    _DECODER_SHAPES,
-    _as_float32,
-    _check_array,
-    _check_decoder_range,
-    _check_sizes,
-    _cut,
-    _parse_json,
-    _shown,
+    DECODER_SHAPES,
+    as_float32,
+    check_decoder_array,
+    check_decoder_range,
+    check_sizes,
+    parse_json,
+    short_repr,
+    short_text,
 )
 from lp3d.render.settings import N_CHANNELS
 
@@ -34,7 +34,7 @@ from lp3d.render.settings import N_CHANNELS
 def _as_mapping(value: Any, what: str, where: Path) -> dict[str, Any]:
     """A dict from a dict or a JSON string (checkpoints store configs either way)."""
     if isinstance(value, str):
-        value = _parse_json(where, value, f"{what} (JSON)")
+        value = parse_json(where, value, f"{what} (JSON)")
     if not isinstance(value, Mapping):
         raise ModelPackageError(f"{where}: {what} must be a dict, got {type(value).__name__}")
     return dict(value)
@@ -54,15 +54,15 @@ def _state_dict(value: Any, what: str, where: Path) -> dict[str, Any]:
     for key, tensor in value.items():
         if not isinstance(key, str):
             raise ModelPackageError(
-                f"{where}: {what} must map parameter names to tensors; it has the key {_shown(key)} "
+                f"{where}: {what} must map parameter names to tensors; it has the key {short_repr(key)} "
                 f"({type(key).__name__})"
             )
         if not isinstance(tensor, torch.Tensor):
             raise ModelPackageError(
-                f"{where}: {what}[{_shown(key)}] must be a tensor, got {type(tensor).__name__}"
+                f"{where}: {what}[{short_repr(key)}] must be a tensor, got {type(tensor).__name__}"
             )
         if tensor.is_complex():  # loading would drop the imaginary part with only a warning
-            raise ModelPackageError(f"{where}: {what}[{_shown(key)}] must be real, got {tensor.dtype}")
+            raise ModelPackageError(f"{where}: {what}[{short_repr(key)}] must be real, got {tensor.dtype}")
     return dict(value)
 
 
@@ -110,31 +110,33 @@ def _load_weights(
     layers = _layers(config)
     if layers > len(state):
         raise ModelPackageError(
-            f"{where}: {what} do not fit their configuration: it asks for {_shown(layers)} layers, "
+            f"{where}: {what} do not fit their configuration: it asks for {short_repr(layers)} layers, "
             f"the file has {len(state)} tensors"
         )
     try:
         with torch.device("meta"), _skip_normal_init():
             shapes = {k: tuple(v.shape) for k, v in build().state_dict().items()}
     except (ArithmeticError, RuntimeError, TypeError, ValueError) as e:
-        raise ModelPackageError(f"{where}: {what}: the configuration cannot be built ({_cut(e)})") from None
+        raise ModelPackageError(
+            f"{where}: {what}: the configuration cannot be built ({short_text(e)})"
+        ) from None
     got = {k: tuple(v.shape) for k, v in state.items()}
     if shapes != got:
         missing, extra = sorted(shapes.keys() - got.keys()), sorted(got.keys() - shapes.keys())
         wrong = sorted(k for k in shapes.keys() & got.keys() if shapes[k] != got[k])
         first = (
-            f"{_shown(wrong[0])} has shape {got[wrong[0]]} in the file, {shapes[wrong[0]]} in the "
+            f"{short_repr(wrong[0])} has shape {got[wrong[0]]} in the file, {shapes[wrong[0]]} in the "
             "configuration"
             if wrong
-            else f"{len(missing)} missing (e.g. {_shown(missing[:1])}), {len(extra)} unexpected "
-            f"(e.g. {_shown(extra[:1])})"
+            else f"{len(missing)} missing (e.g. {short_repr(missing[:1])}), {len(extra)} unexpected "
+            f"(e.g. {short_repr(extra[:1])})"
         )
         raise ModelPackageError(f"{where}: {what} do not fit their configuration: {first}")
     module = build()
     try:
         module.load_state_dict(state, strict=True)
     except RuntimeError as e:
-        first = _cut(str(e).splitlines()[0])
+        first = short_text(str(e).splitlines()[0])
         raise ModelPackageError(f"{where}: {what} do not fit their configuration: {first}") from None
     return module.eval()
 
@@ -173,7 +175,7 @@ def _torch_superres(
         config = SuperresConfig.from_dict(_as_mapping(raw, "superres config", p))
     except (TypeError, ValueError) as e:
         raise ModelPackageError(
-            f"{p}: the super-resolution configuration cannot be read ({_cut(e)})"
+            f"{p}: the super-resolution configuration cannot be read ({short_text(e)})"
         ) from None
     return config, state
 
@@ -215,7 +217,9 @@ def _read_checkpoint(p: Path) -> Mapping[str, Any]:
     try:
         ckpt = torch.load(p, map_location="cpu", weights_only=True)
     except Exception as e:  # torch raises many types for non-checkpoints (UnpicklingError, RuntimeError, ...)
-        raise ModelPackageError(f"{p}: cannot be read as a plain state-dict checkpoint ({_cut(e)})") from None
+        raise ModelPackageError(
+            f"{p}: cannot be read as a plain state-dict checkpoint ({short_text(e)})"
+        ) from None
     if not isinstance(ckpt, Mapping):
         raise ModelPackageError(f"{p}: a checkpoint must hold a dict, got {type(ckpt).__name__}")
     return ckpt
@@ -238,9 +242,9 @@ def _encoder_config(ckpt: Mapping[str, Any], p: Path, layout_hint: str) -> tuple
         config = EncoderConfig.from_dict(cfg_dict)
     except (TypeError, ValueError) as e:
         raise ModelPackageError(
-            f"{p}: the encoder configuration cannot be read by this version ({_cut(e)})"
+            f"{p}: the encoder configuration cannot be read by this version ({short_text(e)})"
         ) from None
-    _check_sizes(str(p), config.image_size, config.triplane_resolution)
+    check_sizes(str(p), config.image_size, config.triplane_resolution)
     return config, train_cfg
 
 
@@ -271,7 +275,7 @@ def _torch_encoder(config: Any, state: Mapping[str, Any], p: Path) -> Any:
     """The encoder of ``config`` with the weights ``state``, in eval mode."""
     from lp3d.nets.encoder import build_encoder
 
-    what = f"encoder weights (config {_shown(config.name)})"
+    what = f"encoder weights (config {short_repr(config.name)})"
     return _load_weights(lambda: build_encoder(config), config, state, what, p)
 
 
@@ -293,7 +297,7 @@ def _torch_package(
 
     try:
         if decoder is not None:
-            w0, b0, w1, b1 = (_as_float32(f"{p}: decoder.{k}", array(decoder[k])) for k in _DECODER_SHAPES)
+            w0, b0, w1, b1 = (as_float32(f"{p}: decoder.{k}", array(decoder[k])) for k in DECODER_SHAPES)
         else:
             assert sidecar is not None
             w0, b0, w1, b1 = sidecar.decoder
@@ -305,13 +309,15 @@ def _torch_package(
     except (KeyError, TypeError, ValueError, OverflowError) as e:
         if isinstance(e, ModelPackageError):
             raise
-        raise ModelPackageError(f"{p}: malformed decoder or bounds ({type(e).__name__}: {_cut(e)})") from None
-    for name, arr in zip(_DECODER_SHAPES, (w0, b0, w1, b1), strict=True):
+        raise ModelPackageError(
+            f"{p}: malformed decoder or bounds ({type(e).__name__}: {short_text(e)})"
+        ) from None
+    for name, arr in zip(DECODER_SHAPES, (w0, b0, w1, b1), strict=True):
         try:
-            _check_array(f"decoder.{name}", arr)  # shapes and NaN/Inf before the range
+            check_decoder_array(f"decoder.{name}", arr)  # shapes and NaN/Inf before the range
         except ModelPackageError as e:
             raise ModelPackageError(f"{p}: {e}") from None
-    _check_decoder_range(str(p), (w0, b0, w1, b1))
+    check_decoder_range(str(p), (w0, b0, w1, b1))
     package = ModelPackage(
         sidecar=side,
         model_path=p,
@@ -330,7 +336,7 @@ def _torch_package(
     try:
         package.triplane(np.zeros((3, N_CHANNELS, 2, 2), np.float32))  # validates decoder and bounds
     except ValueError as e:
-        raise ModelPackageError(f"{p}: bad decoder or bounds ({_cut(e)})") from None
+        raise ModelPackageError(f"{p}: bad decoder or bounds ({short_text(e)})") from None
     return package
 
 
@@ -370,7 +376,7 @@ def read_encoder_weights(path: Path) -> EncoderWeights:
     :class:`ModelPackageError` naming what is missing or malformed. Used to load a model and to start
     a training run from one (``--init-from``)."""
     p, ckpt = _checkpoint_of(Path(path))
-    keys = sorted(_shown(k, 40) for k in ckpt)[:12]  # any key: str() fails on a 5,000-digit int
+    keys = sorted(short_repr(k, 40) for k in ckpt)[:12]  # any key: str() fails on a 5,000-digit int
     layout_hint = (
         f"{p}: checkpoint layout not understood (keys {', '.join(keys)}); expected "
         "{'config': EncoderConfig dict, 'encoder': state dict, 'decoder': {w0, b0, w1, b1}, "
@@ -391,7 +397,8 @@ def read_encoder_weights(path: Path) -> EncoderWeights:
     return EncoderWeights(p, ckpt, config, train_cfg, student, state, offset)
 
 
-def _load_torch(path: Path, *, superres: bool = False) -> LoadedEncoder:
+def load_torch_encoder(path: Path, *, superres: bool = False) -> LoadedEncoder:
+    """The ``torch`` backend of :func:`lp3d.lift.inference.load_encoder`: a state-dict checkpoint."""
     try:
         import torch
     except ImportError as e:
@@ -409,7 +416,7 @@ def _load_torch(path: Path, *, superres: bool = False) -> LoadedEncoder:
             out = encoder(torch.from_numpy(np.ascontiguousarray(images, dtype=np.float32)))
             if offset is not None:
                 out = out + offset
-        return _reshape_planes(out.float().numpy(), images.shape[0], str(p), config.triplane_resolution)
+        return reshape_planes(out.float().numpy(), images.shape[0], str(p), config.triplane_resolution)
 
     sr = None
     if superres:

@@ -17,8 +17,9 @@ from torch import Tensor, nn
 # --------------------------------------------------------------------------------------------------
 
 
-def _conv(cin: int, cout: int, k: int, stride: int = 1, dilation: int = 1) -> nn.Conv2d:
-    # Batch norm is removed, so every convolution gets its bias back (supplement).
+def conv(cin: int, cout: int, k: int, stride: int = 1, dilation: int = 1) -> nn.Conv2d:
+    """A k x k convolution padded to keep the size (at stride 1), with a bias: batch norm is removed,
+    so every convolution gets its bias back (supplement)."""
     return nn.Conv2d(cin, cout, k, stride=stride, padding=dilation * (k // 2), dilation=dilation, bias=True)
 
 
@@ -30,9 +31,9 @@ class BasicBlock(nn.Module):
 
     def __init__(self, cin: int, cout: int, stride: int, dilation: int) -> None:
         super().__init__()
-        self.conv1 = _conv(cin, cout, 3, stride=stride, dilation=dilation)
-        self.conv2 = _conv(cout, cout, 3, dilation=dilation)
-        self.downsample = _conv(cin, cout, 1, stride=stride) if stride != 1 or cin != cout else None
+        self.conv1 = conv(cin, cout, 3, stride=stride, dilation=dilation)
+        self.conv2 = conv(cout, cout, 3, dilation=dilation)
+        self.downsample = conv(cin, cout, 1, stride=stride) if stride != 1 or cin != cout else None
 
     def forward(self, x: Tensor) -> Tensor:
         identity = x if self.downsample is None else self.downsample(x)
@@ -49,7 +50,7 @@ class ResNet34Features(nn.Module):
 
     def __init__(self, in_channels: int, widths: tuple[int, ...], depths: tuple[int, ...]) -> None:
         super().__init__()
-        self.stem = _conv(in_channels, widths[0], 7, stride=2)
+        self.stem = conv(in_channels, widths[0], 7, stride=2)
         strides = (1, 2, 1, 1)
         dilations = (1, 1, 2, 4)
         cin = widths[0]
@@ -78,13 +79,11 @@ class ASPP(nn.Module):
 
     def __init__(self, cin: int, cout: int, rates: tuple[int, ...], dropout: float) -> None:
         super().__init__()
-        self.branches = nn.ModuleList(
-            [_conv(cin, cout, 1)] + [_conv(cin, cout, 3, dilation=r) for r in rates]
-        )
-        self.pool = _conv(cin, cout, 1)
-        self.project = _conv(cout * (len(rates) + 2), cout, 1)
+        self.branches = nn.ModuleList([conv(cin, cout, 1)] + [conv(cin, cout, 3, dilation=r) for r in rates])
+        self.pool = conv(cin, cout, 1)
+        self.project = conv(cout * (len(rates) + 2), cout, 1)
         self.dropout = nn.Dropout(dropout) if dropout > 0 else nn.Identity()
-        self.conv = _conv(cout, cout, 3)
+        self.conv = conv(cout, cout, 3)
 
     def forward(self, x: Tensor) -> Tensor:
         outs = [F.relu(b(x)) for b in self.branches]

@@ -11,7 +11,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from lp3d.nets.encoder_blocks import ViT, _conv
+from lp3d.nets.encoder_blocks import ViT, conv
 from lp3d.nets.encoder_config import EncoderConfig
 
 
@@ -38,12 +38,12 @@ class LowEncoder(nn.Module):
         layers: list[nn.Module] = []
         cin = cfg.low_embed_dim // 4
         for _ in range(cfg.low_upsamples):
-            layers += [Upsample2x(), _conv(cin, cfg.low_conv_channels, 3), nn.ReLU()]
+            layers += [Upsample2x(), conv(cin, cfg.low_conv_channels, 3), nn.ReLU()]
             cin = cfg.low_conv_channels
         if cfg.low_upsamples == 0:
-            layers += [_conv(cin, cfg.low_conv_channels, 3), nn.ReLU()]
+            layers += [conv(cin, cfg.low_conv_channels, 3), nn.ReLU()]
             cin = cfg.low_conv_channels
-        layers.append(_conv(cin, cfg.feature_channels, 3))
+        layers.append(conv(cin, cfg.feature_channels, 3))
         self.convs = nn.Sequential(*layers)
 
     def forward(self, f_low: Tensor) -> Tensor:
@@ -62,14 +62,14 @@ class HighEncoder(nn.Module):
         cin = 5 if cfg.high_source == "image" else cfg.backbone_widths[0]
         k = 7 if cfg.high_stride == 2 else 3
         layers: list[nn.Module] = [
-            _conv(cin, cfg.high_stem_channels, k, stride=cfg.high_stride),
+            conv(cin, cfg.high_stem_channels, k, stride=cfg.high_stride),
             nn.LeakyReLU(0.01),
         ]
         c = cfg.high_stem_channels
         for _ in range(cfg.high_convs):
-            layers += [_conv(c, cfg.high_channels, 3), nn.LeakyReLU(0.01)]
+            layers += [conv(c, cfg.high_channels, 3), nn.LeakyReLU(0.01)]
             c = cfg.high_channels
-        layers.append(_conv(c, cfg.feature_channels, 3))
+        layers.append(conv(c, cfg.feature_channels, 3))
         self.convs = nn.Sequential(*layers)
 
     def forward(self, x: Tensor) -> Tensor:
@@ -87,7 +87,7 @@ class TriplaneHead(nn.Module):
         layers: list[nn.Module] = []
         cin = 2 * cfg.feature_channels
         for c in cfg.head_in_channels:
-            layers += [_conv(cin, c, 3), nn.LeakyReLU(0.01)]
+            layers += [conv(cin, c, 3), nn.LeakyReLU(0.01)]
             cin = c
         self.in_convs = nn.Sequential(*layers)
         self.vit = ViT(
@@ -98,13 +98,13 @@ class TriplaneHead(nn.Module):
         cin = cfg.head_embed_dim // 4 + cfg.feature_channels
         ups = cfg.head_upsamples
         for c in cfg.head_out_channels:
-            layers += [_conv(cin, c, 3), nn.LeakyReLU(0.01)]
+            layers += [conv(cin, c, 3), nn.LeakyReLU(0.01)]
             if ups > 0:
                 layers.append(Upsample2x())
                 ups -= 1
             cin = c
         layers += [Upsample2x()] * ups
-        layers.append(_conv(cin, cfg.out_channels, 3))
+        layers.append(conv(cin, cfg.out_channels, 3))
         self.out_convs = nn.Sequential(*layers)
 
     def forward(self, f: Tensor, f_high: Tensor) -> Tensor:

@@ -73,8 +73,8 @@ from lp3d.render.camera import (
 from lp3d.render.settings import RenderSettings
 from lp3d.render.triplane import TriplaneData
 from lp3d.teachers.eg3d_decoder import (
-    _decoder_effective_weights,
-    _get,
+    eg3d_decoder_weights,
+    generator_attr,
 )
 from lp3d.teachers.eg3d_loading import (
     EG3D_HINT,
@@ -185,7 +185,7 @@ class EG3DTeacher:
     ) -> None:
         self.device = torch.device(device)
         for attr in ("z_dim", "c_dim", "mapping", "backbone.synthesis", "decoder.net", "rendering_kwargs"):
-            _get(generator, attr)
+            generator_attr(generator, attr)
         if isinstance(generator, torch.nn.Module):
             generator = generator.to(self.device).eval().requires_grad_(False)
         self.generator = generator
@@ -227,7 +227,7 @@ class EG3DTeacher:
         if self.c_dim not in (0, cams.shape[1]):
             raise ValueError(f"generator.c_dim must be 0 or 25 (an EG3D camera label), got {self.c_dim}")
 
-        self._decoder = _decoder_effective_weights(generator.decoder)
+        self._decoder = eg3d_decoder_weights(generator.decoder)
         self._sr_w_spec = sr_w
         self._sr_w_vec: Tensor | None = None
         self.sr_w()  # resolve now so a bad sr_w fails at construction
@@ -422,7 +422,7 @@ class EG3DTeacher:
         ``G.superresolution`` is :meth:`sr_w` repeated to (B, num_ws, w_dim) (EG3D's module reads
         only ``ws[:, -1]``); noise mode ``sr_noise_mode``. No gradients: the teacher is frozen.
         """
-        sr = _get(self.generator, "superresolution")
+        sr = generator_attr(self.generator, "superresolution")
         x = torch.as_tensor(feature_image).to(self.device, torch.float32)
         if x.ndim != 4 or x.shape[1] != 32:
             raise ValueError(f"feature_image must have shape (B, 32, R, R), got {tuple(x.shape)}")

@@ -1,5 +1,5 @@
 """EG3D's triplane decoder as lp3d's effective weights: the OSGDecoder's two layers with their learning-rate
-multipliers folded in (:func:`_decoder_effective_weights`), read from a loaded generator. Used by
+multipliers folded in (:func:`eg3d_decoder_weights`), read from a loaded generator. Used by
 :mod:`lp3d.teachers.eg3d`.
 """
 
@@ -14,7 +14,7 @@ import torch
 from lp3d.render.triplane import effective_decoder_weights
 
 
-def _get(obj: Any, dotted: str) -> Any:
+def generator_attr(obj: Any, dotted: str) -> Any:
     """``obj.a.b`` for ``"a.b"``, or a TypeError naming the missing attribute."""
     cur = obj
     for i, part in enumerate(dotted.split(".")):
@@ -59,9 +59,9 @@ def _fc_lr_multiplier(layer: Any, name: str) -> float:
     return lr
 
 
-def _decoder_effective_weights(decoder: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def eg3d_decoder_weights(decoder: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """EG3D ``OSGDecoder`` -> effective ``(w0 (64, 32), b0 (64,), w1 (33, 64), b1 (33,))`` float32."""
-    net = _get(decoder, "net")
+    net = generator_attr(decoder, "net")
     if len(net) != 3:
         raise ValueError(
             f"decoder.net must be [FC, Softplus, FC] (EG3D's OSGDecoder), got {len(net)} modules"

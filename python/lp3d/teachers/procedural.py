@@ -53,7 +53,7 @@ from lp3d.render.settings import (
     N_CHANNELS,
 )
 from lp3d.render.triplane import TriplaneData
-from lp3d.teachers.procedural_builder import _Builder
+from lp3d.teachers.procedural_builder import HeadBuilder
 from lp3d.teachers.procedural_decoder import (
     BACKGROUND,
     BEARD,
@@ -70,7 +70,7 @@ from lp3d.teachers.procedural_decoder import (
     TORSO,
     procedural_decoder,
 )
-from lp3d.teachers.procedural_fields import _Textures
+from lp3d.teachers.procedural_fields import Textures
 from lp3d.teachers.procedural_identity import HAIRSTYLES, PATTERNS, Hairstyle, HeadParams, Pattern
 
 #: Plane resolution of the emitted triplanes (EG3D FFHQ: 256).
@@ -133,7 +133,7 @@ class ProceduralTeacher:
         # Texel centres in world units (grid_sample with align_corners=False).
         c = ((2.0 * np.arange(resolution) + 1.0) / resolution - 1.0) * (self.box_warp / 2.0)
         self._coords = c.astype(np.float32)
-        self._textures = _Textures(self._coords)
+        self._textures = Textures(self._coords)
         self._decoder = procedural_decoder(version)
 
     def decoder(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -158,7 +158,7 @@ class ProceduralTeacher:
 
     def build(self, params: HeadParams, *, source: str | None = None) -> TriplaneData:
         """The triplane of an explicit identity."""
-        parts = _Builder(params, self._coords, self._textures, version=self.version).parts()
+        parts = HeadBuilder(params, self._coords, self._textures, version=self.version).parts()
         R = self.resolution
         d = self._design
         lo, hi, k = d.field_floor, FIELD_CEILING, d.shape_scale

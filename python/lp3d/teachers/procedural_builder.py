@@ -1,4 +1,4 @@
-"""The eight parts of one procedural head as closed-form 2-D fields (:class:`_Builder`): head with its
+"""The eight parts of one procedural head as closed-form 2-D fields (:class:`HeadBuilder`): head with its
 relief and face paint, eyes, ears, torso, backdrop, hair, glasses and beard.
 """
 
@@ -10,15 +10,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from lp3d.teachers.procedural_fields import (
-    _ABSENT,
-    _EMPTY,
-    _HAIR_STYLES,
-    _gauss,
-    _logit,
-    _Part,
-    _ss,
-    _Textures,
-    _tint,
+    ABSENT_PART,
+    EMPTY_FIELD,
+    HAIRSTYLE_SHAPES,
+    PartFields,
+    Textures,
+    colour_logits,
+    gauss,
+    smoothstep,
+    tint,
 )
 from lp3d.teachers.procedural_identity import HeadParams
 
@@ -46,12 +46,12 @@ _GEOMETRY = {
 }
 
 
-class _Builder:
+class HeadBuilder:
     """The eight parts of one identity, from the texel centres ``coords`` (R,): ``x`` (1, R) indexes
     columns; ``y`` = ``z`` (R, 1) index rows, read as y in the (x, y) fields (A, fc) and as z in the
     (x, z) fields (B, gc)."""
 
-    def __init__(self, p: HeadParams, coords: np.ndarray, textures: _Textures, *, version: int) -> None:
+    def __init__(self, p: HeadParams, coords: np.ndarray, textures: Textures, *, version: int) -> None:
         self.p = p
         self.geometry = _GEOMETRY[version]
         self.coords = coords
@@ -62,8 +62,8 @@ class _Builder:
         self.yc = 0.03  # head centre height
         self.zc = 0.02  # head centre depth (EG3D's FFHQ cameras look at z = 0.2, about the face)
         self.ey = self.yc + 0.012  # eye height
-        self.skin = _logit(p.skin_rgb)
-        self.hair_logit = _logit(p.hair_rgb)
+        self.skin = colour_logits(p.skin_rgb)
+        self.hair_logit = colour_logits(p.hair_rgb)
         self.hair_lightness = float(np.mean(p.hair_rgb))
 
     def window(self, x0: float, x1: float, y0: float, y1: float) -> tuple[slice, slice]:
@@ -73,7 +73,7 @@ class _Builder:
         cols = slice(int(np.searchsorted(c, x0)), int(np.searchsorted(c, x1, side="right")))
         return rows, cols
 
-    def parts(self) -> list[_Part]:
+    def parts(self) -> list[PartFields]:
         p = self.p
         return [
             self.head(),
@@ -82,8 +82,8 @@ class _Builder:
             self.ears(),
             self.torso(),
             self.background(),
-            self.glasses() if p.glasses else _ABSENT,
-            self.beard() if p.beard else _ABSENT,
+            self.glasses() if p.glasses else ABSENT_PART,
+            self.beard() if p.beard else ABSENT_PART,
         ]
 
     # -- head -------------------------------------------------------------------------------------
@@ -99,7 +99,7 @@ class _Builder:
         """Half-width of the skull ellipse at height y (narrower toward the jaw)."""
         p = self.p
         t = (y - self.yc) / p.head_height
-        return p.head_width * (1.0 - (1.0 - p.jaw_width) * _ss(0.15, -1.0, t))
+        return p.head_width * (1.0 - (1.0 - p.jaw_width) * smoothstep(0.15, -1.0, t))
 
     def skull_A(self, x: np.ndarray | float, y: np.ndarray | float) -> np.ndarray | float:
         """Front-view field of the plain skull: ``(x / width(y))^2 + t^2``."""
@@ -116,26 +116,28 @@ class _Builder:
         y_tip = self.nose_tip_y
         y_top = self.ey + 0.008
         along = np.clip((y - y_tip) / (y_top - y_tip), 0.0, 1.0)  # 0 at the tip, 1 at the bridge top
-        height = 0.032 * ns * (0.25 + 0.75 * (1.0 - along) ** 1.4) * _ss(y_top + 0.005, y_top - 0.02, y)
-        under = _ss(y_tip - 0.017 * ns, y_tip, y)  # the underside turns back to the lip
+        height = (
+            0.032 * ns * (0.25 + 0.75 * (1.0 - along) ** 1.4) * smoothstep(y_top + 0.005, y_top - 0.02, y)
+        )
+        under = smoothstep(y_tip - 0.017 * ns, y_tip, y)  # the underside turns back to the lip
         width = 0.007 + 0.011 * ns * (1.0 - along) ** 1.5
         across = np.cos(np.clip(x / width, -1.0, 1.0) * (np.pi / 2)) ** 2
         r = height * under * across
-        wings = np.exp(-(((ax - 0.75 * width) / (0.55 * width)) ** 2)) * _gauss(
+        wings = np.exp(-(((ax - 0.75 * width) / (0.55 * width)) ** 2)) * gauss(
             (y - y_tip + 0.008 * ns) / 0.008
         )
         r = r + 0.012 * ns * wings
         # Eye sockets (the eyeballs show through an almond-shaped opening), brow ridge, cheekbones.
         dx = ax - p.eye_spacing
-        r = r - 0.011 * _gauss(dx / (1.3 * re)) * _gauss((y - self.ey) / (0.55 * re))
-        r = r + 0.005 * _gauss(dx / 0.035) * _gauss((y - self.ey - 1.9 * re) / 0.010)
-        r = r + 0.005 * _gauss((ax - 0.07) / 0.03) * _gauss((y - self.ey + 0.04) / 0.02)
+        r = r - 0.011 * gauss(dx / (1.3 * re)) * gauss((y - self.ey) / (0.55 * re))
+        r = r + 0.005 * gauss(dx / 0.035) * gauss((y - self.ey - 1.9 * re) / 0.010)
+        r = r + 0.005 * gauss((ax - 0.07) / 0.03) * gauss((y - self.ey + 0.04) / 0.02)
         # Lips: two rolls either side of the mouth line, and the chin.
         ym, lf = self.mouth_y, p.lip_fullness
-        r = r + 0.007 * lf * np.exp(-((x / (0.026 * lf)) ** 4)) * _gauss((y - ym - 0.005 * lf) / (0.005 * lf))
-        r = r + 0.008 * lf * np.exp(-((x / (0.024 * lf)) ** 4)) * _gauss((y - ym + 0.006 * lf) / (0.006 * lf))
-        r = r - 0.004 * _gauss(x / 0.025) * _gauss((y - ym) / 0.002)
-        r = r + 0.01 * _gauss(x / 0.03) * _gauss((y - self.yc + 0.86 * p.head_height) / 0.02)
+        r = r + 0.007 * lf * np.exp(-((x / (0.026 * lf)) ** 4)) * gauss((y - ym - 0.005 * lf) / (0.005 * lf))
+        r = r + 0.008 * lf * np.exp(-((x / (0.024 * lf)) ** 4)) * gauss((y - ym + 0.006 * lf) / (0.006 * lf))
+        r = r - 0.004 * gauss(x / 0.025) * gauss((y - ym) / 0.002)
+        r = r + 0.01 * gauss(x / 0.03) * gauss((y - self.yc + 0.86 * p.head_height) / 0.02)
         return r
 
     def head_A(self, x: np.ndarray, y: np.ndarray, A0: np.ndarray) -> np.ndarray:
@@ -162,7 +164,7 @@ class _Builder:
         p = self.p
         return self.window(-0.13, 0.13, self.yc - p.head_height - 0.03, self.ey + 0.075)
 
-    def head(self) -> _Part:
+    def head(self) -> PartFields:
         """The skull ellipsoid (narrowing to the jaw) with the face as relief, painted."""
         p, x, y, z = self.p, self.x, self.y, self.z
         A = self.skull_A(x, y)
@@ -174,7 +176,7 @@ class _Builder:
         xw, yw = x[:, cols], y[rows, :]
         A[rows, cols] = self.head_A(xw, yw, A[rows, cols])
         fc[:, rows, cols] = self.face_paint(xw, yw, fc[:, rows, cols])
-        return _Part(A, self.head_B(z), fc, gc)
+        return PartFields(A, self.head_B(z), fc, gc)
 
     def face_paint(self, x: np.ndarray, y: np.ndarray, fc: np.ndarray) -> np.ndarray:
         """The face painted over the lit skin ``fc`` (3, h, w) at (x (1, w), y (h, 1))."""
@@ -185,30 +187,30 @@ class _Builder:
         ym = self.mouth_y
         fc = fc.copy()
         brow_y = self.ey + 1.75 * re + 0.006 * (1.0 - (dx / 0.028) ** 2)
-        brow = np.exp(-(((y - brow_y) / (0.0042 * p.brow_thickness)) ** 2)) * _ss(
+        brow = np.exp(-(((y - brow_y) / (0.0042 * p.brow_thickness)) ** 2)) * smoothstep(
             0.032, 0.024, np.abs(dx + 0.002)
         )
-        fc += brow * (_logit(np.asarray(p.hair_rgb) * 0.6 + 0.04) - fc)
+        fc += brow * (colour_logits(np.asarray(p.hair_rgb) * 0.6 + 0.04) - fc)
         # Upper lash line along the top of the eye opening.
         lid_y = self.ey + 0.62 * re * np.sqrt(np.maximum(0.0, 1.0 - (dx / (1.05 * re)) ** 2))
-        liner = np.exp(-(((y - lid_y) / 0.0026) ** 2)) * _ss(1.15 * re, 0.8 * re, np.abs(dx))
-        fc += liner * (_logit((0.08, 0.05, 0.05)) - fc)
+        liner = np.exp(-(((y - lid_y) / 0.0026) ** 2)) * smoothstep(1.15 * re, 0.8 * re, np.abs(dx))
+        fc += liner * (colour_logits((0.08, 0.05, 0.05)) - fc)
         lf = p.lip_fullness
-        lips = _ss(1.0, 0.75, (x / (0.027 * lf)) ** 2 + ((y - ym + 0.001) / (0.0115 * lf)) ** 2)
-        fc += lips * (_logit(p.lip_rgb) - fc)
-        fc -= 1.2 * _gauss(x / (0.025 * lf)) * _gauss((y - ym) / 0.0018)
+        lips = smoothstep(1.0, 0.75, (x / (0.027 * lf)) ** 2 + ((y - ym + 0.001) / (0.0115 * lf)) ** 2)
+        fc += lips * (colour_logits(p.lip_rgb) - fc)
+        fc -= 1.2 * gauss(x / (0.025 * lf)) * gauss((y - ym) / 0.0018)
         # Painted shading where the relief is too small to shade itself: the lid crease, the side of the
         # nose away from the light, under the nose and the lower lip; light on the nose ridge; nostrils.
-        crease = _gauss((y - self.ey - 0.95 * re) / 0.0035) * _ss(1.3 * re, 0.7 * re, np.abs(dx))
+        crease = gauss((y - self.ey - 0.95 * re) / 0.0035) * smoothstep(1.3 * re, 0.7 * re, np.abs(dx))
         y_tip = self.nose_tip_y
         h_up = self.ey + 0.012 - y_tip
         ns = p.nose_size
         side = -1.0 if p.light_x >= 0 else 1.0
-        nose_side = _gauss((x - side * 0.014 * ns) / 0.008) * _gauss((y - y_tip - 0.4 * h_up) / (0.5 * h_up))
-        under_nose = _gauss(x / 0.014) * _gauss((y - y_tip + 0.02 * ns) / 0.005)
-        nostrils = _gauss((ax - 0.008 * ns) / 0.0045) * _gauss((y - y_tip + 0.012 * ns) / 0.0035)
-        under_lip = _gauss(x / 0.02) * _gauss((y - ym + 0.02) / 0.005)
-        ridge = _gauss(x / 0.004) * (_ss(self.ey, y_tip, y) * _ss(y_tip - 0.012, y_tip, y))
+        nose_side = gauss((x - side * 0.014 * ns) / 0.008) * gauss((y - y_tip - 0.4 * h_up) / (0.5 * h_up))
+        under_nose = gauss(x / 0.014) * gauss((y - y_tip + 0.02 * ns) / 0.005)
+        nostrils = gauss((ax - 0.008 * ns) / 0.0045) * gauss((y - y_tip + 0.012 * ns) / 0.0035)
+        under_lip = gauss(x / 0.02) * gauss((y - ym + 0.02) / 0.005)
+        ridge = gauss(x / 0.004) * (smoothstep(self.ey, y_tip, y) * smoothstep(y_tip - 0.012, y_tip, y))
         fc -= (
             0.5 * crease
             + (0.3 + 0.3 * abs(p.light_x)) * nose_side
@@ -217,15 +219,15 @@ class _Builder:
             + 0.35 * under_lip
             - 0.35 * ridge
         )
-        blush = _gauss((ax - 0.072) / 0.028) * _gauss((y - self.ey + 0.052) / 0.025)
-        fc += 0.35 * blush * _tint(0.6, -0.4, -0.3)
+        blush = gauss((ax - 0.072) / 0.028) * gauss((y - self.ey + 0.052) / 0.025)
+        fc += 0.35 * blush * tint(0.6, -0.4, -0.3)
         if p.freckles > 0:
-            area = _gauss((ax - 0.05) / 0.04) * _gauss((y - self.ey + 0.04) / 0.03)
-            fc -= 0.9 * p.freckles * area * self.tex.dots[self.face_window()] * _tint(0.6, 0.9, 1.1)
+            area = gauss((ax - 0.05) / 0.04) * gauss((y - self.ey + 0.04) / 0.03)
+            fc -= 0.9 * p.freckles * area * self.tex.dots[self.face_window()] * tint(0.6, 0.9, 1.1)
         return fc
 
     # -- eyes -------------------------------------------------------------------------------------
-    def eyes(self) -> _Part:
+    def eyes(self) -> PartFields:
         """Two spheres (x enters A through |x|), set deep so only the almond opening shows."""
         p, z = self.p, self.z
         re, ex, ey = p.eye_size, p.eye_spacing, self.ey
@@ -236,13 +238,13 @@ class _Builder:
         dx = np.abs(x) - ex
         r2 = (dx * dx + (y - ey) ** 2) / (re * re)
         r = np.sqrt(r2)
-        fc = _logit((0.93, 0.91, 0.88)) - 0.6 * _ss(0.6, 0.95, r)  # corners in shadow
-        fc = fc + _ss(0.56, 0.5, r) * (_logit(p.eye_rgb) - fc)
-        fc = fc - 0.8 * _ss(0.3, 0.5, r) * _ss(0.56, 0.5, r)  # darker iris rim
-        fc = fc + _ss(0.24, 0.2, r) * (_logit((0.02, 0.02, 0.02)) - fc)
-        glint = _gauss((dx + 0.2 * re * np.sign(x)) / (0.09 * re)) * _gauss((y - ey - 0.2 * re) / (0.09 * re))
-        fc = fc + glint * (_logit((0.97, 0.97, 0.97)) - fc)
-        return _Part(r2, ((z - ez) / re) ** 2, fc, 0.0, window=(rows, cols))
+        fc = colour_logits((0.93, 0.91, 0.88)) - 0.6 * smoothstep(0.6, 0.95, r)  # corners in shadow
+        fc = fc + smoothstep(0.56, 0.5, r) * (colour_logits(p.eye_rgb) - fc)
+        fc = fc - 0.8 * smoothstep(0.3, 0.5, r) * smoothstep(0.56, 0.5, r)  # darker iris rim
+        fc = fc + smoothstep(0.24, 0.2, r) * (colour_logits((0.02, 0.02, 0.02)) - fc)
+        glint = gauss((dx + 0.2 * re * np.sign(x)) / (0.09 * re)) * gauss((y - ey - 0.2 * re) / (0.09 * re))
+        fc = fc + glint * (colour_logits((0.97, 0.97, 0.97)) - fc)
+        return PartFields(r2, ((z - ez) / re) ** 2, fc, 0.0, window=(rows, cols))
 
     # -- ears -------------------------------------------------------------------------------------
     @property
@@ -250,7 +252,7 @@ class _Builder:
         """Depth of the back edge of the ears."""
         return self.zc - 0.03 - 0.024 * self.p.ear_size
 
-    def ears(self) -> _Part:
+    def ears(self) -> PartFields:
         """Thin upright discs standing out from the sides of the skull, tilted back a little."""
         p, y, z = self.p, self.y, self.z
         es = p.ear_size
@@ -260,11 +262,11 @@ class _Builder:
         dz = 0.024 * es
         ez = self.zc - 0.03
         A = ((self.ax - ex) / 0.012) ** 2 + ((y - ey) / hy) ** 2
-        B = ((z - ez) / dz) ** 2 - 0.18 * _ss(ex, ex + 0.02, self.ax) * (z - ez) / dz
+        B = ((z - ez) / dz) ** 2 - 0.18 * smoothstep(ex, ex + 0.02, self.ax) * (z - ez) / dz
         inner = np.exp(-(((y - ey) / (0.6 * hy)) ** 2))
-        fc = self.skin + (0.15 - 0.5 * inner).astype(np.float32) + _tint(0.15, -0.05, -0.05)
+        fc = self.skin + (0.15 - 0.5 * inner).astype(np.float32) + tint(0.15, -0.05, -0.05)
         gc = (-0.6 * np.exp(-(((z - ez) / (0.6 * dz)) ** 2))).astype(np.float32)
-        return _Part(A, B, fc.astype(np.float32), gc)
+        return PartFields(A, B, fc.astype(np.float32), gc)
 
     # -- torso ------------------------------------------------------------------------------------
     def _torso_fields(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -273,12 +275,12 @@ class _Builder:
         H = p.head_height
         y_sh = self.yc - H - 0.085  # shoulder line
         wn = 0.48 * p.head_width
-        wt = wn + (0.42 - wn) * _ss(y_sh + 0.04, y_sh - 0.12, y)
+        wt = wn + (0.42 - wn) * smoothstep(y_sh + 0.04, y_sh - 0.12, y)
         y_top = self.yc - 0.45 * H  # the neck ends inside the head
         A = (x / wt) ** 2 + np.where(y > y_top, ((y - y_top) / 0.04) ** 2, 0.0)
         ax = np.abs(x)
-        zt = self.zc - 0.05 - 0.02 * _ss(0.05, 0.25, ax)
-        dt = 0.062 + 0.075 * _ss(0.04, 0.2, ax)
+        zt = self.zc - 0.05 - 0.02 * smoothstep(0.05, 0.25, ax)
+        dt = 0.062 + 0.075 * smoothstep(0.04, 0.2, ax)
         return A, zt, dt
 
     def torso_front(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -286,47 +288,47 @@ class _Builder:
         A, zt, dt = self._torso_fields(x, y)
         return np.where(A < 1.0, zt + dt * np.sqrt(np.maximum(0.0, 1.0 - A)), self.zc)
 
-    def torso(self) -> _Part:
+    def torso(self) -> PartFields:
         p, x, y, z = self.p, self.x, self.y, self.z
         H = p.head_height
         A, zt, dt = self._torso_fields(x, y)
         neckline = self.yc - H - 0.105 + 3.0 * x * x
-        shirt = _ss(neckline + 0.004, neckline - 0.004, y)
-        chin_shadow = _ss(self.yc - 0.7 * H, self.yc - 1.0 * H - 0.03, y)
+        shirt = smoothstep(neckline + 0.004, neckline - 0.004, y)
+        chin_shadow = smoothstep(self.yc - 0.7 * H, self.yc - 1.0 * H - 0.03, y)
         neck = self.skin - (0.9 * (1.0 - chin_shadow)).astype(np.float32)
-        fc = neck + shirt * (_logit(p.cloth_rgb) - neck) + (p.light_x * x).astype(np.float32)
+        fc = neck + shirt * (colour_logits(p.cloth_rgb) - neck) + (p.light_x * x).astype(np.float32)
         gc = (5.0 * (z - self.zc)).astype(np.float32)
-        return _Part(A, ((z - zt) / dt) ** 2, fc.astype(np.float32), gc)
+        return PartFields(A, ((z - zt) / dt) ** 2, fc.astype(np.float32), gc)
 
     # -- background -------------------------------------------------------------------------------
-    def background(self) -> _Part:
+    def background(self) -> PartFields:
         """Outside an elliptic cylinder about the y axis whose front lies beyond the box: a bowl behind
         the head that wraps round the sides, so oblique views still end on a surface."""
         p, x, y, z = self.p, self.x, self.y, self.z
         rho = np.sqrt((x / 0.44) ** 2 + ((z - 0.3) / 0.75) ** 2)
         B = np.maximum(0.0, 1.0 + (1.0 - rho) * 12.0)
-        c1 = _logit(p.background_rgb)
-        c2 = _logit(np.asarray(p.background_rgb) * (1.0 - p.pattern_contrast))
+        c1 = colour_logits(p.background_rgb)
+        c2 = colour_logits(np.asarray(p.background_rgb) * (1.0 - p.pattern_contrast))
         k = 2.0 * np.pi * p.pattern_scale
         pattern = p.background_pattern
         if pattern == "plain":
             m = np.full((1, 1), 0.15)
         elif pattern == "gradient":
-            m = _ss(-0.4, 0.4, y)
+            m = smoothstep(-0.4, 0.4, y)
         elif pattern == "stripes":
-            m = _ss(-0.3, 0.3, np.sin(k * (x + 0.3 * y)))
+            m = smoothstep(-0.3, 0.3, np.sin(k * (x + 0.3 * y)))
         elif pattern == "checker":
-            m = _ss(-0.2, 0.2, np.sin(k * x) * np.sin(k * y))
+            m = smoothstep(-0.2, 0.2, np.sin(k * x) * np.sin(k * y))
         elif pattern == "dots":
-            m = _ss(0.5, 0.7, np.cos(k * x) * np.cos(k * y))
+            m = smoothstep(0.5, 0.7, np.cos(k * x) * np.cos(k * y))
         else:
             m = 0.5 + 0.5 * np.sin(k * y + 3.0 * np.sin(3.0 * np.pi * x))
         fc = c1 + m.astype(np.float32) * (c2 - c1)
         gc = (-1.2 * np.abs(x) + 0.0 * z).astype(np.float32)  # darker toward the sides
-        return _Part(0.0, B, fc.astype(np.float32), gc)
+        return PartFields(0.0, B, fc.astype(np.float32), gc)
 
     # -- hair -------------------------------------------------------------------------------------
-    def hair(self) -> _Part:
+    def hair(self) -> PartFields:
         """Hair as a depth interval per front-view pixel.
 
         With ``B(z) = ((z - zh) / dzf)^2`` in front of ``zh`` and ``((z - zh) / dzb)^2`` behind it, and
@@ -339,7 +341,7 @@ class _Builder:
         W, H, D = p.head_width, p.head_height, p.head_depth
         yc, zc = self.yc, self.zc
         L = p.hair_length
-        st = _HAIR_STYLES[p.hairstyle]
+        st = HAIRSTYLE_SHAPES[p.hairstyle]
         t = (y - yc) / H
         ax = self.ax
         th = st.thickness * (0.75 + 0.5 * L)
@@ -379,16 +381,16 @@ class _Builder:
         # Cover mask: the forehead above a hairline that drops toward the temples; curtains on the sides.
         ux = ax / W
         t_hl = st.hairline - st.temple_drop * ux * ux
-        cover = _ss(t_hl - 0.03, t_hl + 0.02, t)
+        cover = smoothstep(t_hl - 0.03, t_hl + 0.02, t)
         if st.curtain_to is not None:
             face_w = np.maximum(self.head_width(y) * np.sqrt(np.maximum(0.0, 1.0 - t * t)), 1e-3)
-            curtain = _ss(st.curtain_from, st.curtain_from + 0.08, ax / face_w)
-            cover = np.maximum(cover, curtain * _ss(st.curtain_to - 0.15, st.curtain_to, t))
+            curtain = smoothstep(st.curtain_from, st.curtain_from + 0.08, ax / face_w)
+            cover = np.maximum(cover, curtain * smoothstep(st.curtain_to - 0.15, st.curtain_to, t))
         s = edge * (cover * s_cover + (1.0 - cover) * s_hidden)
         if st.ears_visible:
             # Beside the ears only the back of the head keeps hair: the front there stops just behind
             # the ear (a cap on s, not a factor, so the field stays steep where it crosses the skin).
-            ear = _gauss((ax - W) / 0.03) * _gauss((y - self.ey + 0.03) / 0.05)
+            ear = gauss((ax - W) / 0.03) * gauss((y - self.ey + 0.03) / 0.05)
             s_ear = (self.ear_back - 0.03 - zh) / dzf
             s = s - ear * np.maximum(s - s_ear, 0.0)
         if st.bun:
@@ -404,18 +406,18 @@ class _Builder:
             # A thin scalp of skin, lit as the head.
             fc = self.skin + (0.25 * p.light_x * x / W + 0.9 * (y - yc))
             gc = 0.8 * (z - zc) / D - 0.2
-            return _Part(A, B, fc, gc)
+            return PartFields(A, B, fc, gc)
         tex, tex_xz = (
             (self.tex.curls, self.tex.curls_xz) if st.curly else (self.tex.strands, self.tex.strands_xz)
         )
-        shine = 0.8 * (1.0 - 0.5 * self.hair_lightness) * _gauss((t - 0.75) / 0.12)
-        parting = 1.2 * _gauss(x / 0.004) * _ss(0.5, 0.7, t) if st.parting else 0.0
+        shine = 0.8 * (1.0 - 0.5 * self.hair_lightness) * gauss((t - 0.75) / 0.12)
+        parting = 1.2 * gauss(x / 0.004) * smoothstep(0.5, 0.7, t) if st.parting else 0.0
         fc = self.hair_logit + (0.3 * tex + (shine - parting + 1.2 * (y - yc)))
         gc = tex_xz + 0.6 * (z - zc) / D
-        return _Part(A, B, fc, gc)
+        return PartFields(A, B, fc, gc)
 
     # -- glasses and beard -------------------------------------------------------------------------
-    def glasses(self) -> _Part:
+    def glasses(self) -> PartFields:
         """Two rims, a bridge and a bar out to the temples in one thin slab in front of the eyes
         (front view: rims and bars; top view: the slab), then arms running back to the ears, bending
         out around the skull (front view: the bars; top view: the arm curves)."""
@@ -431,20 +433,20 @@ class _Builder:
         ax = np.abs(x)
         rims = ((np.sqrt((ax - ex) ** 2 + ((y - ey) * 1.2) ** 2) - R) / w) ** 2
         bar = ((y - ey - 0.35 * re) / w) ** 2
-        bridge = np.where(ax < ex - R + 0.002, bar, _EMPTY)
-        bars = np.where((ax > ex + R - 0.002) & (ax < arm_x + w), bar, _EMPTY)
+        bridge = np.where(ax < ex - R + 0.002, bar, EMPTY_FIELD)
+        bars = np.where((ax > ex + R - 0.002) & (ax < arm_x + w), bar, EMPTY_FIELD)
         A = np.minimum(np.minimum(rims, bridge), bars)
-        front = np.where(self.ax < hinge_x + w, ((z - zg) / wz) ** 2, _EMPTY)
+        front = np.where(self.ax < hinge_x + w, ((z - zg) / wz) ** 2, EMPTY_FIELD)
         z_ear = self.zc - 0.04
-        curve_x = hinge_x + (arm_x - hinge_x) * _ss(zg, zg - 0.07, z)
+        curve_x = hinge_x + (arm_x - hinge_x) * smoothstep(zg, zg - 0.07, z)
         arm = ((self.ax - curve_x) / w) ** 2 + (
             np.maximum(z - zg, 0.0) ** 2 + np.maximum(z_ear - z, 0.0) ** 2
         ) / w**2
-        B = np.minimum(np.minimum(front, arm), _EMPTY)
-        fc = np.broadcast_to(_logit(p.glasses_rgb), (3, *A.shape))
-        return _Part(np.minimum(A, _EMPTY), B, fc, 0.0, window=(rows, cols))
+        B = np.minimum(np.minimum(front, arm), EMPTY_FIELD)
+        fc = np.broadcast_to(colour_logits(p.glasses_rgb), (3, *A.shape))
+        return PartFields(np.minimum(A, EMPTY_FIELD), B, fc, 0.0, window=(rows, cols))
 
-    def beard(self) -> _Part:
+    def beard(self) -> PartFields:
         """A layer th thick over the jaw, chin and upper lip: the skull grown by th, kept where a
         front-view mask says beard (below a line from the sideburns to the mouth, the mouth left
         open), with a short back radius so the layer never reaches the back of the head."""
@@ -457,11 +459,11 @@ class _Builder:
         grown = self.skull_A(x * (W / (W + th)), yc + (y - yc) * (H / (H + th)))
         line = ym + 0.018 + (self.ey - 0.03 - ym - 0.018) * (np.abs(x) / W) ** 3  # up to the sideburns
         edge = self.geometry.beard_edge
-        mask = _ss(line + edge, line - edge, y)
-        mouth = _ss(1.0, 0.7, (x / 0.03) ** 2 + ((y - ym) / 0.012) ** 2)
+        mask = smoothstep(line + edge, line - edge, y)
+        mouth = smoothstep(1.0, 0.7, (x / 0.03) ** 2 + ((y - ym) / 0.012) ** 2)
         A = grown + 3.0 * (1.0 - mask * (1.0 - mouth))
         dz = z - zc
         B = np.where(dz > 0, (dz / (D + th)) ** 2, (dz / (0.5 * D)) ** 2)
         fc = self.hair_logit + (0.35 * self.tex.stubble[rows, cols] - 0.2 + 0.25 * p.light_x * x / W)
         gc = (0.6 * dz / D).astype(np.float32)
-        return _Part(A, B, fc, gc, window=(rows, cols))
+        return PartFields(A, B, fc, gc, window=(rows, cols))

@@ -1,5 +1,5 @@
 """Building blocks of the procedural heads' 2-D fields: smoothsteps and logits, a part's four fields
-(:class:`_Part`), the shared noise textures and the hairstyles' shape parameters.
+(:class:`PartFields`), the shared noise textures and the hairstyles' shape parameters.
 """
 
 from __future__ import annotations
@@ -11,31 +11,31 @@ import numpy as np
 
 
 # --------------------------------------------------------------------------------------- helpers
-def _ss(e0: float | np.ndarray, e1: float | np.ndarray, v: np.ndarray) -> np.ndarray:
+def smoothstep(e0: float | np.ndarray, e1: float | np.ndarray, v: np.ndarray) -> np.ndarray:
     """Hermite smoothstep from 0 at ``e0`` to 1 at ``e1`` (either order)."""
     t = np.clip((v - e0) / (e1 - e0), 0.0, 1.0)
     return t * t * (3.0 - 2.0 * t)
 
 
-def _logit(rgb: Sequence[float]) -> np.ndarray:
+def colour_logits(rgb: Sequence[float]) -> np.ndarray:
     """Colour logits (3, 1, 1) float32: the decoder's sigmoid gives ``rgb`` back (clamped to 2..98%)."""
     c = np.clip(np.asarray(rgb, dtype=np.float64), 0.02, 0.98)
     return np.log(c / (1.0 - c)).astype(np.float32).reshape(3, 1, 1)
 
 
-def _gauss(u: np.ndarray) -> np.ndarray:
+def gauss(u: np.ndarray) -> np.ndarray:
     """exp(-u^2). Gaussian bumps are written as products of 1-D factors (one over x, one over y),
     which costs an outer product instead of an exp over the whole grid."""
     return np.exp(-u * u)
 
 
-def _tint(r: float, g: float, b: float) -> np.ndarray:
+def tint(r: float, g: float, b: float) -> np.ndarray:
     """A per-channel logit offset (3, 1, 1) float32."""
     return np.array([r, g, b], dtype=np.float32).reshape(3, 1, 1)
 
 
 @dataclass(frozen=True)
-class _Part:
+class PartFields:
     """One part's fields: shape ``A(x, y)``, ``B(x, z)`` (inside where A + B < 1) and colour logits
     ``fc`` over (y, x) and ``gc`` over (z, x); all broadcastable to (R, R) or (3, R, R). With a
     ``window`` (row and column slices of plane 0), ``A`` and ``fc`` cover only that window: the part
@@ -49,11 +49,11 @@ class _Part:
 
 
 #: A = B = this gives f = g = -1, at or below every version's field floor: an absent part.
-_EMPTY = 4.0
-_ABSENT = _Part(_EMPTY, _EMPTY, 0.0, 0.0)
+EMPTY_FIELD = 4.0
+ABSENT_PART = PartFields(EMPTY_FIELD, EMPTY_FIELD, 0.0, 0.0)
 
 
-class _Textures:
+class Textures:
     """Seed-independent texture maps over the plane grid (R, R), made once per teacher: hair strands
     and curls seen from the front (x, y) and from above (x, z), freckle dots, beard stubble."""
 
@@ -68,7 +68,7 @@ class _Textures:
             1.6 * np.sin(x * 150.0 + 2.0 * np.sin(v * 110.0)) * np.sin(v * 140.0 + 2.0 * np.sin(x * 100.0))
         )
         self.curls_xz = 0.5 * np.sin(v * 140.0 + 2.0 * np.sin(x * 90.0)) * np.sin(x * 130.0)
-        self.dots = _ss(
+        self.dots = smoothstep(
             0.75,
             0.95,
             np.sin(x * 520.0 + 2.0 * np.sin(v * 170.0)) * np.sin(v * 470.0 + 1.7 * np.sin(x * 210.0)),
@@ -79,7 +79,7 @@ class _Textures:
 
 
 @dataclass(frozen=True)
-class _HairStyle:
+class HairstyleShape:
     """Shape of a hairstyle, in head units t (0 at the head centre, 1 at the crown, -1 at the chin)."""
 
     thickness: float  #: over the skull, world units (scaled by hair_length)
@@ -97,24 +97,25 @@ class _HairStyle:
     round: bool = False  #: silhouette an ellipse all round (afro), not the grown skull
 
 
-_HAIR_STYLES: dict[str, _HairStyle] = {
+#: Each hairstyle's shape (:data:`~lp3d.teachers.procedural_identity.HAIRSTYLES` names them).
+HAIRSTYLE_SHAPES: dict[str, HairstyleShape] = {
     # Bald: a thin skin-coloured scalp over everything but the face, so the face paint (which
     # projects through the head along z) never shows on the back of the head.
-    "bald": _HairStyle(
+    "bald": HairstyleShape(
         0.014, nape=-0.8, hairline=0.85, temple_drop=0.0, curtain_to=-0.8, curtain_from=0.9,
         ears_visible=False,
     ),
-    "short": _HairStyle(0.018, nape=-0.72, hairline=0.62, temple_drop=0.45),
-    "long": _HairStyle(
+    "short": HairstyleShape(0.018, nape=-0.72, hairline=0.62, temple_drop=0.45),
+    "long": HairstyleShape(
         0.024, nape=-1.0, hairline=0.64, temple_drop=0.35, curtain_to=-1.4, curtain_from=0.92,
         hang=0.12, flare=0.25, ears_visible=False, parting=True,
     ),
-    "bob": _HairStyle(
+    "bob": HairstyleShape(
         0.03, nape=-0.9, hairline=0.32, temple_drop=0.3, curtain_to=-0.85, curtain_from=0.88,
         hang=0.0, flare=0.08, ears_visible=False,
     ),
-    "bun": _HairStyle(0.015, nape=-0.7, hairline=0.64, temple_drop=0.4, bun=True, parting=True),
-    "afro": _HairStyle(
+    "bun": HairstyleShape(0.015, nape=-0.7, hairline=0.64, temple_drop=0.4, bun=True, parting=True),
+    "afro": HairstyleShape(
         0.07, nape=-1.2, hairline=0.55, temple_drop=0.3, curtain_to=-0.45, curtain_from=0.86,
         ears_visible=False, curly=True, round=True,
     ),
