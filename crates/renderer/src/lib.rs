@@ -2,9 +2,21 @@
 //! shaders on wgpu. It knows nothing about Python or egui: `crates/pybind` and the viewer
 //! borrow it.
 //!
-//! Modules follow the data flow: [`camera`] (25-float EG3D labels → rays), [`triplane`]
-//! (planes + decoder, the plane-axis convention), [`settings`] (how to render), [`renderer`]
-//! (GPU pipelines and dispatch), [`npz`] (the `.npz` triplane file).
+//! Modules, in the order of the data flow:
+//!
+//! - [`camera`]: 25-float EG3D camera labels, their validation, and the look-at camera.
+//! - [`triplane`]: planes + decoder, the plane-axis convention and the scene bounds.
+//! - [`npz`]: the strict `.npz`/`.npy` reader and writer under the triplane file.
+//! - [`settings`]: how to render (EG3D's `rendering_kwargs`).
+//! - [`occupancy`]: the grid of density bounds that lets the kernel skip empty space.
+//! - [`baked`]: the baked field, the decoder's output stored on a fine grid and looked up.
+//! - [`shaders`]: the WGSL stage files and the entry points' modules made of them.
+//! - [`gpu_types`]: the plain-old-data mirrors of the WGSL uniforms.
+//! - [`kernel`]: the fast and quick forms of the render kernel and which one a renderer uses.
+//! - [`device`]: the wgpu device, created headless or borrowed from the viewer.
+//! - [`renderer`]: GPU pipelines and dispatch.
+//!
+//! Beside them: [`error`] (the crate's one error type) and [`atomic`] (atomic file writes).
 
 pub mod atomic;
 pub mod baked;

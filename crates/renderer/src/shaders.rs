@@ -108,7 +108,8 @@ pub fn render_module_stages() -> Vec<Stage> {
 }
 
 /// The full WGSL source of the render module: one module holding every entry point, so the
-/// renderer parses and validates the WGSL once for its three pipelines.
+/// renderer parses and validates the WGSL once for all its pipelines (each entry point's, and
+/// the specialisations of `render_rays` and `bake_field` by pipeline-overridable constants).
 pub fn render_module_source() -> String {
     module_source(&render_module_stages())
 }
