@@ -45,8 +45,8 @@ Each step is timed; a failed step is reported with the end of its log (all logs 
 check passed, 1 when one failed, 2 for a usage error.
 
 Work folder: ``--work DIR`` (new or empty; kept afterwards), else a temporary folder removed at the
-end. It needs about 0.5 GB (the pickle alone is ~380 MB). On a 2-core CPU the whole check took
-4 minutes on a quiet machine and 17 under load (most of it the two train and eval steps).
+end. It needs about 0.5 GB (the pickle alone is ~380 MB). Most of its time is the two train and
+eval steps; each step has a time limit (``--step-timeout``).
 """
 
 from __future__ import annotations
@@ -88,7 +88,7 @@ SECTION_BEGIN = "<!-- eg3d-check:begin -->"
 SECTION_END = "<!-- eg3d-check:end -->"
 
 #: Pass thresholds (max abs difference). Renders: the repository's WGSL/twin parity tolerance
-#: (tests/test_render_parity.py); the others compare the same float32 arithmetic in two processes.
+#: (tests/render/test_render_parity.py); the others compare the same float32 arithmetic in two processes.
 TOL_WS = 1e-5
 TOL_PLANES = 1e-4
 TOL_RENDER = 1e-4
@@ -365,7 +365,7 @@ def _lp3d_compare(cfg: dict[str, Any]) -> dict[str, Any]:
         raise RuntimeError(f"EG3D's {', '.join(leaked)} importable in lp3d's process before loading")
 
     import lp3d_render
-    from lp3d.render.torch_twin import render_triplane_torch
+    from lp3d.render.torch_twin import render_with_twin
     from lp3d.render.triplane import TriplaneData
     from lp3d.teachers.eg3d import EG3DTeacher
 
@@ -390,7 +390,7 @@ def _lp3d_compare(cfg: dict[str, Any]) -> dict[str, Any]:
     gen = teacher.generator
     settings = teacher.render_settings(resolution=resolution)
 
-    def timed(name: str, tol: float, what: Callable[[], tuple[str, float]]) -> None:
+    def row_check(name: str, tol: float, what: Callable[[], tuple[str, float]]) -> None:
         start = time.perf_counter()
         try:
             text, err = what()
@@ -413,12 +413,12 @@ def _lp3d_compare(cfg: dict[str, Any]) -> dict[str, Any]:
         )
         return f"max abs Δ ws {err:.1e} (conditioning camera Δ {pose:.1e})", err
 
-    timed(
+    row_check(
         "ws: conditioning='gen_videos' (the default) vs gen_videos.py",
         TOL_WS,
         lambda: ws_row("gen_videos", "ws_videos"),
     )
-    timed(
+    row_check(
         "ws: conditioning='gen_samples' vs gen_samples.py",
         TOL_WS,
         lambda: ws_row("gen_samples", "ws_samples"),
@@ -429,7 +429,7 @@ def _lp3d_compare(cfg: dict[str, Any]) -> dict[str, Any]:
         err = _max_abs(planes.reshape(96, *planes.shape[-2:]), ref["planes"])
         return f"{tuple(planes.shape)}: max abs Δ {err:.1e}", err
 
-    timed("planes (teacher.planes)", TOL_PLANES, planes_row)
+    row_check("planes (teacher.planes)", TOL_PLANES, planes_row)
 
     w0, b0, w1, b1 = teacher.decoder()
     rk = teacher.rendering_kwargs
@@ -468,7 +468,7 @@ def _lp3d_compare(cfg: dict[str, Any]) -> dict[str, Any]:
         return render_errors(out, "lp3d_render")
 
     def twin_row() -> tuple[str, float]:
-        out = render_triplane_torch(
+        out = render_with_twin(
             tri,
             camera,
             resolution=resolution,
@@ -478,8 +478,8 @@ def _lp3d_compare(cfg: dict[str, Any]) -> dict[str, Any]:
         )
         return render_errors(out, "torch twin")
 
-    timed("render: lp3d_render vs EG3D", TOL_RENDER, wgsl_row)
-    timed("render: torch twin vs EG3D", TOL_RENDER, twin_row)
+    row_check("render: lp3d_render vs EG3D", TOL_RENDER, wgsl_row)
+    row_check("render: torch twin vs EG3D", TOL_RENDER, twin_row)
 
     features = torch.from_numpy(ref["features"][None])
 
@@ -490,12 +490,12 @@ def _lp3d_compare(cfg: dict[str, Any]) -> dict[str, Any]:
         return f"{label}: {tuple(image.shape)}, max abs Δ {err:.1e}", err
 
     own_w = torch.from_numpy(ref["ws_samples"][-1])
-    timed(
+    row_check(
         "SR: teacher.superresolve vs G.synthesis",
         TOL_SR,
         lambda: sr_row(own_w, "image", "sr_w = the sample's w, vs EG3D's synthesis image"),
     )
-    timed(
+    row_check(
         "SR: sr_w='ones' vs EG3D's SR with w = 1",
         TOL_SR,
         lambda: sr_row("ones", "image_ones", "the paper's constant w"),

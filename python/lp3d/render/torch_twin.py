@@ -12,7 +12,7 @@ follow the data flow and have the reference's names, arguments and quantities (`
 
 ``render_rays`` runs that pipeline on given rays; ``render_torch`` validates its inputs, builds the
 rays from EG3D 25-float camera labels, renders in chunks of rays and assembles images;
-``render_triplane_torch`` is a NumPy-in, NumPy-out convenience with the reference's interface.
+``render_with_twin`` is a NumPy-in, NumPy-out convenience with the reference's interface.
 
 Shapes: ``B`` cameras, ``M = R*R`` rays per camera, ``S``/``N`` coarse/fine samples per ray,
 ``K`` samples in a marched list, ``C = 32`` channels, ``P`` triplanes (1 shared or one per camera).
@@ -78,7 +78,7 @@ __all__ = [
     "rays_from_cameras",
     "render_rays",
     "render_torch",
-    "render_triplane_torch",
+    "render_with_twin",
     "sample_importance",
     "sample_pdf",
     "sample_stratified",
@@ -93,7 +93,7 @@ DEFAULT_RAY_CHUNK = 32768
 
 
 class TriplaneLike(Protocol):
-    """What ``render_triplane_torch`` reads from a triplane (e.g. ``lp3d.render.triplane.TriplaneData``).
+    """What ``render_with_twin`` reads from a triplane (e.g. ``lp3d.render.triplane.TriplaneData``).
 
     ``planes`` (3, 32, H, W) float16/float32; effective decoder weights ``w0`` (64, 32), ``b0`` (64,),
     ``w1`` (33, 64), ``b1`` (33,); scalars ``box_warp``, ``ray_start``, ``ray_end``.
@@ -358,7 +358,7 @@ def render_torch(
     return result
 
 
-def render_triplane_torch(
+def render_with_twin(
     triplane: TriplaneLike,
     camera: np.ndarray,
     settings: RenderSettings | None = None,

@@ -1,0 +1,617 @@
+"""The super-resolution network in the model package: ONNX export and its parity
+with torch, the sidecar's ``superres`` entry and its validation, the Python API (features in, image
+out, both backends), the CLI's super-resolved and ``--raw`` outputs, and ``lp3d.superres_fit.fit`` on a
+tiny pair cache (resume, corrupt and stale caches, export guards).
+
+Networks are tiny and randomly initialised (weights perturbed so that every layer matters); renders
+are 16²-64² with few samples, so the file runs in about a minute on two cores.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from lp3d.cli import main
+from lp3d.cli.export import main as export_main
+from lp3d.export.package import (
+    check_superres_onnx,
+    export_superres,
+    package_superres,
+)
+from lp3d.lift.inference import load_superres, superresolve
+from lp3d.lift.model_package import (
+    ModelPackageError,
+    load_model_package,
+    set_package_superres,
+    superres_path,
+)
+from lp3d.nets.superres import SUPERRES_CONFIGS, FoldedSuperResolution, SuperresConfig, SuperResolution
+from lp3d.render.sample_scenes import coloured_sphere
+from lp3d.render.triplane_io import save_triplane
+from lp3d.superres_fit.fit import FitConfig, FitError, fit_superres, load_fit
+from support.tiny_model import tiny_onnx_package
+
+#: The tolerance the issue sets for onnxruntime against torch.
+ONNX_TOLERANCE = 1e-3
+#: The CLI tests' SR: 16² raw feature renders -> 64² images.
+SR_IN, SR_OUT = 16, 64
+SAMPLES = ("--samples", "8+8")
+
+
+def random_sr(config: SuperresConfig, seed: int = 0) -> SuperResolution:
+    """A network with every weight perturbed (EG3D's init leaves biases at zero and styles at one)."""
+    torch.manual_seed(seed)
+    sr = SuperResolution(config)
+    with torch.no_grad():
+        for p in sr.parameters():
+            p.add_(0.2 * torch.randn_like(p))
+    return sr.eval()
+
+
+def cli_sr_config() -> SuperresConfig:
+    return SuperresConfig(
+        name="test", input_resolution=SR_IN, output_resolution=SR_OUT, block_channels=(8, 8), w_dim=8
+    )
+
+
+def run(capsys: pytest.CaptureFixture[str], *argv: object) -> tuple[int, str, str]:
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture(scope="module")
+def package(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
+    """The tiny ONNX stand-in model with a super-resolution network (16² -> 64²) in its sidecar, the
+    same model without one, the network itself, and a sphere triplane with the model's decoder."""
+    folder = tmp_path_factory.mktemp("pkg")
+    onnx_path, enc, tri, bounds = tiny_onnx_package(folder)
+    plain = tmp_path_factory.mktemp("plain")
+    for f in folder.iterdir():
+        shutil.copy(f, plain / f.name)
+    sr = random_sr(cli_sr_config())
+    entry, err = package_superres(sr, onnx_path, about={"source": "test"})
+    assert err <= ONNX_TOLERANCE
+    set_package_superres(onnx_path, entry)
+    sphere = folder / "sphere.npz"
+    save_triplane(sphere, coloured_sphere(size=32, radius=0.3))
+    return {"onnx": onnx_path, "plain": plain / "tiny.onnx", "sr": sr, "sphere": sphere, "encoder": enc}
+
+
+# ===================================================================================== ONNX parity
+
+
+@pytest.mark.parametrize(
+    "config",
+    [
+        SUPERRES_CONFIGS["tiny"],  # the CPU paper recipe's (64² -> 128², one block)
+        FitConfig().superres_config(),  # the shipped model's fit (64² -> 256²)
+    ],
+    ids=["tiny", "fit-default"],
+)
+def test_superres_onnx_matches_torch(tmp_path, config) -> None:
+    """The exported graph (the folded network) against the torch network, on features in [-1, 1]."""
+    sr = random_sr(config)
+    path = export_superres(sr, tmp_path / "sr.onnx")
+    err = check_superres_onnx(sr, path, batch=3)
+    print(f"{config.name}: onnxruntime vs torch max abs error {err:.2e}")
+    assert err <= ONNX_TOLERANCE
+    # The folded torch form is the same function, to float rounding.
+    x = torch.rand(2, config.in_channels, config.input_resolution, config.input_resolution) * 2 - 1
+    with torch.no_grad():
+        ref, folded = sr(x), FoldedSuperResolution(sr)(x)
+    assert ref.shape == (2, 3, config.output_resolution, config.output_resolution)
+    assert float((ref - folded).abs().max()) <= 1e-4 * float(ref.abs().max())
+    with pytest.raises(ValueError, match=r"features must have shape \(B, 32, 64, 64\)"):
+        FoldedSuperResolution(sr)(x[..., :32, :32])
+
+
+def test_export_refuses_a_network_that_disagrees(tmp_path, monkeypatch) -> None:
+    """When onnxruntime and torch disagree beyond the tolerance: ParityError, and no file left behind."""
+    import lp3d.export.superres
+    from lp3d.export.package import ParityError
+
+    monkeypatch.setattr(lp3d.export.superres, "check_superres_onnx", lambda sr, path: 0.5)
+    with pytest.raises(ParityError, match="max abs error 0.5 > 0.001"):
+        package_superres(random_sr(cli_sr_config()), tmp_path / "m.onnx")
+    assert not superres_path(tmp_path / "m.onnx").exists()
+
+
+# ================================================================================= package and API
+
+
+def test_package_entry_and_python_api(package) -> None:
+    pkg = load_model_package(package["onnx"])
+    entry = pkg.superres
+    assert entry is not None and entry.path == superres_path(package["onnx"]) and entry.scale == 4
+    assert (entry.input_resolution, entry.output_resolution, entry.in_channels) == (SR_IN, SR_OUT, 32)
+    assert entry.about is not None and entry.about["source"] == "test"
+    assert entry.about["onnx_max_abs_error"] <= ONNX_TOLERANCE
+    assert load_model_package(package["plain"]).superres is None
+    assert load_superres(package["plain"]) is None
+
+    sr = load_superres(package["onnx"])
+    assert sr is not None and sr.backend == "onnx"
+    features = np.random.default_rng(0).uniform(-1, 1, (2, 32, SR_IN, SR_IN)).astype(np.float32)
+    image = sr(features)
+    with torch.no_grad():
+        expected = package["sr"](torch.from_numpy(features)).numpy()
+    assert image.shape == (2, 3, SR_OUT, SR_OUT) and np.abs(image - expected).max() <= ONNX_TOLERANCE
+    assert np.array_equal(sr(features[0]), image[0])  # one image without a batch axis
+    assert np.array_equal(superresolve(features, model=package["onnx"]), image)
+    with pytest.raises(ModelPackageError, match="no super-resolution network"):
+        superresolve(features, model=package["plain"])
+    with pytest.raises(ValueError, match=rf"\(B, 32, {SR_IN}, {SR_IN}\).*resolution={SR_IN}"):
+        sr(features[:, :, :8, :8])
+    with pytest.raises(ValueError, match="NaN"):
+        sr(np.full((1, 32, SR_IN, SR_IN), np.nan, np.float32))
+    # The network belongs to the package's decoder and bounds.
+    sphere = coloured_sphere(size=8)
+    assert sr.accepts(sphere)
+    other = coloured_sphere(size=8)
+    assert not sr.accepts(dataclasses.replace(other, w1=other.w1 * 1.01))
+    assert not sr.accepts(coloured_sphere(size=8, box_warp=1.5))
+
+
+def weights_file(encoder: torch.nn.Module, path: Path, **extra: object) -> dict[str, object]:
+    """An inference-weights file (``lp3d export --weights``'s layout) of the tiny encoder with the
+    sphere's decoder; returns its contents."""
+    tri = coloured_sphere(size=8)
+    data = {
+        "format": "lp3d-encoder-weights-v1",
+        "config": encoder.config.to_dict(),
+        "encoder": encoder.state_dict(),
+        "plane_offset": None,
+        "decoder": {k: torch.from_numpy(getattr(tri, k)) for k in ("w0", "b0", "w1", "b1")},
+        "bounds": {"box_warp": tri.box_warp, "ray_start": tri.ray_start, "ray_end": tri.ray_end},
+        **extra,
+    }
+    torch.save(data, path)
+    return data
+
+
+def test_torch_backend_reads_the_network_from_weights(package, tmp_path) -> None:
+    """``lp3d export --weights`` files carry the network for ``--backend torch``; same images."""
+    from lp3d.export.superres import superres_weights
+
+    weights = tmp_path / "tiny.pt"
+    data = weights_file(package["encoder"], weights)
+    assert load_superres(weights) is None
+    torch.save({**data, "superres": superres_weights(package["sr"])}, weights)
+    sr_torch, sr_onnx = load_superres(weights), load_superres(package["onnx"])
+    assert sr_torch is not None and sr_onnx is not None and sr_torch.backend == "torch"
+    features = np.random.default_rng(1).uniform(-1, 1, (1, 32, SR_IN, SR_IN)).astype(np.float32)
+    assert np.abs(sr_torch(features) - sr_onnx(features)).max() <= ONNX_TOLERANCE
+    torch.save({**data, "superres": {"config": {"nope": 1}, "state": {}}}, weights)
+    with pytest.raises(ModelPackageError, match="super-resolution configuration cannot be read"):
+        load_superres(weights)
+
+
+def _edited(package: dict[str, object], tmp_path: Path, edit) -> Path:
+    """A copy of the SR package whose sidecar's ``superres`` entry went through ``edit``."""
+    folder = tmp_path / "edited"
+    shutil.copytree(Path(package["onnx"]).parent, folder)
+    side = folder / "tiny.json"
+    data = json.loads(side.read_text())
+    edit(data["superres"]) if "superres" in data else None
+    side.write_text(json.dumps(data))
+    return folder / "tiny.onnx"
+
+
+@pytest.mark.parametrize(
+    ("edit", "words"),
+    [
+        (lambda e: e.pop("model"), "missing field 'superres.model'"),
+        (lambda e: e.update(model="../x.onnx"), "'superres.model' must be an .onnx file name"),
+        (lambda e: e.update(model="x.bin"), "'superres.model' must be an .onnx file name"),
+        (lambda e: e.update(input_resolution="16"), "'superres.input_resolution' has the wrong type"),
+        (lambda e: e.update(input_resolution=True), "'superres.input_resolution' has the wrong type"),
+        (lambda e: e.update(output_resolution=48), "'superres.output_resolution' (48) must be"),
+        (lambda e: e.update(output_resolution=16), "'superres.output_resolution' (16) must be"),
+        (lambda e: e.update(in_channels=3), "'superres.in_channels' must be 32"),
+        (lambda e: e.update(sha256="abc"), "'superres.sha256' must be 64 lowercase hex"),
+        (lambda e: e.pop("sha256"), "missing field 'superres.sha256'"),
+        (lambda e: e.update(about=[1]), "'superres.about' must be an object"),
+    ],
+)
+def test_package_rejects_a_bad_superres_entry(package, tmp_path, edit, words) -> None:
+    path = _edited(package, tmp_path, edit)
+    with pytest.raises(ModelPackageError, match=words.replace("(", r"\(").replace(")", r"\)")) as info:
+        load_model_package(path)
+    assert "tiny.json" in str(info.value)
+
+
+def test_package_rejects_a_superres_entry_that_is_not_an_object(package, tmp_path) -> None:
+    folder = tmp_path / "edited"
+    shutil.copytree(Path(package["onnx"]).parent, folder)
+    side = folder / "tiny.json"
+    side.write_text(json.dumps({**json.loads(side.read_text()), "superres": "tiny.superres.onnx"}))
+    with pytest.raises(ModelPackageError, match="field 'superres' must be an object"):
+        load_model_package(side)
+
+
+def test_superres_file_missing_altered_or_of_another_shape(package, tmp_path) -> None:
+    path = _edited(package, tmp_path, lambda e: None)
+    sr_file = superres_path(path)
+    data = sr_file.read_bytes()
+    sr_file.unlink()
+    with pytest.raises(ModelPackageError, match="tiny.superres.onnx: no such file.*'superres.model'"):
+        load_superres(path)
+    sr_file.write_bytes(data[:-1] + bytes([data[-1] ^ 1]))
+    with pytest.raises(ModelPackageError, match="'superres.sha256'"):
+        load_superres(path)
+    # A network of another size under a correct checksum: the graph's shapes are checked too.
+    other = random_sr(SuperresConfig(name="o", input_resolution=8, output_resolution=16, block_channels=(4,)))
+    export_superres(other, sr_file)
+    entry = json.loads(path.with_suffix(".json").read_text())["superres"]
+    entry["sha256"] = __import__("hashlib").sha256(sr_file.read_bytes()).hexdigest()
+    set_package_superres(path, entry)
+    with pytest.raises(ModelPackageError, match=r"input has shape \['batch', 32, 8, 8\].*\(B, 32, 16, 16\)"):
+        load_superres(path)
+    # Removing the entry leaves a package without a network.
+    set_package_superres(path, None)
+    assert load_model_package(path).superres is None and load_superres(path) is None
+
+
+# ============================================================================================= CLI
+
+
+def _size(path: Path) -> tuple[int, int]:
+    return Image.open(path).size
+
+
+def test_render_is_super_resolved_unless_raw(capsys, package, tmp_path) -> None:
+    sphere, model = package["sphere"], package["onnx"]
+    code, out, err = run(capsys, "render", sphere, "-o", tmp_path / "sr.png", "--model", model, *SAMPLES)
+    assert code == 0, err
+    assert _size(tmp_path / "sr.png") == (SR_OUT, SR_OUT)
+    assert f"{SR_IN}² raw -> {SR_OUT}²" in out and "super-resolved by tiny.superres.onnx" in out
+    code, out, err = run(
+        capsys, "render", sphere, "-o", tmp_path / "raw.png", "--model", model, "--raw", *SAMPLES
+    )
+    assert code == 0, err
+    assert _size(tmp_path / "raw.png") == (256, 256) and "raw volume render (--raw)" in out
+    # --resolution sets the output size either way (the SR image is resized), --depth follows it.
+    code, out, err = run(
+        capsys,
+        "render",
+        sphere,
+        "-o",
+        tmp_path / "r24.png",
+        "--model",
+        model,
+        "--resolution",
+        24,
+        "--depth",
+        tmp_path / "d24.png",
+        *SAMPLES,
+    )
+    assert code == 0, err
+    assert _size(tmp_path / "r24.png") == _size(tmp_path / "d24.png") == (24, 24)
+    assert "resized to 24²" in out
+    # The image is the network's output for the raw features.
+    code, _, err = run(
+        capsys,
+        "render",
+        sphere,
+        "-o",
+        tmp_path / "f.png",
+        "--model",
+        model,
+        "--raw",
+        "--features-channel",
+        0,
+        "--resolution",
+        SR_IN,
+        *SAMPLES,
+    )
+    assert code == 0, err
+
+
+def test_render_image_is_the_network_applied_to_the_raw_features(capsys, package, tmp_path) -> None:
+    import lp3d_render
+    from lp3d.images import rgb_to_uint8
+    from lp3d.render.camera import look_at_camera
+    from lp3d.render.native import native_triplane
+    from lp3d.render.triplane_io import load_triplane
+
+    code, _, err = run(
+        capsys, "render", package["sphere"], "-o", tmp_path / "sr.png", "--model", package["onnx"], *SAMPLES
+    )
+    assert code == 0, err
+    raw = lp3d_render.render(
+        native_triplane(load_triplane(package["sphere"])),
+        look_at_camera(),
+        resolution=SR_IN,
+        depth_resolution=8,
+        depth_resolution_importance=8,
+        outputs=["features"],
+    )["features"]
+    sr = load_superres(package["onnx"])
+    assert sr is not None
+    expected = rgb_to_uint8(sr(raw))
+    assert np.array_equal(np.asarray(Image.open(tmp_path / "sr.png")), expected)
+
+
+def test_render_default_uses_the_shipped_models_network_for_its_triplanes(
+    capsys, package, tmp_path, monkeypatch
+) -> None:
+    import lp3d.lift.inference
+
+    monkeypatch.setattr(lp3d.lift.inference, "DEFAULT_MODEL", Path(package["onnx"]))
+    code, out, err = run(capsys, "render", package["sphere"], "-o", tmp_path / "a.png", *SAMPLES)
+    assert code == 0, err
+    assert _size(tmp_path / "a.png") == (SR_OUT, SR_OUT) and "the shipped model's" in out
+    # A triplane with another decoder: no network applies; the output says why.
+    other = coloured_sphere(size=16)
+    save_triplane(tmp_path / "other.npz", dataclasses.replace(other, b1=other.b1 + 0.01))
+    code, out, err = run(capsys, "render", tmp_path / "other.npz", "-o", tmp_path / "b.png", *SAMPLES)
+    assert code == 0, err
+    assert _size(tmp_path / "b.png") == (256, 256) and "decoder is not the shipped model's" in out
+    # ... and asking for a package's network for it is an error.
+    code, _, err = run(
+        capsys, "render", tmp_path / "other.npz", "-o", tmp_path / "c.png", "--model", package["onnx"]
+    )
+    assert code == 1 and "--raw" in err and "decoder" in err and not (tmp_path / "c.png").exists()
+    # A shipped model without a network: raw, said so.
+    monkeypatch.setattr(lp3d.lift.inference, "DEFAULT_MODEL", Path(package["plain"]))
+    code, out, err = run(capsys, "render", package["sphere"], "-o", tmp_path / "d.png", *SAMPLES)
+    assert code == 0 and "has no super-resolution network" in out
+    code, _, err = run(
+        capsys, "render", package["sphere"], "-o", tmp_path / "e.png", "--model", package["plain"]
+    )
+    assert code == 1 and "has no super-resolution network" in err
+
+
+def test_orbit_writes_super_resolved_frames(capsys, package, tmp_path) -> None:
+    sphere, model = package["sphere"], package["onnx"]
+    code, out, err = run(
+        capsys, "orbit", sphere, "-o", tmp_path / "o.gif", "--model", model, "--frames", 3, *SAMPLES
+    )
+    assert code == 0, err
+    gif = Image.open(tmp_path / "o.gif")
+    assert gif.n_frames == 3 and gif.size == (SR_OUT, SR_OUT)
+    assert "super-resolved" in out and "orbit" in err  # the progress bar
+    code, out, err = run(
+        capsys,
+        "orbit",
+        sphere,
+        "-o",
+        tmp_path / "r.gif",
+        "--model",
+        model,
+        "--raw",
+        "--frames",
+        2,
+        "--resolution",
+        20,
+        *SAMPLES,
+    )
+    assert code == 0, err
+    assert Image.open(tmp_path / "r.gif").size == (20, 20) and "raw volume render (--raw)" in out
+
+
+def test_video_and_demo_use_the_models_network(capsys, package, tmp_path) -> None:
+    import imageio_ffmpeg
+
+    src = tmp_path / "in.mp4"
+    writer = imageio_ffmpeg.write_frames(
+        str(src), (48, 48), fps=5, macro_block_size=2, ffmpeg_log_level="error"
+    )
+    writer.send(None)
+    for i in range(2):
+        writer.send(np.full((48, 48, 3), 60 + 40 * i, np.uint8).tobytes())
+    writer.close()
+    common = ("--no-detect", "--model", package["onnx"], *SAMPLES)
+    code, out, err = run(capsys, "video", src, "-o", tmp_path / "sr.gif", *common)
+    assert code == 0, err
+    assert Image.open(tmp_path / "sr.gif").size == (SR_OUT, SR_OUT) and "super-resolved" in out
+    code, out, err = run(
+        capsys,
+        "video",
+        src,
+        "-o",
+        tmp_path / "raw.gif",
+        "--raw",
+        "--resolution",
+        16,
+        "--side-by-side",
+        *common,
+    )
+    assert code == 0, err
+    assert Image.open(tmp_path / "raw.gif").size == (32, 16)
+
+    code, out, err = run(
+        capsys,
+        "demo",
+        "--out",
+        tmp_path / "demo",
+        "--model",
+        package["onnx"],
+        "--samples",
+        "4+4",
+        "--frames",
+        2,
+    )
+    assert code == 0, err
+    assert Image.open(tmp_path / "demo" / "orbit.gif").size == (2 * SR_OUT, SR_OUT)
+    assert f"{SR_IN}² raw -> {SR_OUT}²" in out
+
+
+# =================================================================================== superres_fit
+
+
+def tiny_fit_config(**changes: object) -> FitConfig:
+    base = FitConfig(
+        identities=2,
+        views=1,
+        heldout_identities=1,
+        raw_resolution=16,
+        output_resolution=32,
+        depth_resolution=8,
+        depth_resolution_importance=8,
+        input_depth_resolution=8,
+        input_depth_resolution_importance=8,
+        teacher_resolution=32,
+        block_channels=(8,),
+        w_dim=8,
+        steps=4,
+        batch_size=2,
+        crop=8,
+        checkpoint_every=2,
+    )
+    return FitConfig.from_dict({**base.to_dict(), **changes})
+
+
+def test_superres_fit_resume_cache_and_export(package, tmp_path, capsys) -> None:
+    cache, out = tmp_path / "cache", tmp_path / "fit"
+    cfg = tiny_fit_config()
+    result = fit_superres(package["plain"], out, cfg, cache=cache, progress=False)
+    report = result.report
+    assert {"superres_psnr", "bilinear_psnr", "gain_db", "superres_ssim", "direct_psnr"} <= set(report)
+    assert {"teacher_superres_psnr", "teacher_bilinear_psnr", "teacher_gain_db"} <= set(report)
+    assert np.asarray(Image.open(out / "heldout.png")).shape[1] > 6 * cfg.output_resolution
+    assert report["pairs"] == 1 and np.isfinite(report["superres_psnr"])
+    assert report["gain_db"] == pytest.approx(report["superres_psnr"] - report["bilinear_psnr"])
+    assert {p.name for p in out.iterdir()} == {"superres-fit.pt", "log.csv", "report.json", "heldout.png"}
+    assert len((out / "log.csv").read_text().splitlines()) == 1 + cfg.steps
+    fit = load_fit(out)
+    assert fit.finished and fit.step == cfg.steps and fit.config == cfg
+    folders = sorted(p.name for p in cache.iterdir())
+    assert len(folders) == 2 and all(f.startswith("sr-") for f in folders)
+
+    # Running it again resumes the finished fit: nothing is rendered or trained again.
+    capsys.readouterr()
+    again = fit_superres(package["plain"], out, cfg, cache=cache, progress=False)
+    assert "resuming" in capsys.readouterr().out and again.report == report
+    # Another configuration in the same folder is refused.
+    with pytest.raises(FitError, match="another configuration.*steps: 4 -> 5"):
+        fit_superres(package["plain"], out, tiny_fit_config(steps=5), cache=cache, progress=False)
+
+    # A corrupt array and a stale key are reported and rebuilt (to the same arrays: renders are
+    # deterministic); the fit itself uses the rebuilt pairs.
+    train = next(
+        p
+        for p in (cache / f for f in folders)
+        if json.loads((p / "meta.json").read_text())["key"]["identities"] == 2
+    )
+    before = np.load(train / "target.npy")
+    raw = bytearray((train / "target.npy").read_bytes())
+    raw[-3] ^= 0xFF
+    (train / "target.npy").write_bytes(bytes(raw))
+    fit_superres(package["plain"], tmp_path / "fit2", cfg, cache=cache, progress=False)
+    assert "corrupt or edited" in capsys.readouterr().err
+    assert np.array_equal(np.load(train / "target.npy"), before)
+    meta = json.loads((train / "meta.json").read_text())
+    meta["key"]["views"] = 3
+    (train / "meta.json").write_text(json.dumps(meta))
+    fit_superres(package["plain"], tmp_path / "fit3", cfg, cache=cache, progress=False)
+    assert "made for another key" in capsys.readouterr().err
+
+    # Export: the fitted network joins the package (its decoder is the sphere's, like the package's).
+    target = tmp_path / "pkg"
+    shutil.copytree(Path(package["plain"]).parent, target)
+    code = export_main(
+        [
+            "--superres",
+            str(out / "superres-fit.pt"),
+            "--package",
+            str(target / "tiny.onnx"),
+            "--allow-worse-superres",
+        ]
+    )
+    printed = capsys.readouterr().out
+    assert code == 0 and "onnxruntime vs PyTorch max abs error" in printed
+    sr = load_superres(target / "tiny.onnx")
+    assert sr is not None and (sr.input_resolution, sr.output_resolution) == (16, 32)
+    pkg = load_model_package(target / "tiny.onnx")
+    assert pkg.superres is not None and pkg.superres.about["heldout"]["pairs"] == 1
+    assert pkg.superres.about["onnx_max_abs_error"] <= ONNX_TOLERANCE
+    # ... and with --weights, into the torch backend's file too: the same network.
+    weights_file(package["encoder"], target / "tiny.pt")
+    code = export_main(
+        [
+            "--superres",
+            str(out / "superres-fit.pt"),
+            "--package",
+            str(target / "tiny.onnx"),
+            "--weights",
+            str(target / "tiny.pt"),
+            "--allow-worse-superres",
+        ]
+    )
+    assert code == 0 and "updated" in capsys.readouterr().out
+    sr_torch = load_superres(target / "tiny.pt")
+    assert sr_torch is not None and sr_torch.backend == "torch"
+    x = np.random.default_rng(2).uniform(-1, 1, (2, 32, 16, 16)).astype(np.float32)
+    assert np.abs(sr_torch(x) - load_superres(target / "tiny.onnx")(x)).max() <= ONNX_TOLERANCE
+
+
+def test_export_guards_on_fits(package, tmp_path, capsys) -> None:
+    out = tmp_path / "fit"
+    fit_superres(package["plain"], out, tiny_fit_config(), cache=tmp_path / "cache", progress=False)
+    ckpt = torch.load(out / "superres-fit.pt", weights_only=True)
+    target = tmp_path / "pkg"
+    shutil.copytree(Path(package["plain"]).parent, target)
+
+    def export(path: Path) -> tuple[int, str]:
+        code = export_main(["--superres", str(path), "--package", str(target / "tiny.onnx")])
+        return code, capsys.readouterr().err
+
+    worse = dict(ckpt, report=json.dumps({**json.loads(ckpt["report"]), "gain_db": -0.5}))
+    torch.save(worse, tmp_path / "worse.pt")
+    code, err = export(tmp_path / "worse.pt")
+    assert code == 1 and "does not beat bilinear upsampling" in err
+    torch.save(dict(ckpt, step=2), tmp_path / "unfinished.pt")
+    code, err = export(tmp_path / "unfinished.pt")
+    assert code == 1 and "stopped at step 2 of 4" in err
+    torch.save(
+        dict(ckpt, model=json.dumps({**json.loads(ckpt["model"]), "decoder_sha256": "0" * 64})),
+        tmp_path / "other.pt",
+    )
+    code, err = export(tmp_path / "other.pt")
+    assert code == 1 and "another decoder" in err
+    (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
+    code, err = export(tmp_path / "junk.pt")
+    assert code == 1 and "junk.pt" in err
+    assert load_model_package(target / "tiny.onnx").superres is None  # nothing was added
+    assert not superres_path(target / "tiny.onnx").exists()
+
+
+def test_export_of_a_paper_recipe_checkpoint_carries_its_network(tmp_path, capsys) -> None:
+    """The paper recipe trains an SR with the encoder: ``lp3d export`` packages it (ONNX, sidecar
+    entry, ``--weights``), and the checkpoint, the ONNX package and the weights file give the same images."""
+    from lp3d.training import TRAIN_CONFIGS, Trainer, build_teacher
+    from lp3d.training.losses import build_perceptual
+
+    cfg = TRAIN_CONFIGS["tiny-paper"]
+    teacher = build_teacher("procedural", triplane_resolution=cfg.triplane_resolution)
+    trainer = Trainer(
+        cfg, tmp_path / "run", teacher=teacher, perceptual=build_perceptual("none"), progress=False
+    )
+    checkpoint = trainer.save_checkpoint()
+    out, weights = tmp_path / "model.onnx", tmp_path / "model.pt"
+    assert export_main([str(checkpoint), "-o", str(out), "--weights", str(weights)]) == 0
+    printed = capsys.readouterr().out
+    assert (
+        "wrote super-resolution model.superres.onnx (features (B, 32, 64, 64) -> image (B, 3, 128, 128))"
+        in printed
+    )
+    entry = load_model_package(out).superres
+    assert entry is not None and entry.about is not None and entry.about["source"] == "training checkpoint"
+    x = np.random.default_rng(3).uniform(-1, 1, (2, 32, 64, 64)).astype(np.float32)
+    images = [load_superres(p)(x) for p in (out, checkpoint, weights)]  # type: ignore[misc]
+    assert images[0].shape == (2, 3, 128, 128)
+    assert max(float(np.abs(a - images[0]).max()) for a in images[1:]) <= ONNX_TOLERANCE
+    # --no-superres leaves it out.
+    assert export_main([str(checkpoint), "-o", str(tmp_path / "bare.onnx"), "--no-superres"]) == 0
+    assert load_model_package(tmp_path / "bare.onnx").superres is None
+    assert not superres_path(tmp_path / "bare.onnx").exists()

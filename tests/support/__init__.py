@@ -1,0 +1,1 @@
+"""Helpers the tests share: scenes, a headless browser, tiny models, triplane files."""
