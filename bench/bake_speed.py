@@ -78,7 +78,7 @@ def main(argv: list[str] | None = None) -> int:
         p.error("--scenes: a comma list of encoder, teacher; --rounds at least 1")
 
     import lp3d_render
-    from encoded import encoder_output  # bench/ is on sys.path when run as a script
+    from harness import encoder_output  # bench/ is on sys.path when run as a script
     from lp3d.render.triplane_io import save_triplane
     from lp3d.teachers.procedural import ProceduralTeacher
 

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 import lp3d_render
-from encoded import encoder_outputs  # bench/ is on sys.path when run as a script
+from harness import encoder_outputs  # bench/ is on sys.path when run as a script
 from lp3d.render.camera import look_at_camera
 from lp3d.render.psnr import psnr_db
 from lp3d.render.triplane import TriplaneData

@@ -29,7 +29,7 @@ from collections.abc import Iterator
 import numpy as np
 
 import lp3d_render
-from encoded import encoder_outputs  # bench/ is on sys.path when run as a script
+from harness import encoder_outputs  # bench/ is on sys.path when run as a script
 from lp3d.render.baked import (
     EMPTY_RAW,
     bake_reference,

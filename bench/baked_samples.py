@@ -45,7 +45,7 @@ def main(argv: list[str] | None = None) -> int:
     cams = np.stack([look_at_camera(yaw_deg=y, pitch_deg=PITCH) for y in YAWS])
     common = {"resolution": R, "outputs": ["rgb"]}
 
-    def psnr(tri: object, ref: np.ndarray, coarse: int, fine: int, **kwargs: object) -> float:
+    def mean_psnr(tri: object, ref: np.ndarray, coarse: int, fine: int, **kwargs: object) -> float:
         """The mean PSNR over the views of `tri` rendered at coarse+fine against `ref`."""
         rgb = lp3d_render.render(
             tri, cams, **common, depth_resolution=coarse, depth_resolution_importance=fine, **kwargs
@@ -59,10 +59,10 @@ def main(argv: list[str] | None = None) -> int:
         ref = lp3d_render.render(tri, cams, **common, depth_resolution=192, depth_resolution_importance=192)[
             "rgb"
         ]
-        target = psnr(tri, ref, 48, 48)
+        target = mean_psnr(tri, ref, 48, 48)
         bake(tri, FIELD)
         lookups = {"baked_subdivisions": FIELD[0], "baked_fine_subdivisions": FIELD[1]} | ALL_SKIPS
-        columns.append((name, target, [psnr(tri, ref, c, f, **lookups) for c, f in args.splits]))
+        columns.append((name, target, [mean_psnr(tri, ref, c, f, **lookups) for c, f in args.splits]))
     lines = [
         f"Command: `python bench/baked_samples.py` ({time.strftime('%Y-%m-%d')}): k 4 / 16, all skips, "
         "PSNR against exact 192+192 (dB); * at or above exact 48+48's",

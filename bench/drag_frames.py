@@ -32,8 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from child_runs import child_rows, emit_table  # bench/ is on sys.path when run as a script
 from drag_error import FINE, VIEWER_SKIPS  # bench/ is on sys.path when run as a script
+from harness import child_rows, emit_table  # bench/ is on sys.path when run as a script
 
 os.environ.setdefault("LP3D_KERNEL", "fast")
 
@@ -55,7 +55,7 @@ FRAMES = ((64, 48), (48, 24))
 def prepare(fields: Path) -> list[object]:
     """The scenes' triplanes on the GPU with their fine fields attached (baked and saved once)."""
     import lp3d_render
-    from encoded import saved_encoder_output  # bench/ is on sys.path when run as a script
+    from harness import saved_encoder_output  # bench/ is on sys.path when run as a script
     from lp3d.render.baked import load_baked, save_baked
 
     tris = []

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from child_runs import child_rows, emit_table  # bench/ is on sys.path when run as a script
+from harness import child_rows, emit_table  # bench/ is on sys.path when run as a script
 
 os.environ.setdefault("LP3D_KERNEL", "fast")
 
@@ -37,7 +37,7 @@ WALKS = (("every sample", "1"), ("ended walks", "0"))
 
 def scenes(folder: Path) -> list[tuple[str, object]]:
     """(name, native triplane) of every scene, the encoder's outputs encoded once and saved."""
-    from encoded import saved_encoder_output  # bench/ is on sys.path when run as a script
+    from harness import saved_encoder_output  # bench/ is on sys.path when run as a script
     from lp3d.teachers import ProceduralTeacher
     from render_bench import scene as random_scene
 

@@ -15,16 +15,16 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import statistics
 import sys
-import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
 import lp3d_render
+from harness import timed  # bench/ is on sys.path when run as a script
 from lp3d.render.camera import look_at_camera
+from lp3d.render.psnr import psnr_db
 from lp3d.render.settings import Skips
 from lp3d.render.triplane import TriplaneData
 from lp3d.render.triplane_io import load_triplane
@@ -82,20 +82,6 @@ def fog(seed: int = 0, size: int = 64) -> TriplaneData:
         b1=np.zeros(33, np.float32),
         source="random fog",
     )
-
-
-def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    mse = float(np.mean(((a - b) / 2.0) ** 2))
-    return math.inf if mse == 0 else 10.0 * math.log10(1.0 / mse)
-
-
-def timed(fn, repeats: int) -> tuple[float, object]:
-    times, out = [], None
-    for _ in range(repeats):
-        start = time.perf_counter()
-        out = fn()
-        times.append((time.perf_counter() - start) * 1e3)
-    return statistics.median(times), out
 
 
 def plot(rows: list[dict], path: Path) -> None:
@@ -179,9 +165,9 @@ def main(argv: list[str] | None = None) -> int:
     info = lp3d_render.adapter_info()
 
     try:
-        from lp3d.render.torch_twin import render_triplane_torch
+        from lp3d.render.torch_twin import render_with_twin
     except ImportError:
-        render_triplane_torch = None
+        render_with_twin = None
 
     rows = []
     torch_ms = {}
@@ -192,9 +178,9 @@ def main(argv: list[str] | None = None) -> int:
         ref = lp3d_render.render(
             tri, cam, resolution=r, depth_resolution=192, depth_resolution_importance=192, outputs=["rgb"]
         )["rgb"]
-        if render_triplane_torch is not None:
+        if render_with_twin is not None:
             torch_ms[scene_name], _ = timed(
-                lambda data=data: render_triplane_torch(
+                lambda data=data: render_with_twin(
                     data, cam, resolution=r, depth_resolution=48, depth_resolution_importance=48
                 ),
                 args.repeats,
@@ -219,7 +205,7 @@ def main(argv: list[str] | None = None) -> int:
                     "scene": scene_name,
                     "setting": st.name,
                     "ms": ms,
-                    "psnr": psnr(rgb, ref),
+                    "psnr": psnr_db(rgb, ref),
                     "max": float(np.abs(rgb - ref).max() / 2),
                     "exact": st.skips.exact,
                 }

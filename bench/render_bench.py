@@ -68,11 +68,11 @@ def main(argv: list[str] | None = None) -> int:
     try:
         import torch
 
-        from lp3d.render.torch_twin import render_triplane_torch
+        from lp3d.render.torch_twin import render_with_twin
 
         torch_threads = torch.get_num_threads()
     except ImportError:
-        render_triplane_torch = None
+        render_with_twin = None
         torch_threads = 0
 
     rows = []
@@ -83,8 +83,8 @@ def main(argv: list[str] | None = None) -> int:
             ref = tw = None
             if r == 64:
                 ref = median_ms(lambda kw=kw: render_reference(data, cam, **kw), 1)
-                if render_triplane_torch is not None:
-                    tw = median_ms(lambda kw=kw: render_triplane_torch(data, cam, **kw), args.repeats)
+                if render_with_twin is not None:
+                    tw = median_ms(lambda kw=kw: render_with_twin(data, cam, **kw), args.repeats)
             rows.append((r, f"{s}+{n}", wgsl, ref, tw))
             print(f"R={r:4d} {s}+{n}: lp3d_render {wgsl:9.1f} ms", file=sys.stderr)
 

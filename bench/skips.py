@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import statistics
 import sys
 import time
 from dataclasses import replace
@@ -22,26 +21,14 @@ from dataclasses import replace
 import numpy as np
 
 import lp3d_render
+from harness import timed  # bench/ is on sys.path when run as a script
 from lp3d.render.camera import look_at_camera
+from lp3d.render.psnr import psnr_db
 from lp3d.teachers import ProceduralTeacher
 
 # Time the steady state: the fast kernel, not the quick one the renderer draws with while the fast
 # one compiles in the background on a machine whose shader cache lacks it (README, "first render").
 os.environ.setdefault("LP3D_KERNEL", "fast")
-
-
-def timed(fn, repeats: int):
-    times, out = [], None
-    for _ in range(repeats):
-        start = time.perf_counter()
-        out = fn()
-        times.append((time.perf_counter() - start) * 1e3)
-    return statistics.median(times), out
-
-
-def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    mse = float(np.mean(((a - b) / 2.0) ** 2))
-    return math.inf if mse == 0 else 10.0 * math.log10(1.0 / mse)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -100,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
             err = float(np.abs(out["rgb"] - exact["rgb"]).max())
             print(
                 f"| teacher seed {seed} | {name} | {ms:,.0f} | {exact_ms / ms:.2f}× | "
-                f"{psnr(out['rgb'], exact['rgb']):.1f} dB | {err:.1e} |",
+                f"{psnr_db(out['rgb'], exact['rgb']):.1f} dB | {err:.1e} |",
                 flush=True,
             )
     return 0

@@ -4,7 +4,7 @@
 
 * **Resolvable by its sampler**: each head (the teacher's native 256² planes) rendered at 128² with
   EG3D's 48+48 samples against 192+192, from the evaluation's novel views (yaw -30/0/30 at pitch 0,
-  yaw 0 at pitch 20). PSNR (RGB in [0, 1]) and the largest single-pixel error. Target (issue 20):
+  yaw 0 at pitch 20). PSNR (RGB in [0, 1]) and the largest single-pixel error. Target:
   >= 40 dB, <= 0.15.
 * **Plane-noise sensitivity**: the teacher's own 64² planes plus i.i.d. Gaussian noise of 2/5/10/20 %
   of each (plane, channel)'s std over the texels, rendered at 64² with 24+24 samples from yaw -30/0/30
@@ -27,12 +27,11 @@ import time
 from pathlib import Path
 
 import numpy as np
-import torch
 
-from lp3d.evaluation.metrics import psnr
 from lp3d.evaluation.protocol import NOVEL_VIEWS
 from lp3d.render.camera import look_at_camera
 from lp3d.render.native import render
+from lp3d.render.psnr import psnr_db
 from lp3d.render.triplane import TriplaneData
 from lp3d.teachers.procedural import TEACHER_VERSIONS, ProceduralTeacher
 from lp3d.training.config import TrainConfig
@@ -42,13 +41,6 @@ EVAL_SEED_START = TrainConfig.__dataclass_fields__["eval_seed_start"].default
 
 NOISE_LEVELS = (0.02, 0.05, 0.10, 0.20)
 NOISE_VIEWS = ((-30.0, 15.0), (0.0, 15.0), (30.0, 15.0))
-
-
-def psnr01(a: np.ndarray, b: np.ndarray) -> float:
-    """PSNR (dB) of two RGB renders (..., 3, H, W) in [-1, 1] as one image: the evaluation's
-    :func:`lp3d.evaluation.metrics.psnr` (peak-to-peak 2, i.e. RGB mapped to [0, 1])."""
-    flat = [torch.from_numpy(np.ascontiguousarray(x, dtype=np.float64)).reshape(1, 1, 1, -1) for x in (a, b)]
-    return float(psnr(*flat)[0])
 
 
 def cameras(views: tuple[tuple[float, float], ...]) -> np.ndarray:
@@ -79,7 +71,7 @@ def convergence(version: int, seeds: list[int]) -> dict[str, list[float]]:
         tri = teacher.sample(seed)
         low = rgb(tri, cams, 128, 48)
         high = rgb(tri, cams, 128, 192)
-        psnrs.append(psnr01(low, high))
+        psnrs.append(psnr_db(low, high))
         worst.append(float(np.max(np.abs(np.clip(low, -1, 1) - np.clip(high, -1, 1))) / 2.0))
     return {"psnr": psnrs, "max_error": worst}
 
@@ -96,12 +88,12 @@ def noise_and_variety(version: int, seeds: list[int], noise_seed: int) -> dict[s
         for tri, ref in zip(tris, clean, strict=True):
             std = tri.planes.std(axis=(2, 3), keepdims=True)
             planes = tri.planes + level * std * rng.standard_normal(tri.planes.shape)
-            scores.append(psnr01(rgb(with_planes(tri, planes), cams, 64, 24), ref))
+            scores.append(psnr_db(rgb(with_planes(tri, planes), cams, 64, 24), ref))
         noisy[f"{level:.2f}"] = float(np.mean(scores))
     mean_tri = with_planes(tris[0], np.mean([t.planes for t in tris], axis=0))
     mean_render = rgb(mean_tri, cams, 64, 24)
-    mean_head = float(np.mean([psnr01(mean_render, c) for c in clean]))
-    other = [psnr01(clean[i], clean[j]) for i in range(len(seeds)) for j in range(len(seeds)) if i != j]
+    mean_head = float(np.mean([psnr_db(mean_render, c) for c in clean]))
+    other = [psnr_db(clean[i], clean[j]) for i in range(len(seeds)) for j in range(len(seeds)) if i != j]
     return {"noise": noisy, "mean_head": mean_head, "other_head": float(np.mean(other))}
 
 

@@ -37,6 +37,7 @@ from lp3d.outputs import VideoWriter
 from lp3d.photo.video import read_video
 from lp3d.render.camera import FFHQ_FOCAL, look_at_camera
 from lp3d.render.native import native_triplane
+from lp3d.render.psnr import psnr_db
 from lp3d.teachers.procedural import ProceduralTeacher
 
 #: Two held-out identities (``TrainConfig.eval_seed_start`` + 200 ..): the head and the one it morphs to.
@@ -95,8 +96,9 @@ def flicker(frames: np.ndarray) -> float:
     return float(np.abs(np.diff(frames, axis=0)).mean())
 
 
-def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    return float(10 * np.log10(255.0**2 / max(np.square(a - b).mean(), 1e-12)))
+def frame_psnr(a: np.ndarray, b: np.ndarray) -> float:
+    """:func:`lp3d.render.psnr.psnr_db` of two 8-bit frames, mapped onto the renderer's [-1, 1]."""
+    return psnr_db(a / 127.5 - 1.0, b / 127.5 - 1.0)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -142,7 +144,7 @@ def main(argv: list[str] | None = None) -> int:
                 raise SystemExit(f"lp3d {' '.join(cmd)} failed")
             seconds = time.perf_counter() - t0
             lifted = _read(out)
-            err = statistics.fmean(psnr(x, y) for x, y in zip(lifted, teacher_frames, strict=True))
+            err = statistics.fmean(frame_psnr(x, y) for x, y in zip(lifted, teacher_frames, strict=True))
             rows.append((variant, flicker(lifted), err, seconds))
             print(f"{variant}: flicker {rows[-1][1]:.2f}, PSNR {err:.2f} dB, {seconds:.0f} s")
     print(

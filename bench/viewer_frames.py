@@ -165,7 +165,7 @@ def main(argv: list[str] | None = None) -> int:
     if shutil.which("xvfb-run") is None:
         p.error("xvfb-run is missing: run scripts/install-system-deps.sh")
 
-    from encoded import encoder_output  # bench/ is on sys.path when run as a script
+    from harness import encoder_output  # bench/ is on sys.path when run as a script
     from lp3d.render.triplane_io import save_triplane
     from lp3d.teachers.procedural import ProceduralTeacher
 
