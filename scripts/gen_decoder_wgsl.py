@@ -8,16 +8,17 @@ and the file holds two forms of it, picked per pipeline by the override constant
 
 - unrolled: every weight index a constant. On lavapipe a uniform load at a constant offset is
   nearly free at run time, but each of the ~4200 loads is a separate piece of LLVM IR, so this
-  form takes most of the kernel's JIT compile (~37 s of CPU here).
+  form takes most of the kernel's JIT compile.
 - rolled: one loop over the hidden units, four per iteration, loading weights at constant
-  offsets from a loop-uniform base. It compiles in about 2 s but runs ~1.6x slower on lavapipe
+  offsets from a loop-uniform base. It compiles many times faster but runs slower on lavapipe
   (each dynamic uniform load costs a bounds check and a broadcast), so it draws the first
   images while the unrolled kernel compiles in the background.
 
 Both accumulate every sum in the same order (hidden unit j's 8 dot products, then its bias;
 output r's 16 dot products from hidden vec4 0 to 15, then its bias), so they give bit-identical
-outputs. bench/RESULTS.md ("Kernel compile time") has the measurements; tests/test_generated_shaders.py
-checks the committed file matches this script's output.
+outputs. docs/performance.md ("First image") and bench/history/RESULTS.md ("Kernel compile time")
+have the measurements; tests/render/test_generated_shaders.py checks the committed file matches this
+script's output.
 
     python scripts/gen_decoder_wgsl.py > crates/renderer/shaders/decoder.wgsl
 """

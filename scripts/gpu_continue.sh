@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
-# Continue the shipped student on one lent GPU, in one command of under 10 minutes, and leave its
-# weights in $OUT in parts of under 16 MiB (issue 20; docs/training.md, "Continuing the shipped
-# model on one GPU"). The shipped run's own checkpoint, with its optimiser's state, did not survive
-# its session, so this starts a new run from the shipped package (--init-from: the export's 28 basis
-# planes grow back to 64) with a fresh optimiser, the rays throughout and a schedule short enough to
-# finish inside the time guard.
+# Continue training the shipped student on one GPU, in one command of under 10 minutes, and leave
+# its weights in $OUT in parts of under 16 MiB, for a GPU machine that hands back only small files
+# (docs/training.md, "Continuing the shipped model on one GPU"). The shipped run's own checkpoint,
+# with its optimiser's state, was not kept, so this starts a new run from the shipped package
+# (--init-from: the export's 28 basis planes grow back to 64) with a fresh optimiser, the rays
+# throughout and a schedule short enough to finish inside the time guard.
 #
 #   OUT=/some/folder bash scripts/gpu_continue.sh           # on the GPU machine, from the repo root
 #
@@ -16,8 +16,8 @@
 # IDENTITIES [4096], CHECKPOINT_EVERY [200], TRAIN_S [470: the run is stopped (SIGINT, it saves a
 # checkpoint first) after this many seconds], DEVICE [cuda], CONFIG [small-colour],
 # INIT [python/lp3d/lift/models/small.pt; empty: no warm start], RUN [/tmp/lp3d-gpu-run].
-# At ~121 ms per step of batch 32 with the rays (one H200, 2026-11-27) and ~2 minutes for the
-# dataset, the defaults take about 6 minutes.
+# The defaults are sized to finish well inside TRAIN_S on one H200-class GPU, dataset included
+# (the step time measured there: docs/training.md, "On one GPU: how the shipped model was trained").
 set -euo pipefail
 
 : "${OUT:?set OUT to the folder the parts and logs go to}"
@@ -65,8 +65,8 @@ fi
 [ "$rc" -eq 130 ] && stamp "stopped by the ${TRAIN_S}s guard before step $STEPS: the schedule did not finish"
 stamp "splitting the newest checkpoint's weights"
 "$PYTHON" scripts/checkpoint_parts.py split "$RUN" "$OUT" --part-mib 15.9
-# The device tool returns at most 8 files: the parts (4 for small-colour), the manifest, this log
-# and the run's two CSV files in one archive.
+# Few files, each small: the parts (4 for small-colour), the manifest, the log and the run's CSV
+# files and configuration in one archive.
 tar -czf "$OUT/run-logs.tar.gz" -C "$RUN" log.csv heldout.csv config.json
 echo "held-out curve (heldout.csv):"
 cat "$RUN/heldout.csv"

@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # Installs the system packages lp3d needs (Debian/Ubuntu, as root): Mesa's lavapipe
-# (software Vulkan) from bookworm-backports (Mesa 25.x, ~2x faster than stock 22.x) where that
+# (software Vulkan) from bookworm-backports (Mesa 25.x, much faster than stock 22.x) where that
 # suite exists, the Vulkan loader, Xvfb for viewer screenshots, and Debian's Chromium, whose
-# headless WebGPU (SwiftShader) runs the `lp3d share` page in tests/test_share.py (~110 MB
-# download, about 1.5 min of the install). Idempotent. The backports entry is a copy of the machine's own
+# headless WebGPU (SwiftShader) runs the `lp3d share` page in tests/view/test_share.py (~110 MB
+# download). Idempotent. The backports entry is a copy of the machine's own
 # Debian entry with a new suite name, so no mirror host is written here.
 set -euo pipefail
 export DEBIAN_FRONTEND=noninteractive
@@ -30,11 +30,11 @@ if [ ${#missing[@]} -gt 0 ]; then
     apt-get install -y -qq "${missing[@]}"
   fi
 fi
-# Chromium for tests/test_share.py, on its own: Debian has the package, Ubuntu's is a snap stub, and
+# Chromium for tests/view/test_share.py, on its own: Debian has the package, Ubuntu's is a snap stub, and
 # a machine without it should still get everything else (the test then fails saying what is missing).
 if ! dpkg -s chromium >/dev/null 2>&1; then
   [ ${#missing[@]} -gt 0 ] || apt-get update -qq
-  apt-get install -y -qq chromium || echo "warning: no chromium package; tests/test_share.py needs Chromium" >&2
+  apt-get install -y -qq chromium || echo "warning: no chromium package; tests/view/test_share.py needs Chromium" >&2
 fi
 echo "mesa-vulkan-drivers $(dpkg-query -W -f='${Version}' mesa-vulkan-drivers)"
 echo "chromium $(dpkg-query -W -f='${Version}' chromium 2>/dev/null || echo 'not installed')"

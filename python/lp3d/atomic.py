@@ -3,7 +3,7 @@
 Every writer in lp3d goes through here, one file with :func:`atomic_path` (``save_triplane``, the
 model package, checkpoints, figures; :func:`atomic_write_text` for a text file: ``config.json``,
 ``report.json``) or a set with :class:`StagedFiles` (the CLI's outputs), so they share three promises.
-No other module defines an atomic writer of its own (``tests/test_layout.py`` checks):
+No other module defines an atomic writer of its own (``tests/project/test_layout.py`` checks):
 
 * **Unique temporary names.** Each write gets its own new file beside the destination (same folder,
   so the rename is atomic), created with ``O_EXCL``: threads and processes writing the same path at

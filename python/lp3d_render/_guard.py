@@ -1,10 +1,12 @@
 """Checks made in Python before a call reaches the GPU: a process forked after its parent used the GPU,
-and a batch whose outputs cannot fit in memory. Both would otherwise never come back as an error: the
-device and its threads do not survive ``fork`` (the call hangs), and a failed allocation of the outputs
-aborts the process."""
+a batch whose outputs cannot fit in memory, and a file-size limit the driver's memory cannot live
+under. None would otherwise come back as an error: the device and its threads do not survive
+``fork`` (the call hangs), a failed allocation of the outputs aborts the process, and a driver that
+keeps device memory in files (Mesa's lavapipe) dies of SIGBUS when one cannot grow."""
 
 from __future__ import annotations
 
+import errno
 import functools
 import os
 from collections.abc import Callable
@@ -25,7 +27,32 @@ _gpu_pid: int | None = None
 _CHANNELS = {"features": 32, "rgb": 3, "depth": 1, "weights_sum": 1}
 
 
+#: Mesa's software Vulkan driver keeps device memory in memory-backed files ("allocation fd") grown
+#: in blocks of 64 MiB; under a smaller file-size limit (``ulimit -f``) growing one fails with EFBIG,
+#: the driver does not check, and its next touch of the memory kills the process with SIGBUS.
+_DRIVER_FILE_BYTES = (64 << 20) + (1 << 20)
+
+
+def _check_file_size_limit(need: int = 0) -> None:
+    """An OSError (EFBIG, "File too large", as a write over the limit reports it) when this process's
+    file-size limit is below what the driver's memory files need (``need``: a render's outputs)."""
+    try:
+        import resource
+    except ImportError:  # not on this platform: no such limit
+        return
+    soft = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+    need = max(need, _DRIVER_FILE_BYTES)
+    if soft != resource.RLIM_INFINITY and soft < need:
+        e = OSError(
+            f"File too large: the GPU driver keeps its memory in files of up to {need >> 20} MiB, over "
+            f"this process's file-size limit (ulimit -f) of {soft} bytes; raise the limit"
+        )
+        e.errno = errno.EFBIG
+        raise e
+
+
 def _check_process() -> None:
+    _check_file_size_limit()
     global _gpu_pid
     pid = os.getpid()
     if _gpu_pid is None:
@@ -83,11 +110,12 @@ def _check_size(camera: Any, resolution: Any, outputs: Any) -> None:
         return  # the renderer names a bad resolution or camera shape
     n = shape[0] if len(shape) == 2 else 1
     need, have = output_bytes(n, r, names), _memory_bytes()
+    _check_file_size_limit(need)
     if have is not None and need > have:
         gib = 1 << 30
         raise ValueError(
             f"camera: a batch of {n} cameras at {r}² needs {need / gib:.1f} GiB of memory for its outputs, "
-            f"more than this machine's {have / gib:.1f} GiB; render fewer cameras per call (or ask for "
+            f"more than the system's {have / gib:.1f} GiB; render fewer cameras per call (or ask for "
             "fewer outputs, such as outputs=['rgb'])"
         )
 

@@ -18,9 +18,9 @@
 // weights into `scratch`), then, after the importance draw, the merged coarse + fine list
 // (the streaming composite). Both walks share one sample evaluation (triplane fetch + decoder)
 // so the kernel holds a single copy of that code: lavapipe inlines every call, and compile
-// time grows with each copy (bench/RESULTS.md, "Kernel compile time"). The importance draw
-// sits in the outer loop, between the walks: inside the per-sample loop it made every sample
-// slower.
+// time grows with each copy (bench/history/RESULTS.md, "Kernel compile time"). The importance
+// draw sits in the outer loop, between the walks: inside the per-sample loop it made every
+// sample slower.
 
 // The compositing state of a walk (MipRayMarcher2, front to back).
 struct Composite {
@@ -163,8 +163,9 @@ fn walk_ends(
 }
 
 // Coarse samples the coarse walk keeps for the composite (the first ones, when a ray has more).
-// Not MAX_SAMPLES: lavapipe's compile time grows with the size of a private array (fast kernel
-// 27 s at 256, 20 s at 64; quick kernel 7 s and 2.1 s; bench/RESULTS.md).
+// Not MAX_SAMPLES: lavapipe's compile time grows with the size of a private array, and at
+// MAX_SAMPLES the quick kernel would no longer compile quickly (bench/history/RESULTS.md,
+// "Kernel steps toward 3×").
 const COARSE_CACHE: u32 = 64u;
 
 // The pixel of ray slot `i` (a camera's invocation x). lavapipe runs 8 consecutive invocations in

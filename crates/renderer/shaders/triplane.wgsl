@@ -46,7 +46,8 @@ fn add_tap(p: u32, x: i32, y: i32, w: f32, feat: ptr<function, array<vec4<f32>, 
 
 // Bilinear taps of grid_sample at normalised (u, v) in [-1, 1] for plane p, added to `feat`.
 // The four taps are a loop (corner c: x + (c & 1), y + (c >> 1)), not four copies: lavapipe
-// inlines every call, and each copy of add_tap costs compile time (bench/RESULTS.md).
+// inlines every call, and each copy of add_tap costs compile time (bench/history/RESULTS.md,
+// "Kernel compile time").
 fn add_plane(p: u32, u: f32, v: f32, feat: ptr<function, array<vec4<f32>, 8>>) {
     let ix = ((u + 1.0) * f32(params.plane_w) - 1.0) * 0.5;
     let iy = ((v + 1.0) * f32(params.plane_h) - 1.0) * 0.5;

@@ -35,8 +35,9 @@ pub const MAX_FINE_SUBDIVISIONS: u32 = 16;
 /// A brick is crossed by a surface when its raw density rises above this at one of its points
 /// ([`needs_fine`]) ...
 pub const CROSSED_DENSE: f32 = 10.0;
-/// ... and falls below this at another (`bench/baked_resolution.py` chose both: 38% of a teacher
-/// head's bricks, holding the error of a uniform field as fine, `bench/RESULTS.md`).
+/// ... and falls below this at another (`bench/baked_resolution.py` chose both: the fewest bricks
+/// that hold the error of a uniform field as fine, `bench/history/RESULTS.md`, "How fine a
+/// field reaches exact 48+48's error").
 pub const CROSSED_SOLID: f32 = 50.0;
 /// A brick whose raw density stays above [`CROSSED_SOLID`] but falls below this somewhere lies in
 /// the shell just under a surface, still seen through it (at 48+48 a ray's transmittance falls to
@@ -44,7 +45,7 @@ pub const CROSSED_SOLID: f32 = 50.0;
 pub const FINE_SHELL: f32 = 200.0;
 /// ... and is made fine too when the colour of its dense points (raw density above
 /// [`CROSSED_DENSE`]) spans more than this in one channel (of the decoder's [0, 1] RGB): an
-/// eyebrow's or a lip's edge under the skin, which k points per cell edge blur (`bench/RESULTS.md`,
+/// eyebrow's or a lip's edge under the skin, which k points per cell edge blur (`bench/history/RESULTS.md`,
 /// "Colour edges under a surface").
 pub const FINE_COLOUR_STEP: f32 = 0.1;
 /// Every point's colour weight is at least this (`BAKED_COLOUR_FLOOR` in `baked.wgsl`) ...

@@ -11,9 +11,10 @@ use crate::shaders;
 /// are bit-identical (a test checks); only the time to compile and to run differs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Kernel {
-    /// Unrolled decoder: the fastest to run; on lavapipe its first compile takes ~30 s of CPU.
+    /// Unrolled decoder: the fastest to run, and the slowest to compile the first time on lavapipe
+    /// (docs/performance.md, "First image").
     Fast,
-    /// Rolled decoder: compiles in ~2 s on lavapipe and runs ~1.5x slower there.
+    /// Rolled decoder: compiles many times faster on lavapipe and runs slower there.
     Quick,
 }
 

@@ -27,15 +27,15 @@ pub struct RenderSettings {
     pub skips: Skips,
 }
 
-/// Approximations that trade a bounded error for speed (`bench/RESULTS.md` measures each).
+/// Approximations that trade a bounded error for speed (docs/performance.md, "Exact mode's skips").
 /// Zero thresholds are exact.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Skips {
     /// Stop a ray once its transmittance is below this, in the coarse pass and the composite.
     /// Contributions behind that point are weighted by less than the threshold, but stopping
     /// the coarse pass also moves the importance samples (the pdf behind the surface becomes
-    /// its floor), so the error is measured (bench/RESULTS.md), not bounded by the threshold:
-    /// on a teacher head, 1e-3 gave a 71 dB PSNR and a max error of 3e-3 against exact mode.
+    /// its floor), so the error is measured (docs/performance.md, "Exact mode's skips"), not
+    /// bounded by the threshold.
     pub transmittance_threshold: f32,
     /// No importance pass for rays whose coarse opacity is below this: they are composited
     /// from the coarse samples alone.
@@ -71,11 +71,10 @@ impl Skips {
     };
 
     /// The baked field as the viewer's moving frames and `lp3d orbit --baked` use it
-    /// (`docs/baked.md`, `bench/RESULTS.md` "Baked field"): two levels, k = 10 in the bricks a
-    /// surface crosses (or a colour edge under one) and 4 elsewhere, 99-112 MiB on teacher heads
-    /// and encoder outputs (the coarse ones within lavapipe's 128 MiB storage binding, where a
-    /// uniform k = 8 is not) and 5 dB closer to exact
-    /// mode than the uniform k = 6 at the same frame time; the occupancy skip at 1e-4 per
+    /// (`docs/baked.md`; sizes in docs/performance.md, "Bake time and size"): two levels, k = 10
+    /// in the bricks a surface crosses (or a colour edge under one) and 4 elsewhere (the coarse
+    /// ones within lavapipe's 128 MiB storage binding, where a uniform k = 8 is not), closer to
+    /// exact mode than a uniform k = 6 at the same frame time; the occupancy skip at 1e-4 per
     /// interval. `lp3d.render.settings.BAKED` is the same (a test).
     pub const BAKED: Skips =
         Skips { occupancy_epsilon: 1e-4, baked_subdivisions: 4, baked_fine_subdivisions: 10, ..Skips::EXACT };

@@ -90,7 +90,7 @@ pub enum PlaneDtype {
 
 /// EG3D FFHQ's scene bounds (``rendering_kwargs``), as given (float64): [`SceneBounds::default`]
 /// and the defaults of Python's ``Triplane(...)``, exposed as ``lp3d_render.DEFAULT_*``;
-/// ``lp3d.render.settings.DEFAULT_*`` must agree (tests/test_render_api.py checks).
+/// ``lp3d.render.settings.DEFAULT_*`` must agree (tests/render/test_render_api.py checks).
 pub const DEFAULT_BOX_WARP: f64 = 1.0;
 pub const DEFAULT_RAY_START: f64 = 2.25;
 pub const DEFAULT_RAY_END: f64 = 3.3;

@@ -1,6 +1,6 @@
 //! End-to-end on the real device (lavapipe in CI): a render produces finite outputs with the
 //! documented shapes, and the file format round-trips. Numerical parity with the float64
-//! reference lives in the Python suite (tests/test_render_parity.py).
+//! reference lives in the Python suite (tests/render/test_render_parity.py).
 
 mod common;
 

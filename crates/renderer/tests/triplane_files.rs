@@ -1,7 +1,7 @@
-//! The triplane reader against hostile files (issue 11): non-regular paths, size claims that must
-//! be refused before anything is allocated, and a bounded, seeded mutation fuzzer asserting that
+//! The triplane reader against hostile files: non-regular paths, size claims that must be
+//! refused before anything is allocated, and a bounded, seeded mutation fuzzer asserting that
 //! every mutated file loads or gives an error, never a panic or an abort. The Python side of the
-//! same cases, and the check that both readers agree, is `tests/test_triplane_files.py`.
+//! same cases, and the check that both readers agree, is `tests/render/test_triplane_files.py`.
 
 use std::io::Cursor;
 use std::path::Path;
@@ -130,7 +130,7 @@ fn valid_file_loads() {
 
 #[test]
 fn zip64_size_claims_are_refused_before_allocating() {
-    // Issue 11 item 1: 1 TiB aborted the process (Vec::with_capacity), 2^64 - 16 panicked.
+    // Unchecked, a claim of 1 TiB aborts the process (Vec::with_capacity) and 2^64 - 16 panics.
     for claim in [1u64 << 40, u64::MAX - 15, 100 << 20] {
         let mut entries = entries_of(&good_arrays());
         entries[0].declared_size = claim;
@@ -142,7 +142,7 @@ fn zip64_size_claims_are_refused_before_allocating() {
 
 #[test]
 fn npy_header_claims_are_refused_before_reading() {
-    // Issue 11 item 4: a header claiming 1.5 TiB, and real planes over the 2048 cap.
+    // A header claiming 1.5 TiB, and real planes over the 2048 cap.
     let npy = |h: &str, body: &[u8]| {
         let mut v = b"\x93NUMPY\x01\x00".to_vec();
         v.extend((h.len() as u16).to_le_bytes());
@@ -167,7 +167,8 @@ fn npy_header_claims_are_refused_before_reading() {
 
 #[test]
 fn one_spec_with_the_python_reader() {
-    // Issue 11 item 8: what the Rust reader used to accept or misreport.
+    // Entries both readers refuse, naming the same field: a wrong shape or dtype, a value float32
+    // cannot hold, an unknown format version.
     let with = |key: &str, a: NpyArray| {
         let mut arrays = good_arrays();
         arrays.iter_mut().find(|(k, _)| *k == key).unwrap().1 = a;
@@ -195,7 +196,7 @@ fn one_spec_with_the_python_reader() {
 #[test]
 fn non_regular_files_are_refused_at_once() {
     use std::io::ErrorKind::{InvalidInput, IsADirectory};
-    // Issue 11 item 3: a FIFO hung the reader; a directory was "Invalid argument (os error 22)".
+    // Unchecked, a FIFO hangs the reader and a directory gives "Invalid argument (os error 22)".
     let dir = std::env::temp_dir().join(format!("lp3d-triplane-files-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let fifo = dir.join("pipe.npz");

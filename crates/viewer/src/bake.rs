@@ -1,13 +1,13 @@
 //! The baked field in the viewer (`docs/baked.md`). After a file is opened, a background
 //! thread bakes its occupancy grid (CPU) and then its baked fields (GPU, in dispatches of
-//! `BAKE_CHUNK` points, so the UI keeps drawing between them): a quick one (`QUICK_FIELD`, ~20 s),
-//! then a fine one (`FINE_FIELD`, ~1 minute more) that replaces it. Once a field is ready, frames
-//! drawn while the view moves look samples up in it at the chosen resolution and samples (the fine
-//! field with a third more coarse samples, which brings its frames to the exact frame's error), or,
-//! when that does not fit the frame budget, the chosen resolution with fewer samples (the ladder's
-//! two baked-only rungs), then lower rungs with the chosen coarse samples, instead of decoding
-//! every sample at a much lower rung; the settled frame is always exact (it decodes every sample),
-//! the reference the baked field only approximates.
+//! `BAKE_CHUNK` points, so the UI keeps drawing between them): a quick one (`QUICK_FIELD`), then a
+//! fine one (`FINE_FIELD`, a longer bake; docs/performance.md, "Bake time and size") that replaces
+//! it. Once a field is ready, frames drawn while the view moves look samples up in it at the
+//! chosen resolution and samples (the fine field with a third more coarse samples, which brings its
+//! frames to the exact frame's error), or, when that does not fit the frame budget, the chosen
+//! resolution with fewer samples (the ladder's two baked-only rungs), then lower rungs with the
+//! chosen coarse samples, instead of decoding every sample at a much lower rung; the settled frame
+//! is always exact (it decodes every sample), the reference the baked field only approximates.
 //!
 //! The field lives with its `GpuTriplane` (`GpuTriplane::baked`), so a field can never serve
 //! another file's frames; opening another file drops this file's job, which stops its bake.
@@ -38,22 +38,23 @@ pub struct Field {
     pub coarse_scale: (u32, u32),
 }
 
-/// The field baked first: `Skips::BAKED`'s (k 4, and 10 in the bricks a surface crosses), ~100
-/// MiB and a bake of ~20 s on a teacher head (bench/RESULTS.md, "Two levels"); a lookup costs the
-/// same whatever k, and the field's error falls with the square of the sub-cell (`docs/baked.md`).
-/// Its frames take the rung's samples: 46–48 dB from exact 192+192 at 128² · 48+48, 8–10 dB short
-/// of the exact frame.
+/// The field baked first: `Skips::BAKED`'s (k 4, and 10 in the bricks a surface crosses), small
+/// and quick to bake (docs/performance.md, "Bake time and size"); a lookup costs the same whatever
+/// k, and the field's error falls with the square of the sub-cell (`docs/baked.md`). Its frames
+/// take the rung's samples and stay short of the exact frame's error (docs/performance.md, "What
+/// each drag frame looks like").
 pub const QUICK_FIELD: Field = Field {
     subdivisions: Skips::BAKED.baked_subdivisions,
     fine_subdivisions: Skips::BAKED.baked_fine_subdivisions,
     coarse_scale: (1, 1),
 };
 
-/// The field baked next, replacing the quick one when ready: k 4 / 16, ~0.3 GiB and a bake of ~1
-/// minute on this CPU. With a third more coarse samples than the rung (64+48 for 48+48) its frames
-/// are as close to exact 192+192 as the rung's exact frame on the shipped encoder's triplanes
-/// (bench/RESULTS.md, "The viewer's fine field"): at the samples a baked lookup costs what it
-/// does, the coarse pass buys the error (bench/RESULTS.md, "More coarse samples than fine").
+/// The field baked next, replacing the quick one when ready: k 4 / 16, larger and slower to bake
+/// (docs/performance.md, "Bake time and size"). With a third more coarse samples than the rung
+/// (64+48 for 48+48) its frames are as close to exact 192+192 as the rung's exact frame on the
+/// shipped encoder's triplanes (docs/performance.md, "What each drag frame looks like"): at the
+/// samples a baked lookup costs what it does, the coarse pass buys the error
+/// (bench/history/RESULTS.md, "More coarse samples than fine").
 pub const FINE_FIELD: Field = Field { subdivisions: 4, fine_subdivisions: 16, coarse_scale: (4, 3) };
 
 impl Field {
@@ -81,10 +82,9 @@ impl Field {
 /// 8-bit image.
 pub const BAKE_EPSILON: f32 = Skips::BAKED.occupancy_epsilon;
 /// Transmittance and empty-ray thresholds of a baked frame, which also skips empty cells in the
-/// coarse pass: with the decoder gone, marching the samples is the cost. On the procedural
-/// teacher head at 128² · 48+48 (lavapipe, 2 cores) they took a baked frame from ~150 ms to ~85
-/// ms, and its PSNR against exact 192+192 moved by at most 0.03 dB (38.6 and 42.7 dB at two
-/// views): the field's own error is far larger.
+/// coarse pass: with the decoder gone, marching the samples is the cost. They make a baked frame
+/// much quicker while moving its error against exact 192+192 far less than the field's own error
+/// (bench/history/RESULTS.md, "Drag frames from the baked field").
 pub const BAKED_THRESHOLD: f32 = 1e-3;
 
 /// The settings of a frame drawn from `field` in place of the rung `chosen`: its resolution and
@@ -119,9 +119,8 @@ pub fn spec_for(settings: &RenderSettings, field: Field, (ray_start, ray_end): (
 /// The specs the viewer bakes for `chosen`, in order: the quick field, then (with `fine`) the fine
 /// one. Each serves every rung of the ladder with the chosen coarse samples or fewer, down to the
 /// baked-only rungs' (half of them), i.e. is `spec_for` the rung with the fewest. Half the samples
-/// mean intervals twice as long, so the occupancy skip keeps more cells: on the viewer bench's
-/// teacher head at 128² · 48+48, 26,022 bricks instead of 22,204 (bench/RESULTS.md, "A baked-only
-/// rung").
+/// mean intervals twice as long, so the occupancy skip keeps more cells, and the field more bricks
+/// (bench/history/RESULTS.md, "A baked-only rung").
 pub fn bake_specs(chosen: &RenderSettings, rays: (f32, f32), fine: bool) -> Vec<BakeSpec> {
     let ladder = Ladder::new(chosen);
     let baked_only = ladder.baked_only.clone().map(|i| ladder.rungs[i]);
@@ -232,7 +231,7 @@ impl BakeState {
     }
 }
 
-/// `baked field (k 4 / 10, 98 MiB, baked in 17.5 s)`.
+/// `baked field (k 4 / 10, N MiB, baked in T s)`: the field, its device memory and its bake time.
 pub fn field_label(field: &GpuBaked) -> String {
     format!(
         "baked field ({}, {:.0} MiB, baked in {:.1} s)",
@@ -444,7 +443,7 @@ mod tests {
             (4, 10, BAKE_EPSILON)
         );
         s.validate().unwrap();
-        // The fine field's frames take a third more coarse samples (bench/RESULTS.md).
+        // The fine field's frames take a third more coarse samples (FINE_FIELD's coarse_scale).
         let f = baked_settings(&chosen, FINE_FIELD);
         assert_eq!((f.resolution, f.depth_resolution, f.depth_resolution_importance), (128, 64, 48));
         assert_eq!((f.skips.baked_subdivisions, f.skips.baked_fine_subdivisions), (4, 16));

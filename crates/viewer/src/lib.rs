@@ -35,7 +35,7 @@ pub fn run(options: ViewerOptions) -> Result<(), String> {
         renderer: eframe::Renderer::Wgpu,
         // Dithering adds noise math to every pixel egui paints (lavapipe shades them on the CPU), for
         // banding that an 8-bit render upscaled does not show. With the unfilled panels (app/panel.rs) it
-        // took ~2 ms off each drag frame (bench/RESULTS.md, "The window's own time").
+        // shortens each drag frame (bench/history/RESULTS.md, "The window's own time").
         dithering: false,
         wgpu_options: eframe::WgpuConfiguration { wgpu_setup: device_setup(), ..Default::default() },
         ..Default::default()

@@ -31,9 +31,9 @@ options:
                       while the camera moves at the final quality, when they fit the budget; the
                       still image is always exact. A --screenshot run without --drag-frames does
                       not bake (it shows no moving frame)
-  --no-fine-field     bake only the quick field (k 4 / 10: ~100 MiB, ~20 s on 2 CPU cores): by
-                      default a fine one (k 4 / 16: ~0.3 GiB, ~1 min more) follows and replaces
-                      it, whose moving frames are as close to the exact image as the still one
+  --no-fine-field     bake only the quick field (k 4 / 10: smaller, quicker to bake): by default
+                      a fine one (k 4 / 16: larger, slower to bake) follows and replaces it, whose
+                      moving frames are as close to the exact image as the still one
   --frames N          UI frames before a screenshot; it waits for the final quality too [3]
   --drag-frames N     with --screenshot: once the final image is up and the bake has ended
                       (ready or failed), drag the view to orbit

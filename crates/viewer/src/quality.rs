@@ -81,11 +81,11 @@ const STEPS: [(u32, u32); 4] = [(4, 4), (2, 4), (2, 1), (1, 1)];
 /// The baked-only rungs, between the last two exact ones, cheapest first: the chosen resolution
 /// with (coarse, fine) samples scaled by these fractions, half of each, then three quarters of the
 /// coarse samples and half the fine ones. From the fine field at 128² · 48+48 (which takes a third
-/// more coarse samples) they draw 32+24 and 48+24: 51-54 and 56-57 dB from exact 192+192 on the
-/// shipped encoder's triplanes, at about 0.6 and 0.7 of the time of its 64+48 frame (61-64 dB;
-/// bench/RESULTS.md, "A second baked-only rung"), and far closer than 64² · 48+48 shown at 128²
-/// (37-41 dB). The second keeps a drag 4-5 dB closer to the still frame when 64+48 just misses
-/// the budget; the first serves slower spells. Exact frames skip them: climbing through them would
+/// more coarse samples) they draw 32+24 and 48+24, quicker than its 64+48 frame and less accurate,
+/// but far closer to exact 192+192 than 64² · 48+48 shown at 128² (docs/performance.md, "What
+/// each drag frame looks like"; bench/history/RESULTS.md, "A second baked-only rung"). The second
+/// keeps a drag closer to the still frame when 64+48 just misses the budget; the first serves
+/// slower spells. Exact frames skip them: climbing through them would
 /// delay the final frame.
 const BAKED_STEPS: [((u32, u32), (u32, u32)); 2] = [((1, 2), (1, 2)), ((3, 4), (1, 2))];
 

@@ -62,8 +62,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default="off",
         choices=("auto", "on", "off"),
         help="decode the field once and render every frame by lookups (docs/baked.md): several times "
-        "faster after a bake of a few seconds, but adds error (about 43-49 dB PSNR against exact "
-        "192+192 where exact 48+48 has 54-60; bench/RESULTS.md). RGB only, so with --raw. '--baked' "
+        "faster after a short bake, but adds error against exact mode (measured in "
+        "docs/performance.md). RGB only, so with --raw. '--baked' "
         "alone: always; 'auto': when the orbit has enough frames for the bake to pay and its first "
         "frame baked is within --baked-bound of the exact one; 'off' (default): exact frames, which "
         "keep exact 48+48's error",

@@ -34,7 +34,7 @@ from lp3d.cli.common import (
 from lp3d.cli.refining import add_refine_argument, require_torch
 from lp3d.lift.steady import MAX_SIGMA, SteadyPlanes
 
-#: ``--steady``'s default width in frames (``bench/video_steadiness.py``, ``bench/RESULTS.md``).
+#: ``--steady``'s default width in frames (``bench/video_steadiness.py``; docs/performance.md, "Video").
 DEFAULT_STEADY = 2.0
 
 HELP = "lift a portrait video to a new viewpoint, frame by frame"
@@ -53,7 +53,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=DEFAULT_STEADY,
         metavar="SIGMA",
         help="average each frame's triplane with its neighbours', Gaussian weights of width SIGMA frames "
-        f"looking both ways (no lag; default {DEFAULT_STEADY:g}, measured in bench/RESULTS.md; 0 = off)",
+        f"looking both ways (no lag; default {DEFAULT_STEADY:g}, see docs/performance.md; 0 = off)",
     )
     p.add_argument(
         "--smooth",

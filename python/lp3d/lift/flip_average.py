@@ -4,9 +4,9 @@ of the photo flipped left to right.
 The CPU recipe trains on flipped inputs with mirrored target planes, so both are estimates of the
 same head; the encoder is not mirror-symmetric by construction (its pixel-coordinate input channels
 are not), and the two estimates err differently, most at the largest input yaws. Averaging them
-raised the shipped model's held-out novel-view PSNR by 0.21 dB and its identity specificity by 0.20
-dB (``bench/RESULTS.md``, "Flip-averaged encoding") for twice the encoder's work, in one call of twice
-the batch. ``lp3d encode``, ``video``, ``demo`` and ``eval`` offer it as ``--flip-average``.
+brings the shipped model's held-out novel views a little closer and raises its identity specificity
+(docs/performance.md, "Held-out evaluation") for twice the encoder's work, in one call of twice the
+batch. ``lp3d encode``, ``video``, ``demo`` and ``eval`` offer it as ``--flip-average``.
 """
 
 from __future__ import annotations

@@ -19,7 +19,8 @@ MAX_STEPS = 10_000
 @dataclass(frozen=True)
 class RefineSettings:
     """How :func:`refine` fits a triplane to its photo (module docstring). The defaults are the ones
-    ``bench/refine.py`` measured on held-out teacher identities (``bench/RESULTS.md``)."""
+    ``bench/refine_sweep.py`` measured on held-out teacher identities (``bench/history/RESULTS.md``,
+    "Refinement")."""
 
     steps: int = 60
     lr: float = 0.03

@@ -82,7 +82,7 @@ def _layers(config: Any) -> int:
 
 def _skip_normal_init() -> Any:
     """A mode that skips the normal initialisers while a network is built on the meta device: ``normal_``
-    has no meta kernel, and its Python reference imports torch._dynamo (~3 s on the first load of a
+    has no meta kernel, and its Python reference imports torch._dynamo (slow on the first load of a
     process); a meta tensor's values are never read."""
     import torch
     from torch.overrides import TorchFunctionMode

@@ -318,8 +318,8 @@ CONFIGS: dict[str, EncoderConfig] = {
         head_out_channels=(128, 64, 64),
     ),
     # CPU-shaped: F and F_high at 32² (LT's layout: F_high from the backbone) and one output
-    # convolution pair at the 64² plane size: 1.6-2.3x less CPU per identity for the encoder's
-    # forward and backward than 64² features (bench/RESULTS.md, "Training profile").
+    # convolution pair at the 64² plane size: less CPU per identity for the encoder's forward and
+    # backward than 64² features (bench/history/RESULTS.md, "Training profile").
     "small": EncoderConfig(
         name="small",
         image_size=128,
@@ -377,9 +377,9 @@ CONFIGS: dict[str, EncoderConfig] = {
         generator_code=128,
     ),
 }
-# ``small`` before issue 20 (a plane basis and no generator): the ablation of bench/RESULTS.md.
+# ``small`` with a plane basis and no generator: the generator's ablation.
 CONFIGS["small-basis"] = replace(CONFIGS["small"], name="small-basis", generator_channels=())
 # ``small`` and ``tiny`` with the input's mean colours on an 8² grid beside the pooled features (each
-# cell 16² pixels: the shirt fills the bottom row or two): the colour-grid experiment of issue 20.
+# cell 16² pixels: the shirt fills the bottom row or two); ``small-colour`` is the shipped model's.
 CONFIGS["small-colour"] = replace(CONFIGS["small"], name="small-colour", colour_pool=8)
 CONFIGS["tiny-colour"] = replace(CONFIGS["tiny"], name="tiny-colour", colour_pool=8)

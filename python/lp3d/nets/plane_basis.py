@@ -45,8 +45,8 @@ class PlaneBasis(nn.Module):
 
     def forward(self, features: Tensor, colours: Tensor | None = None) -> Tensor:
         c = self.coefficients(code_input(features, self.pool, colours))
-        # A matrix product, not an einsum: onnxruntime's Einsum took 6.3 ms here, its MatMul 0.4 ms
-        # (2 threads; the same numbers), a tenth of the shipped encoder's time.
+        # A matrix product, not an einsum: onnxruntime runs its MatMul many times faster than the
+        # equivalent Einsum (the same numbers), and the Einsum was a large part of the encoder's time.
         planes = (c @ self.components.flatten(1)).view(c.shape[0], *self.components.shape[1:])
         t = self.triplane_resolution
         if planes.shape[-1] != t:

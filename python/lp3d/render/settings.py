@@ -4,7 +4,7 @@
 scene is (``box_warp``, ``ray_start``, ``ray_end``: stored in the triplane file, because they belong to
 the scene). The three renderers take both. Field names follow EG3D's ``rendering_kwargs`` and are the
 same in the Rust ``RenderSettings``/``Skips``/``SceneBounds`` structs, the WGSL ``Params`` uniform and
-the ``.npz`` keys; ``tests/test_render_api.py`` checks the defaults against ``lp3d_render``'s
+the ``.npz`` keys; ``tests/render/test_render_api.py`` checks the defaults against ``lp3d_render``'s
 signatures. Also here: the size caps and EG3D's fixed numerics, one name each.
 """
 
@@ -85,16 +85,15 @@ class Skips:
 
 
 #: The baked field as ``lp3d orbit --baked`` and the viewer's moving frames use it (docs/baked.md):
-#: Rust's ``Skips::BAKED`` (tests/test_baked.py ties them).
+#: Rust's ``Skips::BAKED`` (tests/render/test_baked.py ties them).
 BAKED = Skips(occupancy_epsilon=1e-4, baked_subdivisions=4, baked_fine_subdivisions=10)
-#: How many exact 48 + 48 frames a bake of :data:`BAKED` costs, rounded up: the two-level k 4 / 10
-#: field's 16–20 s bakes pay after 11–15 on teacher heads and encoder outputs at 128² (bench/RESULTS.md,
-#: "Two levels, built"; the uniform k 6 field's, 8–12). Fewer frames than this render faster exactly;
-#: with fewer samples per ray, exact frames are cheaper and the bake pays later.
+#: How many exact 48 + 48 frames a bake of :data:`BAKED` costs, rounded up, on teacher heads and
+#: encoder outputs at 128² (bench/history/RESULTS.md, "Two levels, built"). Fewer frames than this
+#: render faster exactly; with fewer samples per ray, exact frames are cheaper and the bake pays later.
 BAKE_PAYS_AFTER_FRAMES = 15
 #: The least PSNR (dB) of a baked frame against the exact one at which ``lp3d orbit --baked auto``
-#: keeps the field: its own error is 46–48 dB against exact 192+192 at 48+48 (bench/RESULTS.md),
-#: about one grey level of an 8-bit frame.
+#: keeps the field: about one grey level of an 8-bit frame, below the field's own error against
+#: exact 192+192 (docs/performance.md, "What each drag frame looks like").
 BAKED_BOUND_DB = 40.0
 
 

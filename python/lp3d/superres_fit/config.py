@@ -26,7 +26,7 @@ class FitError(ValueError):
 @dataclass(frozen=True)
 class FitConfig:
     """Everything that defines a fit (saved in its checkpoint). The defaults fit the shipped model
-    (64² raw renders -> 256² images) in about 40 minutes on a 2-core CPU; see the module docstring."""
+    (64² raw renders -> 256² images), sized for a CPU; see the module docstring."""
 
     #: Training pairs: ``identities`` teacher identities × ``views`` multiview cameras each.
     identities: int = 72

@@ -26,7 +26,7 @@ Output features 3..31 are the part occupancies and per-part colours, so they car
 
 Two versions share this construction (:class:`~lp3d.teachers.procedural_decoder.DecoderDesign`):
 
-* **v2, the default**, is built to be a fair stand-in for EG3D (issue 20): sharpness lives in the
+* **v2, the default**, is built to be a fair stand-in for EG3D: sharpness lives in the
   planes (shape channels scaled by 50, each part's field slope evened out by its surface gain), the
   decoder's weights stay below 10 in the first layer, and surfaces gather their opacity over about 5 cm,
   so they are soft on the 48 + 48 sampler's scale (2.2 cm between coarse samples) and a plane error
@@ -117,8 +117,8 @@ class ProceduralTeacher:
     """Stylised heads as EG3D triplanes, built in closed form: the embedded default teacher.
 
     ``sample(seed)`` draws :class:`HeadParams` from the seed and builds the triplane with :meth:`build`
-    (about 10-15 ms on a 2-core CPU). Coordinate grids, textures and the decoder are made once per
-    teacher.
+    (quick enough to draw identities during training). Coordinate grids, textures and the decoder are
+    made once per teacher.
     """
 
     def __init__(self, resolution: int = RESOLUTION, *, version: int = DEFAULT_VERSION) -> None:

@@ -55,10 +55,10 @@ Decisions where the paper is silent or the setting differs (all visible in :clas
   setting) with a gradient scaler; rendering, SR and the discriminator stay in float32.
 
 The CPU recipe (``recipe="cpu"``: ``small``, ``tiny``; ``full``/``lt`` keep the published recipe).
-The paper's step costs about 20 s on a 2-core CPU at batch 4 (``bench/train_profile.py``), most of it
-synthesising and rendering the teacher and rendering whole student images, and its loss reaches the
-encoder mainly through renders of a step-like procedural decoder. The CPU recipe spends the CPU on
-the encoder instead:
+The paper's step is slow on a CPU (``bench/train_profile.py``; ``bench/history/RESULTS.md``,
+"Training profile"), most of it synthesising and rendering the teacher and rendering whole student
+images, and its loss reaches the encoder mainly through renders of a step-like procedural decoder.
+The CPU recipe spends the CPU on the encoder instead:
 
 * **Data made once.** ``dataset_identities`` teacher identities (planes at the student's resolution
   and one input render each) are synthesised once into a content-hashed cache
@@ -69,10 +69,9 @@ the encoder instead:
   RGB L1 on ``rays_per_identity`` random rays of a random multiview camera is added (teacher and
   student rendered on the same rays; :func:`lp3d.render.torch_twin.render_rays`). ``small`` and ``tiny``
   regress for their whole schedule; ``--ray-from`` adds the ray phase to a run, also a resumed one.
-  With teacher v1's step-like decoder the ray loss made things worse (steps 500-600 with rays:
-  held-out PSNR 18.4 -> 18.1 dB, identity specificity 3.8 -> 3.2 dB). With v2's smooth decoder it
-  helps: the shipped ``small`` regressed for 3,000 steps and then trained 2,000 more with rays
-  (``python/lp3d/lift/models/README.md`` has the numbers).
+  With teacher v1's step-like decoder the ray loss lowered both held-out PSNR and identity
+  specificity. With v2's smooth decoder it helps, after a regression phase (``bench/history/RESULTS.md``,
+  "A longer ray phase"; the shipped model's run is in its model card).
 * **A plane basis.** The teacher's triplanes span its identities in about a hundred dimensions (the
   principal components of 512 heads and their mirrors leave 3 % of the held-out L1 at 128
   components), so the CPU encoders carry :class:`lp3d.nets.encoder.PlaneBasis`, started from those

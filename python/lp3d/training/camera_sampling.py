@@ -181,8 +181,8 @@ def sample_cameras(
 
     The draws are made in a fixed order (yaw, pitch, fov, radius, cx, cy, roll; a quantity with zero
     spread draws nothing), each as one vectorised call, so the same generator state gives the same
-    batch. The labels are then built per camera by :func:`lp3d.render.camera.look_at_camera` (~0.1 ms each);
-    ``labels=False`` skips that (same draws), e.g. to study the distribution on millions of samples.
+    batch. The labels are then built per camera by :func:`lp3d.render.camera.look_at_camera` (one call
+    each); ``labels=False`` skips that (same draws), e.g. to study the distribution on millions of samples.
 
     Returns:
         A :class:`CameraSample`; ``labels`` is (n, 25) float64, or None when ``labels=False``.

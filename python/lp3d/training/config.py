@@ -381,8 +381,8 @@ TRAIN_CONFIGS: dict[str, TrainConfig] = {
     "tiny": _cpu_recipe_config(
         "tiny", samples=12, batch_size=4, total_steps=1_000, regression_steps=1_000, dataset_identities=512
     ),
-    # The paper's two-stage recipe with the first CPU encoder: what shipped before the CPU recipe,
-    # kept as the reference row of bench/train_profile.py.
+    # The paper's two-stage recipe at the small size: the reference row of bench/train_profile.py,
+    # against which the CPU recipe's cost is compared.
     "small-paper": _cpu_config(
         "small-paper", sizes="small", samples=16, batch_size=4, total_steps=2_000, lr_rampup_steps=20
     ),
@@ -394,11 +394,12 @@ TRAIN_CONFIGS: dict[str, TrainConfig] = {
 }
 
 
-# ``small`` without its plane generator (the shipped head before issue 20): the generator's ablation.
+# ``small`` without its plane generator (a plane basis alone): the generator's ablation.
 TRAIN_CONFIGS["small-basis"] = dataclasses.replace(
     TRAIN_CONFIGS["small"], name="small-basis", encoder=ENCODER_CONFIGS["small-basis"]
 )
-# ``small`` and ``tiny`` with the input's colour grid in the basis's and generator's codes (issue 20).
+# ``small`` and ``tiny`` with the input's colour grid in the basis's and generator's codes
+# (``small-colour`` is the shipped model's).
 for _name in ("small", "tiny"):
     TRAIN_CONFIGS[f"{_name}-colour"] = dataclasses.replace(
         TRAIN_CONFIGS[_name], name=f"{_name}-colour", encoder=ENCODER_CONFIGS[f"{_name}-colour"]

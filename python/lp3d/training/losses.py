@@ -255,7 +255,7 @@ def find_lpips_backbone(net: LPIPSNet, explicit: str | os.PathLike[str] | None =
     searched = "\n".join(f"    {p}" for p in candidates)
     raise LPIPSWeightsNotFound(
         f"LPIPS needs torchvision's ImageNet {net} backbone weights ({LPIPS_BACKBONE_FILES[net]}), which "
-        f"are not on this machine and are never downloaded. Searched:\n{searched}\n"
+        f"are not on disk and are never downloaded. Searched:\n{searched}\n"
         "Options:\n"
         f"  1. supply them: --lpips-weights PATH (a torchvision {net} state dict), or copy the file into "
         "the torch hub checkpoint directory above;\n"

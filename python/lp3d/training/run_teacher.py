@@ -118,8 +118,8 @@ class RunTeacher:
         ``"auto"``, :meth:`input_backend`'s choice. The two are the same EG3D render to float
         rounding (teacher v2 heads at 128² · 16+16: mean difference 2e-6, 99.8% of values within
         1e-4, the largest 3e-3 at a few silhouette pixels where the importance draw rounds
-        differently; tests/test_cpu_recipe.py), and on lavapipe ``lp3d_render`` is 1.7-1.9× as fast,
-        which takes ~40% off a CPU dataset's synthesis (bench/RESULTS.md, "The dataset's input images
+        differently; tests/training/test_cpu_recipe.py), and on lavapipe ``lp3d_render`` is the faster,
+        which shortens a CPU dataset's synthesis (bench/history/RESULTS.md, "The dataset's input images
         rendered by lp3d_render")."""
         if backend not in ("auto", "torch", "wgsl"):
             raise ValueError(f"backend must be 'auto', 'torch' or 'wgsl', got {backend!r}")

@@ -1,7 +1,7 @@
 //! Where a two-level field's fine bricks live on the GPU: a 3D texture (rgba16float, one texel
 //! per point: sigma_raw, w r, w g, w b), the bricks side by side in it. A storage buffer binding
-//! is capped (128 MiB on lavapipe), and the fine bricks that reach exact 48+48's error take more
-//! (k_f = 16: ~0.3 GiB per head, `bench/RESULTS.md`); a texture is limited only by its extent.
+//! is capped (128 MiB on lavapipe), and the fine bricks that reach exact 48+48's error (k_f = 16)
+//! take more (docs/performance.md, "Bake time and size"); a texture is limited only by its extent.
 //!
 //! Fine brick f sits at brick slot `(f % bx, (f / bx) % by, f / (bx by))` of the texture's
 //! `bx × by × bz` slots of `(k_f + 1)³` texels; its point (a, b, c) is texel `slot (k_f + 1) +

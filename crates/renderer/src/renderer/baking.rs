@@ -13,8 +13,8 @@ use crate::baked::atlas::FineAtlas;
 use crate::baked::{needs_fine, BakeSpec, BrickLayout, MAX_FINE_SUBDIVISIONS, POINT_BYTES};
 use crate::kernel::{build_render_variant, FieldUse};
 
-/// Points per bake dispatch: ~0.1 s each on lavapipe, so a viewer drawing meanwhile waits at most
-/// that long for its frame.
+/// Points per bake dispatch: small enough that a dispatch is short on lavapipe, so a viewer
+/// drawing meanwhile waits at most that long for its frame.
 pub const BAKE_CHUNK: usize = 1 << 16;
 
 /// A bake's field as it goes to the GPU: the index, the bricks (N) and the first fine one (N_c;
@@ -436,7 +436,7 @@ impl Renderer {
 
     /// The bake kernel with `kernel`'s decoder (`decoding_kernel`: that of the kernel the exact
     /// renders use when a bake pass starts), built on first use. On lavapipe the unrolled decoder
-    /// bakes ~2x quicker (bench/RESULTS.md, "The bake with the fast kernel's decoder"), and
+    /// bakes quicker (docs/performance.md, "Bake time and size"), and
     /// `KernelChoice::Auto`'s background compile has compiled it by the time the fast kernel
     /// serves; until then the rolled one, whose compile is short.
     fn bake_pipeline(&self, kernel: Kernel) -> &wgpu::ComputePipeline {

@@ -84,8 +84,8 @@ impl ViewerApp {
         }
     }
 
-    /// Which field the image on screen came from, e.g. `baked field (k 4 / 10, 98 MiB, baked in
-    /// 17.5 s)` or `exact (decoding every sample)`.
+    /// Which field the image on screen came from, e.g. `baked field (k 4 / 10, N MiB, baked in
+    /// T s)` or `exact (decoding every sample)`.
     pub(super) fn source_label(&self) -> String {
         let field = self.loaded.as_ref().and_then(|l| l.gpu.baked());
         match (self.shown, field) {

@@ -1,5 +1,5 @@
 //! What is on screen (`Shown`) and the log of rendered frames the screenshot's JSON report holds
-//! (`FrameRecord`, read by `tests/test_viewer.py` and `bench/viewer_frames.py`).
+//! (`FrameRecord`, read by `tests/view/test_viewer.py` and `bench/viewer_frames.py`).
 
 use super::*;
 
