@@ -1,8 +1,7 @@
 """A training run's student weights in parts no larger than a limit, and the parts joined back.
 
-Why: a lent GPU machine returns files of at most 16 MiB each (docs/training.md, "Continuing the
-shipped model on one GPU"), while a ``small-colour`` checkpoint is ~190 MB: 63 MB of weights and
-twice that of Adam's state. The weights alone are what ``lp3d eval``, ``lp3d export`` and
+Why: a GPU machine that hands back only small files (docs/training.md, "Continuing the shipped model
+on one GPU") cannot return a whole checkpoint, which holds the weights and twice that of Adam's state. The weights alone are what ``lp3d eval``, ``lp3d export`` and
 ``--init-from`` read; ``--resume`` needs the optimiser's state and refuses such a checkpoint.
 
     python scripts/checkpoint_parts.py split RUN_OR_CHECKPOINT OUT_DIR [--part-mib 15]
@@ -31,6 +30,9 @@ PARTS_FORMAT = "lp3d-checkpoint-parts-v1"
 #: The device tool returns files named in letters, digits, '.', '_' and '-' alone.
 SAFE_NAME = re.compile(r"^[A-Za-z0-9._-]{1,100}$")
 MAX_PARTS = 256
+#: Largest part (``--part-mib`` goes up to 4096) and largest manifest (256 parts take ~40 KB).
+MAX_PART_BYTES = 4096 << 20
+MAX_MANIFEST_BYTES = 1 << 20
 
 
 class PartsError(ValueError):
@@ -51,7 +53,9 @@ def split(source: Path, out_dir: Path, part_bytes: int) -> Path:
 
     if part_bytes < 1:
         raise PartsError(f"the part size must be at least 1 byte, got {part_bytes}")
-    ckpt = load_checkpoint(source)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise PartsError(f"the output folder {str(out_dir)!r} is a file, not a folder")
+    ckpt = load_checkpoint(source)  # checks its entries: a step number, a student, ...
     step = int(ckpt["step"])
     buf = io.BytesIO()
     torch.save(weights_only_checkpoint(ckpt), buf)
@@ -82,11 +86,25 @@ def split(source: Path, out_dir: Path, part_bytes: int) -> Path:
     return path
 
 
-def _read_manifest(path: Path) -> dict:
+def _read_bounded(path: Path, what: str, max_bytes: int) -> bytes:
+    """The bytes of ``path`` through lp3d's one bounded reader: a regular file (a FIFO or a device is
+    refused at once, never read) of at most ``max_bytes``, as a PartsError naming it."""
+    from lp3d.render.npz_reader import read_regular_file
+
     try:
-        manifest = json.loads(path.read_text())
+        return read_regular_file(path, what, max_bytes)
     except OSError as e:
-        raise PartsError(f"manifest {str(path)!r} cannot be read: {e.strerror or e}") from None
+        raise PartsError(f"{what} {str(path)!r} cannot be read: {e.strerror or e}") from None
+    except ValueError as e:
+        raise PartsError(str(e)) from None
+
+
+def _read_manifest(path: Path) -> dict:
+    from lp3d.lift.sidecar import parse_json
+
+    raw = _read_bounded(path, "a manifest", MAX_MANIFEST_BYTES)
+    try:
+        manifest = parse_json(path, raw.decode("utf-8"), "manifest")  # nesting, huge numbers
     except (ValueError, UnicodeDecodeError) as e:
         raise PartsError(f"manifest {str(path)!r} is not JSON: {e}") from None
     if not isinstance(manifest, dict) or manifest.get("format") != PARTS_FORMAT:
@@ -100,7 +118,7 @@ def _read_manifest(path: Path) -> dict:
             and isinstance(p.get("name"), str)
             and SAFE_NAME.match(p["name"]) is not None
             and type(p.get("bytes")) is int
-            and p["bytes"] >= 0
+            and 0 <= p["bytes"] <= MAX_PART_BYTES
             and isinstance(p.get("sha256"), str)
         )
         if not ok:
@@ -123,13 +141,14 @@ def join(manifest_path: Path, dest: Path) -> Path:
     inputs = {manifest_path.resolve(), *((folder / p["name"]).resolve() for p in manifest["parts"])}
     if dest.resolve() in inputs:
         raise PartsError(f"the output {str(dest)!r} is one of the parts or the manifest: choose another path")
+    if dest.is_dir():
+        raise PartsError(f"the output {str(dest)!r} is a folder: name the checkpoint file to write")
     chunks = []
     for p in manifest["parts"]:
         part = folder / p["name"]
-        try:
-            data = part.read_bytes()
-        except OSError as e:
-            raise PartsError(f"part {str(part)!r} cannot be read: {e.strerror or e}") from None
+        data = _read_bounded(
+            part, "a checkpoint part", p["bytes"]
+        )  # a longer file is refused before it is read
         if len(data) != p["bytes"] or _sha256(data) != p["sha256"]:
             raise PartsError(f"part {str(part)!r} is not the one the manifest lists (size or SHA-256 differ)")
         chunks.append(data)
@@ -158,6 +177,7 @@ def main(argv: list[str] | None = None) -> int:
     j.add_argument("manifest", type=Path, help="the .parts.json written by split (its parts beside it)")
     j.add_argument("dest", type=Path, help="the checkpoint file to write")
     args = p.parse_args(argv)
+    from lp3d.errors import safe_text
     from lp3d.training.checkpoint import CheckpointError
 
     try:
@@ -172,7 +192,10 @@ def main(argv: list[str] | None = None) -> int:
             join(args.manifest, args.dest)
             print(f"wrote {args.dest}")
     except (PartsError, CheckpointError) as e:
-        print(f"checkpoint_parts: error: {e}", file=sys.stderr)
+        print(f"checkpoint_parts: error: {safe_text(str(e))}", file=sys.stderr)
+        return 1
+    except OSError as e:  # writing a part or the checkpoint: a full disk, a read-only folder
+        print(f"checkpoint_parts: error: {safe_text(f'{e.filename}: {e.strerror or e}')}", file=sys.stderr)
         return 1
     return 0
 

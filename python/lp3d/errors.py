@@ -10,7 +10,11 @@ through :func:`run_command`, so they agree:
   raised after parsing (flags that exclude each other), printed with the usage line;
 * **130** interrupted (Ctrl-C), with one line ``PROG: interrupted``, also during start-up (the imports
   before a command runs: :func:`quiet_startup_interrupts`);
-* **143** terminated (SIGTERM), with one line ``PROG: terminated``.
+* **143** terminated (SIGTERM), with one line ``PROG: terminated``;
+* **141** the reader of stdout went away (``lp3d info x.npz | head -1``: EPIPE), quietly: what a shell
+  reports for a process that SIGPIPE ended, as ``cat`` or ``yes`` would be (Python ignores SIGPIPE, so
+  the error is caught instead). A stdout that is closed before the command starts (``>&-``) is an
+  error (status 1, one line): the command's results would be lost without a word.
 
 While a command runs, SIGTERM raises :class:`Terminated` (a ``BaseException``, like Ctrl-C's
 ``KeyboardInterrupt``) in the main thread, so every ``finally`` and every atomic writer
@@ -38,6 +42,7 @@ import threading
 from collections.abc import Callable, Iterator, Sequence
 
 __all__ = [
+    "EXIT_BROKEN_PIPE",
     "EXIT_ERROR",
     "EXIT_INTERRUPTED",
     "EXIT_OK",
@@ -51,6 +56,7 @@ __all__ = [
     "quiet_startup_interrupts",
     "renderer_setup_error",
     "run_command",
+    "safe_text",
 ]
 
 EXIT_OK = 0
@@ -58,6 +64,7 @@ EXIT_ERROR = 1
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
 EXIT_TERMINATED = 128 + 15  # 128 + SIGTERM, as a shell reports a process that SIGTERM ended
+EXIT_BROKEN_PIPE = 128 + 13  # 128 + SIGPIPE
 
 
 class UserError(Exception):
@@ -114,11 +121,41 @@ def float_in(lo: float, hi: float, *, hi_open: bool = False) -> Callable[[str], 
     return parse
 
 
+# ------------------------------------------------------------------------------------ text
+
+
+#: What :func:`safe_text` escapes: C0 and C1 controls, DEL, line and paragraph separators, the bidi
+#: overrides and isolates (they reorder what a terminal shows), and lone surrogates (not text at all;
+#: U+DC80-U+DCFF are the bytes ``os.fsdecode`` could not decode).
+_UNSAFE = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029\u202a-\u202e\u2066-\u2069\ud800-\udfff]")
+
+
+def _escape(char: str) -> str:
+    code = ord(char)
+    if 0xDC80 <= code <= 0xDCFF:  # a byte of a file name that was not valid UTF-8: show the byte
+        return f"\\x{code - 0xDC00:02x}"
+    return {"\n": "\\n", "\r": "\\r", "\t": "\\t"}.get(char) or (
+        f"\\x{code:02x}" if code < 0x100 else f"\\u{code:04x}"
+    )
+
+
+def safe_text(text: str | bytes | os.PathLike[str] | os.PathLike[bytes]) -> str:
+    """``text`` (a string, or a path or file name in any form) as one line that is safe to print, to
+    store in a file and to embed in a page: the one policy for every name and every string that came
+    from a file or the command line. Names are decoded as Python decodes them (``os.fsdecode``); a
+    byte that is not valid UTF-8 becomes ``\\xNN``, control characters (escape sequences, newlines
+    that would forge an output line), bidi overrides and lone surrogates become ``\\n``, ``\\x1b``,
+    ``\\u202e``. Printable text, non-ASCII included, is kept as it is."""
+    if not isinstance(text, str):
+        text = os.fsdecode(text)
+    return _UNSAFE.sub(lambda m: _escape(m.group()), text)
+
+
 def _format_error(e: BaseException) -> str:
     if isinstance(e, OSError) and e.filename is not None:
-        return f"{e.filename}: {e.strerror or e}"
+        return safe_text(f"{e.filename}: {e.strerror or e}")
     text = str(e) or type(e).__name__
-    return renderer_setup_error(text) or text
+    return safe_text(renderer_setup_error(text) or text)
 
 
 #: wgpu's names for its backends (``wgpu::Backends::from_comma_list``); wgpu skips any other name in
@@ -216,6 +253,17 @@ def quiet_startup_interrupts() -> None:
         signal.signal(signal.SIGINT, _interrupted_at_startup)
 
 
+#: Ctrl-Cs seen while a command runs. An import interrupted by one may fail as an ImportError
+#: (numpy's "PyCapsule_Import"), which the code around it reports as a missing package; an error
+#: that follows a Ctrl-C is reported as the interrupt instead.
+_interrupts = [0]
+
+
+def _interrupt(signum: int, frame: object) -> None:
+    _interrupts[0] += 1
+    raise KeyboardInterrupt
+
+
 def _terminate(signum: int, frame: object) -> None:
     signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second SIGTERM must not cut the clean-up short
     raise Terminated
@@ -223,16 +271,18 @@ def _terminate(signum: int, frame: object) -> None:
 
 @contextlib.contextmanager
 def _command_signals() -> Iterator[None]:
-    """While a command runs (main thread only): Ctrl-C raises ``KeyboardInterrupt`` (Python's own
-    handler, replacing :func:`quiet_startup_interrupts`'), and SIGTERM raises :class:`Terminated`
-    unless someone else already handles it; the previous handlers are restored after."""
+    """While a command runs (main thread only): Ctrl-C raises ``KeyboardInterrupt`` (counted by
+    :func:`_interrupt`, replacing :func:`quiet_startup_interrupts`' handler), and SIGTERM raises
+    :class:`Terminated` unless someone else already handles it; the previous handlers are restored
+    after."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
     old_int, old_term = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
     if old_int is _interrupted_at_startup:
         old_int = signal.default_int_handler
-        signal.signal(signal.SIGINT, old_int)
+    if old_int is signal.default_int_handler:
+        signal.signal(signal.SIGINT, _interrupt)  # KeyboardInterrupt, counted
     if old_term == signal.SIG_DFL:
         signal.signal(signal.SIGTERM, _terminate)
     try:
@@ -253,6 +303,29 @@ def _tolerant_streams() -> None:
                 reconfigure(errors="backslashreplace")
 
 
+def _interrupted_or(before: int, func: Callable[[argparse.Namespace], int], args: argparse.Namespace) -> int:
+    """``func(args)``; an error it raises after a Ctrl-C arrived (``before``: the count at its start)
+    is the interrupt, not what the interrupted code made of it."""
+    try:
+        return int(func(args))
+    except Exception:
+        if _interrupts[0] != before:
+            raise KeyboardInterrupt from None
+        raise
+
+
+def _stdout_broken() -> bool:
+    """Whether stdout is a pipe whose reader has gone (POLLERR on its descriptor)."""
+    try:
+        import select
+
+        poll = select.poll()
+        poll.register(sys.stdout.fileno(), select.POLLOUT)
+        return any(ev & (select.POLLERR | select.POLLHUP) for _, ev in poll.poll(0))
+    except (AttributeError, OSError, ValueError):  # no poll on this platform, or no stdout
+        return True
+
+
 def run_command(parser: argparse.ArgumentParser, argv: Sequence[str] | None = None) -> int:
     """Parse ``argv`` (default ``sys.argv[1:]``) and call ``args.func(args)``, mapping what it raises
     to the exit statuses above; returns the status (it never calls ``sys.exit``).
@@ -260,6 +333,10 @@ def run_command(parser: argparse.ArgumentParser, argv: Sequence[str] | None = No
     A subcommand's parser should ``set_defaults(func=..., command_parser=itself)`` so that its name
     (``lp3d encode``) leads its messages; without ``func`` the parser's help is printed (status 2)."""
     _tolerant_streams()
+    if sys.stdout is None:  # started with stdout closed (`>&-`): nothing it prints could be seen
+        if sys.stderr is not None:
+            print(f"{parser.prog}: error: stdout is closed; send it to /dev/null instead", file=sys.stderr)
+        return EXIT_ERROR
     prog = [parser.prog]  # the command's name once it is known, for the interrupted/terminated line
     with _command_signals():
         try:
@@ -283,15 +360,20 @@ def _run(parser: argparse.ArgumentParser, argv: Sequence[str] | None, prog: list
         return EXIT_USAGE
     command: argparse.ArgumentParser = getattr(args, "command_parser", None) or parser
     prog[0] = command.prog
+    interrupts = _interrupts[0]
     try:
-        return int(func(args))
+        return _interrupted_or(interrupts, func, args)
     except UsageError as e:
         with contextlib.suppress(SystemExit):  # error() prints the usage line and the message, exits 2
             command.error(str(e))
         return EXIT_USAGE
-    except BrokenPipeError:  # the reader of stdout went away (`lp3d info x.npz | head -1`): no message
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # so the exit flush is quiet too
-        return EXIT_ERROR
+    except BrokenPipeError as e:  # the reader of stdout went away (`lp3d info x.npz | head -1`): quiet
+        if not _stdout_broken():  # another pipe (ffmpeg's): an error like any other
+            print(f"{command.prog}: error: {_format_error(e)}", file=sys.stderr)
+            return EXIT_ERROR
+        with contextlib.suppress(OSError, ValueError):  # so the exit flush is quiet too
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
     # ValueError covers the library's validation errors (TriplaneError, ModelPackageError, PhotoError,
     # ...), OSError unreadable and unwritable files: all name their input.
     except (UserError, ValueError, OSError) as e:

@@ -82,8 +82,9 @@ def test_the_library_commands_run_with_python_m(module: str, prog: str) -> None:
 
 
 def test_a_closed_stdout_is_no_error_message(tmp_path) -> None:
-    """``lp3d info x.npz | head -1``: when the reader goes away, the command stops with status 1 and
-    prints nothing (no "Broken pipe" line, no traceback at exit)."""
+    """``lp3d info x.npz | head -1``: when the reader goes away, the command stops quietly with
+    status 141 (128 + SIGPIPE, what the shell reports for ``cat`` there); a broken pipe that is not
+    stdout's is an error line, and a stdout closed from the start (``>&-``) is one too."""
     import subprocess
     import sys
 
@@ -96,8 +97,23 @@ def test_a_closed_stdout_is_no_error_message(tmp_path) -> None:
         "p.set_defaults(func=func)\n"
         "sys.exit(run_command(p, []))\n"
     )
-    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
-    assert out.returncode == 1 and out.stderr == "", out
+    cmd = [sys.executable, "-c", script]
+    reader_gone = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert reader_gone.stdout is not None
+    reader_gone.stdout.close()
+    _, err = reader_gone.communicate(timeout=60)
+    assert reader_gone.returncode == 141 and err == "", err
+    other_pipe = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+    assert other_pipe.returncode == 1 and other_pipe.stderr.startswith("lp3d x: error:"), other_pipe
+    closed = subprocess.run(
+        cmd,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        timeout=60,
+        preexec_fn=lambda: __import__("os").close(1),
+    )
+    assert closed.returncode == 1 and "stdout is closed" in closed.stderr, closed
 
 
 def test_one_exit_code_policy_for_every_entry_point(capsys, tmp_path) -> None:

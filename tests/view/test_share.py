@@ -22,6 +22,7 @@ import pytest
 
 import lp3d_render
 from lp3d.cli import main
+from lp3d.errors import safe_text
 from lp3d.render.camera import look_at_camera
 from lp3d.render.triplane_io import save_triplane
 from lp3d.share import PROBE_PREFIX, PROBE_SETTINGS, page_data, shader_stages
@@ -111,7 +112,8 @@ def test_hostile_text_stays_data(tmp_path: Path) -> None:
     assert len(re.findall(r"<script", text, re.I)) == 2
     assert len(re.findall(r"</script", text, re.I)) == 2
     data = _data_block(text)
-    assert data["source"] == evil and data["title"] == evil
+    # As every string from a file: kept as text, with control and bidi characters escaped.
+    assert data["source"] == safe_text(evil) and data["title"] == safe_text(evil)
     assert "<title>&lt;/script&gt;" in text
 
 

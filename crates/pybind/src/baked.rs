@@ -10,7 +10,7 @@ use lp3d_renderer::{BakeSpec, GpuBaked, RenderSettings, Skips};
 use numpy::{PyArray1, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 
-use crate::convert::{self, bool_arg, f32_arg, int_arg, Arg};
+use crate::convert::{self, bool_arg, f32_arg, float_arg, int_arg, Arg};
 use crate::device::{gpu, guarded};
 use crate::error::{invalid, to_py};
 use crate::triplane::Triplane;
@@ -210,18 +210,21 @@ pub fn bake<'py>(
 /// (``fine_subdivisions`` > 0) ``fine_values`` (fine bricks, k_f+1, k_f+1, k_f+1, 4) the same way.
 /// Every array is checked here.
 #[pyfunction]
-#[pyo3(signature = (triplane, index, values, *, subdivisions, occupancy_epsilon, max_delta,
-                    fine_subdivisions=0, fine_values=None))]
+#[pyo3(
+    signature = (triplane, index, values, *, subdivisions, occupancy_epsilon, max_delta,
+                 fine_subdivisions=Arg::Default(0), fine_values=None),
+    text_signature = "(triplane, index, values, *, subdivisions, occupancy_epsilon, max_delta, fine_subdivisions=0, fine_values=None)"
+)]
 #[allow(clippy::too_many_arguments)]
 pub fn attach_baked<'py>(
     py: Python<'py>,
     triplane: &Bound<'py, PyAny>,
     index: &Bound<'py, PyAny>,
     values: &Bound<'py, PyAny>,
-    subdivisions: i64,
-    occupancy_epsilon: f64,
-    max_delta: f64,
-    fine_subdivisions: i64,
+    subdivisions: Arg<'py, i64>,
+    occupancy_epsilon: Arg<'py, f64>,
+    max_delta: Arg<'py, f64>,
+    fine_subdivisions: Arg<'py, i64>,
     fine_values: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<BakedField> {
     guarded(|| {
@@ -251,15 +254,15 @@ pub fn attach_baked<'py>(
                 .map_err(|_| invalid("fine_values", "must be contiguous"))?,
             _ => Vec::new(),
         };
-        let fine = u32::try_from(fine_subdivisions).map_err(|_| {
-            invalid("fine_subdivisions", format!("must be 0 or in (subdivisions, {MAX_FINE_SUBDIVISIONS}]"))
-        })?;
-        let k = u32::try_from(subdivisions).map_err(|_| invalid("subdivisions", "must be in [1, 8]"))?;
+        // Every scalar through the one validating conversion: a huge int or float is a ValueError
+        // naming the argument, never PyO3's OverflowError.
+        let fine = int_arg(&fine_subdivisions, "fine_subdivisions", 0, MAX_FINE_SUBDIVISIONS as i64)? as u32;
+        let k = int_arg(&subdivisions, "subdivisions", 1, MAX_SUBDIVISIONS as i64)? as u32;
         let spec = BakeSpec {
             subdivisions: k,
             fine_subdivisions: fine,
-            epsilon: occupancy_epsilon as f32,
-            max_delta,
+            epsilon: f32_arg(&occupancy_epsilon, "occupancy_epsilon")?,
+            max_delta: float_arg(&max_delta, "max_delta")?,
         };
         let g = gpu(py)?;
         let tri = tri.get();

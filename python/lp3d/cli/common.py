@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from lp3d.errors import UsageError, UserError, float_in, int_in
+from lp3d.errors import UsageError, UserError, float_in, int_in, safe_text
 from lp3d.outputs import (
     IMAGE_SUFFIXES,
     MESH_SUFFIXES,
@@ -80,12 +80,13 @@ CLIError = UserError
 
 
 def say(message: str) -> None:
-    """Progress and results go to stdout; errors and warnings to stderr."""
-    print(message, flush=True)
+    """Progress and results go to stdout; errors and warnings to stderr. Each is one line, with the
+    names and file strings in it escaped (:func:`lp3d.errors.safe_text`)."""
+    print(safe_text(message), flush=True)
 
 
 def warn(message: str) -> None:
-    print(f"warning: {message}", file=sys.stderr, flush=True)
+    print(f"warning: {safe_text(message)}", file=sys.stderr, flush=True)
 
 
 def human_bytes(n: int) -> str:
@@ -212,8 +213,8 @@ def flip_average_arg(p: argparse.ArgumentParser, what: str = "each photo") -> No
         "--flip-average",
         action="store_true",
         help=f"also encode {what} flipped left to right and average the two heads (the second "
-        "mirrored back): +0.2 dB novel-view PSNR on held-out heads for twice the encoder's time "
-        "(bench/RESULTS.md)",
+        "mirrored back): slightly closer novel views on held-out heads for twice the encoder's time "
+        "(measured in docs/performance.md)",
     )
 
 

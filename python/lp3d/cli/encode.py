@@ -25,6 +25,7 @@ from lp3d.cli.common import (
     write_image,
 )
 from lp3d.cli.refining import add_refine_argument, refine_triplanes
+from lp3d.errors import safe_text
 
 HELP = "photo(s) -> triplane .npz (detect, align, crop, encode)"
 DESCRIPTION = (
@@ -193,7 +194,7 @@ def run(args: argparse.Namespace) -> int:
     how = ", flip-averaged" if args.flip_average else ""
     model = f"model {pkg.config_name}, {encoder.backend}{how}"
     tris = [
-        pkg.triplane(plane, source=f"lp3d encode {img.name} ({model})")
+        pkg.triplane(plane, source=safe_text(f"lp3d encode {img.name} ({model})"))
         for img, plane in zip(images, planes, strict=True)
     ]
     t0 = time.perf_counter()

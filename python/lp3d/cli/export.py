@@ -22,7 +22,8 @@ DESCRIPTION = "Export a trained encoder to ONNX and check it against PyTorch wit
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The export options, shared by ``lp3d export`` and ``python -m lp3d.export``."""
-    from lp3d.export.onnx import MIN_OPSET
+    from lp3d.errors import float_in, int_in
+    from lp3d.export.onnx import MAX_OPSET, MIN_OPSET
 
     p.add_argument(
         "checkpoint",
@@ -31,9 +32,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="training checkpoint (.pt) or run directory (its latest checkpoint); leave out with --package",
     )
     p.add_argument("-o", "--output", default=None, help="ONNX file to write (with a checkpoint)")
-    p.add_argument("--opset", type=int, default=MIN_OPSET, help=f"ONNX opset (>= {MIN_OPSET})")
     p.add_argument(
-        "--tolerance", type=float, default=1e-3, help="max abs error allowed on the triplane / image"
+        "--opset",
+        type=int_in(MIN_OPSET, MAX_OPSET),
+        default=MIN_OPSET,
+        help=f"ONNX opset ({MIN_OPSET} to {MAX_OPSET})",
+    )
+    p.add_argument(
+        "--tolerance",
+        type=float_in(0.0, 1.0),
+        default=1e-3,
+        help="max abs error allowed on the triplane / image, in [0, 1]",
     )
     p.add_argument(
         "--weights", default=None, help="also write the inference weights (float16 .pt) for the torch backend"

@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 
 from lp3d.cli.common import human_bytes
-from lp3d.errors import UserError
+from lp3d.errors import UserError, safe_text
 from lp3d.render.triplane_io import triplane_info
 
 HELP = "describe a triplane file"
@@ -68,5 +68,7 @@ def run(args: argparse.Namespace) -> int:
         else f"occupancy:      {tuple(occ['shape'])} grid, {100 * occ['fraction_nonzero']:.1f}% non-zero, "
         f"range [{occ['min']:.3g}, {occ['max']:.3g}]"
     )
-    print("\n".join(lines))
+    # The file's name and its strings (source) are the file's author's: escaped, so that they
+    # cannot reach the terminal as escape sequences or forge a line of this output.
+    print("\n".join(safe_text(line) for line in lines))
     return 0

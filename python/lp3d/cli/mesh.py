@@ -11,6 +11,7 @@ from lp3d.cli.common import (
     Staged,
     check_distinct,
     check_output,
+    float_in,
     human_bytes,
     int_in,
     load_triplane_file,
@@ -32,7 +33,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--grid", type=int_in(8, 512), default=128, help="grid points per axis (default: 128)")
     p.add_argument(
         "--threshold",
-        type=float,
+        type=float_in(-1e30, 1e30),
         default=EG3D_MESH_THRESHOLD,
         help="raw density level of the surface (default: %(default)s, as EG3D)",
     )

@@ -87,7 +87,10 @@ def run(args: argparse.Namespace) -> int:
     settings = RenderSettings(
         resolution=args.resolution, depth_resolution=coarse, depth_resolution_importance=fine
     )
-    title = args.title if args.title is not None else args.triplane.name
+    from lp3d.errors import safe_text
+
+    # A name or --title with bytes that are not UTF-8 (or control characters) is shown escaped.
+    title = safe_text(args.title if args.title is not None else args.triplane.name)
     start = time.perf_counter()
     with Staged() as staged:
         try:

@@ -17,6 +17,9 @@ from lp3d.atomic import atomic_path
 from lp3d.nets.encoder import LP3DEncoder
 from lp3d.training.student import Student
 
+#: Highest opset torch's TorchScript exporter (``dynamo=False``) writes; a higher one is its
+#: traceback, not a file.
+MAX_OPSET = 20
 #: Lowest opset accepted (LayerNorm and the attention ops export as single nodes from 17 on).
 MIN_OPSET = 17
 
@@ -64,8 +67,8 @@ def export_batched(
     """``module`` as ONNX at ``path`` (its folder made, written atomically): one input and one output,
     named ``names``, traced from ``example`` with the batch axis dynamic. Used for the encoder and the
     super-resolution network."""
-    if opset < MIN_OPSET:
-        raise ValueError(f"opset must be >= {MIN_OPSET}, got {opset}")
+    if not MIN_OPSET <= opset <= MAX_OPSET:
+        raise ValueError(f"opset must be in [{MIN_OPSET}, {MAX_OPSET}] (what the exporter writes): {opset}")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(path) as tmp, warnings.catch_warnings(), torch.no_grad():

@@ -72,8 +72,13 @@ def load_encoder(
     missing file or sidecar, an unreadable model, or a layout that does not fit.
     """
     p = Path(path)
+    folder = _check_model_path(p)
     if backend is None:
-        backend = "torch" if p.suffix.lower() in (".pt", ".pth") or p.is_dir() else "onnx"
+        backend = "torch" if p.suffix.lower() in (".pt", ".pth") or folder else "onnx"
+    if backend == "onnx" and folder:
+        raise ModelPackageError(f"{p}: is a folder; an ONNX model is a file (MODEL.onnx beside MODEL.json)")
+    if backend == "torch" and folder and p.suffix.lower() == ".onnx":
+        raise ModelPackageError(f"{p}: is a folder, not an ONNX model file")
     if backend == "onnx":
         if p.suffix.lower() in (".pt", ".pth"):
             raise ModelPackageError(f"{p}: a torch checkpoint; use --backend torch (or export it to ONNX)")
@@ -83,6 +88,24 @@ def load_encoder(
             raise ModelPackageError(f"{p}: an ONNX model; use --backend onnx")
         return load_torch_encoder(p, superres=superres)
     raise ModelPackageError(f"unknown backend {backend!r} (use onnx or torch)")
+
+
+def _check_model_path(p: Path) -> bool:
+    """Whether ``p`` is a folder (a run folder, for the torch backend); a regular file gives False and
+    anything else (missing, a FIFO, a device) a ModelPackageError saying what it is, before any
+    backend tries to read it."""
+    from lp3d.render.npz_reader import open_regular_file
+
+    try:
+        file, _ = open_regular_file(p, "a model file")
+    except IsADirectoryError:
+        return True
+    except FileNotFoundError:
+        raise ModelPackageError(f"{p}: no such file") from None
+    except OSError as e:
+        raise ModelPackageError(str(e) if e.filename is None else f"{p}: {e.strerror}") from None
+    file.close()
+    return False
 
 
 def load_superres(

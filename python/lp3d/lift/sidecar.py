@@ -240,13 +240,15 @@ def read_sidecar(side: Path) -> dict[str, Any]:
 
 def _read_capped(path: Path, cap: int) -> str:
     """A text file of at most ``cap`` bytes (its size checked before it is read)."""
-    try:
-        size = path.stat().st_size
-        if size > cap:
-            raise ModelPackageError(f"{path}: {size} bytes, more than a model package sidecar's cap of {cap}")
-        with open(path, "rb") as f:
-            return f.read(cap + 1).decode("utf-8")
-    except (OSError, UnicodeDecodeError) as e:
+    from lp3d.render.npz_reader import read_regular_file
+
+    try:  # a regular file only (a FIFO would wait for a writer), its size checked before it is read
+        return read_regular_file(path, "a model package sidecar", cap).decode("utf-8")
+    except ValueError as e:
+        if isinstance(e, UnicodeDecodeError):
+            raise ModelPackageError(f"{path}: unreadable model package sidecar ({e})") from None
+        raise ModelPackageError(str(e)) from None
+    except OSError as e:
         raise ModelPackageError(f"{path}: unreadable model package sidecar ({e})") from None
 
 

@@ -8,9 +8,11 @@ first frame is used. The limits live here and nowhere else.
 
 from __future__ import annotations
 
+import io
 import os
 import warnings
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
@@ -21,6 +23,7 @@ __all__ = [
     "MIN_SIDE",
     "NoFaceError",
     "PhotoError",
+    "decode_image",
     "load_image",
 ]
 
@@ -76,6 +79,18 @@ def _frame_count(im: object) -> int | None:
         return None
 
 
+def _pillow_notes(short: str, caught: list[warnings.WarningMessage]) -> list[str]:
+    """The notes for the warnings Pillow gave while decoding (others are warned again, as they were)."""
+    seen: list[str] = []
+    for w in caught:
+        text = " ".join(str(w.message).split())
+        if f"{os.sep}PIL{os.sep}" not in w.filename:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        elif text not in seen:
+            seen.append(text)
+    return [f"{short}: damaged metadata ignored ({'; '.join(seen[:2])})"] if seen else []
+
+
 def load_image(path: str | os.PathLike[str]) -> tuple[np.ndarray, list[str]]:
     """Read an image file as ``(rgb (H, W, 3) uint8, notes)``.
 
@@ -85,8 +100,6 @@ def load_image(path: str | os.PathLike[str]) -> tuple[np.ndarray, list[str]]:
     unrecognised, corrupt or truncated file, an image larger than :data:`MAX_PIXELS`, with a side
     above :data:`MAX_SIDE` or below :data:`MIN_SIDE`.
     """
-    from PIL import Image, ImageOps, UnidentifiedImageError
-
     p = Path(path)
     if not p.exists():
         raise PhotoError(f"{p}: no such file")
@@ -100,12 +113,30 @@ def load_image(path: str | os.PathLike[str]) -> tuple[np.ndarray, list[str]]:
         raise PhotoError(f"{p}: cannot read ({e.strerror or e})") from None
     if size == 0:
         raise PhotoError(f"{p}: empty file")
-    notes: list[str] = []
+    return _decode(p, str(p), p.name)
+
+
+def decode_image(data: bytes, name: str) -> tuple[np.ndarray, list[str]]:
+    """:func:`load_image` of an image held in memory (an upload to ``lp3d serve``), with the same
+    checks and limits; ``name`` stands for the file in messages."""
+    if not data:
+        raise PhotoError(f"{name}: empty file")
+    return _decode(io.BytesIO(data), name, name)
+
+
+def _decode(stream: Path | BinaryIO, label: str, short: str) -> tuple[np.ndarray, list[str]]:
+    """:func:`load_image`'s decoding of ``stream``, named ``label`` in errors and ``short`` in notes."""
+    from PIL import Image, ImageOps, UnidentifiedImageError
+
+    p, notes = label, []
     try:
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(record=True) as caught:
+            # Pillow's own warnings (corrupt or truncated EXIF, metadata it skipped) become notes
+            # below, once each, instead of raw warning lines on the terminal.
+            warnings.simplefilter("always")
             # Our own MAX_PIXELS check replaces Pillow's decompression-bomb warning.
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
-            with Image.open(p) as im:
+            with Image.open(stream) as im:
                 source = im
                 w, h = im.size
                 if w * h > MAX_PIXELS:
@@ -123,24 +154,25 @@ def load_image(path: str | os.PathLike[str]) -> tuple[np.ndarray, list[str]]:
                     mode = im.mode
                 if mode in ("RGBA", "RGBa", "LA", "La", "PA"):
                     notes.append(
-                        f"{p.name}: has an alpha channel ({mode}); dropped it (transparent areas keep "
+                        f"{short}: has an alpha channel ({mode}); dropped it (transparent areas keep "
                         "their hidden colour)"
                     )
                     im = im.convert("RGB") if mode in ("RGBA", "RGBa", "PA") else im.convert("L")
                     mode = im.mode
                 if mode in ("CMYK", "YCbCr", "LAB", "HSV"):
-                    notes.append(f"{p.name}: {mode} image converted to RGB")
+                    notes.append(f"{short}: {mode} image converted to RGB")
                     im = im.convert("RGB")
                     mode = im.mode
                 arr = np.asarray(im)
                 frames = _frame_count(source)
                 if frames is None:
-                    notes.append(f"{p.name}: unreadable data after the first frame; only the first is used")
+                    notes.append(f"{short}: unreadable data after the first frame; only the first is used")
                 elif frames > 1:
                     notes.append(
-                        f"{p.name}: has {frames} frames (an animated or multi-page {source.format} image); "
+                        f"{short}: has {frames} frames (an animated or multi-page {source.format} image); "
                         "only the first is used"
                     )
+        notes += _pillow_notes(short, caught)
     except Image.DecompressionBombError as e:
         raise PhotoError(f"{p}: image too large ({e})") from None
     except UnidentifiedImageError:
@@ -151,10 +183,10 @@ def load_image(path: str | os.PathLike[str]) -> tuple[np.ndarray, list[str]]:
         # Pillow reports truncated/corrupt data as OSError ("image file is truncated"), SyntaxError, ...
         raise PhotoError(f"{p}: corrupt or truncated image ({e})") from None
     if arr.dtype != np.uint8:
-        notes.append(f"{p.name}: {arr.dtype} pixels ({mode}) reduced to 8 bits")
+        notes.append(f"{short}: {arr.dtype} pixels ({mode}) reduced to 8 bits")
         arr = _to_uint8(arr)
     if arr.ndim == 2:
-        notes.append(f"{p.name}: grayscale image; replicated to 3 channels")
+        notes.append(f"{short}: grayscale image; replicated to 3 channels")
         arr = np.repeat(arr[:, :, None], 3, axis=2)
     elif arr.ndim != 3 or arr.shape[2] != 3:
         raise PhotoError(f"{p}: unsupported pixel layout {arr.shape} (mode {mode})")

@@ -18,8 +18,8 @@ holds the N_c coarse bricks and ``fine_values`` (fine bricks, k_f+1, k_f+1, k_f+
 
 Why premultiplied: at a surface, half of a sample's corners may lie in empty space, where the
 decoder's colour is anything; weighting each corner's colour by a weight that grows with its density
-keeps it out of the surface's colour (+2.3 dB against exact 192+192 on a teacher head at k = 6,
-``bench/baked_error.py``).
+keeps it out of the surface's colour (measured against exact 192+192 by ``bench/baked_error.py``;
+``bench/history/RESULTS.md``, "Premultiplied colour").
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from lp3d.atomic import atomic_path
+from lp3d.render import npz_reader
 from lp3d.render.reference import decode, render_with, sample_triplane
 from lp3d.render.settings import RenderSettings
 from lp3d.render.triplane import TriplaneData
@@ -44,13 +45,13 @@ EMPTY_RAW = -60.0
 #: how fast the colour turns within a sub-cell next to a surface: EG3D's compositing gives an interval
 #: the mean colour of its two samples, so a transparent sample beside an opaque one is seen, and its
 #: colour must not hang on float32's rounding of its position (with 1e-3, one ray of the tests moved
-#: by 3e-4). Against exact mode on a teacher head at k 6 (with the opacity as the weight): 0.01 and
-#: 0.03 cost at most 0.04 dB, 0.1 costs 0.3 dB.
+#: by 3e-4). Measured against exact mode (``bench/baked_error.py``), a floor this small costs next to
+#: nothing, where a larger one (0.1) costs visibly.
 COLOUR_FLOOR = 0.03
 #: Above the floor the weight climbs linearly with the raw density, from 0 to 1 at this raw density
 #: (``BAKED_COLOUR_RAMP``; about 0.6 opacity over a 48-sample step). A ramp rather than the opacity
-#: itself: no exp or log for each of a sample's eight corners (the opacity cost 14% of a baked frame),
-#: and as accurate (46.2 dB against 46.1 for the opacity of a 0.02 interval; 20: 46.1, 100: 46.1).
+#: itself: no exp or log for each of a sample's eight corners (a noticeable share of a baked frame),
+#: and as accurate (``bench/baked_error.py``), at this ramp or others.
 COLOUR_RAMP = 50.0
 
 
@@ -276,62 +277,123 @@ def save_baked(path: str | os.PathLike[str], field: Any, triplane: Any) -> Path:
     return out
 
 
+#: Largest baked-field file read (its biggest legal arrays, a 512³ index and the bricks, are each
+#: within :data:`lp3d.render.npz_reader.MAX_ENTRY_BYTES`).
+MAX_FILE_BYTES = 4 << 30
+#: Longest text entry (``format``, ``triplane_sha256``).
+_MAX_TEXT_CHARS = 64
+#: Per key: accepted ``.npy`` dtypes and dimensions (None: a 0-d text).
+_ENTRIES: dict[str, tuple[tuple[str, ...], int] | None] = {
+    "format": None,
+    "triplane_sha256": None,
+    "subdivisions": (("<i4", "<i8", "<f4", "<f8"), 0),
+    "occupancy_epsilon": (("<f2", "<f4", "<f8", "<i4", "<i8"), 0),
+    "max_delta": (("<f2", "<f4", "<f8", "<i4", "<i8"), 0),
+    "fine_subdivisions": (("<i4", "<i8", "<f4", "<f8"), 0),
+    "index": (("<i4", "<i8"), 3),
+    "values": (("<f2",), 5),
+    "fine_values": (("<f2",), 5),
+}
+#: Integer settings: the largest value read before the renderer's own range check (a 10³⁰⁰ would
+#: otherwise reach it as an int that overflows).
+_INT_SCALARS = ("subdivisions", "fine_subdivisions")
+
+
+def _check_entry(key: str, h: npz_reader.NpyHeader) -> None:
+    """One entry's ``.npy`` header against the baked-field format, before its data is read."""
+    NpzError, shape_text = npz_reader.NpzError, npz_reader.shape_text
+    if key not in _ENTRIES:
+        raise NpzError(key, f"unknown key (a baked field holds {', '.join(_ENTRIES)})")
+    spec, got = _ENTRIES[key], f"{h.descr} {shape_text(h.shape)}"
+    if spec is None:
+        if h.unicode_chars is None or h.unicode_chars > _MAX_TEXT_CHARS:
+            raise NpzError(key, f"must be a string of at most {_MAX_TEXT_CHARS} characters, got {got}")
+        return
+    dtypes, ndim = spec
+    if ndim == 0 and (h.descr not in dtypes or h.shape != ()):
+        raise NpzError(key, f"must be one finite number, got {got}")
+    if h.descr not in dtypes or len(h.shape) != ndim:
+        raise NpzError(key, f"must be a {ndim}-d array of {' or '.join(dtypes)}, got {got}")
+    if key == "index" and (len(set(h.shape)) != 1 or not 1 <= h.shape[0] <= MAX_CELLS):
+        raise NpzError(key, f"must be (G, G, G) with 1 <= G <= {MAX_CELLS}, got {shape_text(h.shape)}")
+    if key in ("values", "fine_values"):
+        _, a, b, c, four = h.shape
+        if not (a == b == c >= 1) or four != 4:  # (0, 1, 1, 1, 4): a one-level field's fine_values
+            raise NpzError(key, f"must be (bricks, k+1, k+1, k+1, 4) float16, got {got}")
+
+
+def _read_field_file(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """The arrays of the baked-field file at ``path``, through the project's bounded ``.npz`` reader:
+    a regular file (a FIFO or a device is refused at once), every size checked before it is
+    allocated, every header against :data:`_ENTRIES`. OSError for a file that cannot be opened,
+    ValueError naming the file (and the key) for its content."""
+    where = os.fspath(path)
+    file, size = npz_reader.open_regular_file(path, "a baked-field .npz")
+    with file:
+        if size > MAX_FILE_BYTES:
+            raise ValueError(f"{where}: {size} bytes, more than a baked field's cap of {MAX_FILE_BYTES}")
+        try:
+            return npz_reader.read_npz(file, size, _check_entry)
+        except npz_reader.NpzError as e:
+            if e.key:
+                raise ValueError(f"{where}: {e.key}: {e.message}") from None
+            raise ValueError(f"{where}: not a baked-field .npz ({e.message})") from None
+        except (OSError, zipfile.BadZipFile, EOFError) as e:  # a read failing mid-way
+            raise ValueError(f"{where}: truncated or corrupt file ({type(e).__name__}: {e})") from None
+
+
 def load_baked(path: str | os.PathLike[str], triplane: Any) -> Any:
     """The baked field saved at ``path`` for ``triplane`` (an ``lp3d_render.Triplane``), attached to its
     GPU copy (later renders with its settings look it up); a ``ValueError`` naming the file and the
-    field for anything that does not fit (no pickle is ever loaded)."""
+    field for anything that does not fit, the renderer's own checks included (no pickle is ever
+    loaded; the file is read by :mod:`lp3d.render.npz_reader`, bounded before it is read)."""
     import lp3d_render
 
-    where = str(path)
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as e:
-        if isinstance(e, FileNotFoundError | IsADirectoryError | PermissionError):
-            raise
-        raise ValueError(f"{where}: not a baked-field .npz ({e})") from None
+    where = os.fspath(path)
+    data = _read_field_file(path)
     fields = ("format", "triplane_sha256", *SCALARS, "index", "values")
     missing = sorted(set(fields) - set(data))
     if missing:
         raise ValueError(f"{where}: missing {', '.join(missing)}")
-    if str(data["format"]) == "lp3d-baked-field-v1":
+    fmt = str(data["format"])
+    if fmt == "lp3d-baked-field-v1":
         raise ValueError(f"{where}: format: baked by an older lp3d (RGB not premultiplied); bake again")
-    if str(data["format"]) == ONE_LEVEL_FORMAT:
+    if fmt == ONE_LEVEL_FORMAT:
         data.setdefault("fine_subdivisions", np.array(0, np.int64))
         data.setdefault("fine_values", np.zeros((0, 1, 1, 1, 4), np.float16))
-    elif str(data["format"]) != BAKED_FORMAT:
-        raise ValueError(f"{where}: format {str(data['format'])[:40]!r}, expected {BAKED_FORMAT!r}")
+    elif fmt != BAKED_FORMAT:
+        raise ValueError(f"{where}: format {fmt[:40]!r}, expected {BAKED_FORMAT!r}")
     elif "fine_subdivisions" not in data or "fine_values" not in data:
         raise ValueError(f"{where}: missing fine_subdivisions or fine_values")
     if str(data["triplane_sha256"]) != triplane_digest(triplane):
         raise ValueError(f"{where}: baked for other planes or another decoder than this triplane's")
-    scalars = {name: _scalar(data[name], f"{where}: {name}") for name in SCALARS}
-    index, values = data["index"], data["values"]
-    if index.dtype.kind != "i" or index.ndim != 3 or len(set(index.shape)) != 1 or index.shape[0] > MAX_CELLS:
-        raise ValueError(f"{where}: index must be (G, G, G) integers, G <= {MAX_CELLS}, got {index.shape}")
-    for name in ("values", "fine_values"):
-        a = data[name]
-        if a.dtype != np.float16 or a.ndim != 5 or a.shape[-1] != 4:
-            raise ValueError(
-                f"{where}: {name} must be (bricks, k+1, k+1, k+1, 4) float16, got {a.dtype} {a.shape}"
-            )
-    fine_k = _scalar(data["fine_subdivisions"], f"{where}: fine_subdivisions")
-    if fine_k != int(fine_k):
-        raise ValueError(f"{where}: fine_subdivisions: must be a whole number, got {fine_k}")
-    return lp3d_render.attach_baked(
-        triplane,
-        index.astype(np.int64),
-        np.ascontiguousarray(values).view(np.uint16),
-        subdivisions=int(scalars["subdivisions"]),
-        occupancy_epsilon=scalars["occupancy_epsilon"],
-        max_delta=scalars["max_delta"],
-        fine_subdivisions=int(fine_k),
-        fine_values=np.ascontiguousarray(data["fine_values"]).view(np.uint16),
-    )
+    numbers = {name: _scalar(data[name], f"{where}: {name}") for name in (*SCALARS, "fine_subdivisions")}
+    for name in _INT_SCALARS:
+        value = numbers[name]
+        if value != int(value) or abs(value) > 2**31:
+            raise ValueError(f"{where}: {name}: must be a whole number of sub-cells, got {value:g}")
+    index = data["index"].astype(np.int64)
+    n_bricks = len(data["values"]) + len(data["fine_values"])
+    if n_bricks > index.size:
+        raise ValueError(f"{where}: {n_bricks} bricks for {index.size} cells")
+    try:
+        return lp3d_render.attach_baked(
+            triplane,
+            index,
+            np.ascontiguousarray(data["values"]).view(np.uint16),
+            subdivisions=int(numbers["subdivisions"]),
+            occupancy_epsilon=numbers["occupancy_epsilon"],
+            max_delta=numbers["max_delta"],
+            fine_subdivisions=int(numbers["fine_subdivisions"]),
+            fine_values=np.ascontiguousarray(data["fine_values"]).view(np.uint16),
+        )
+    except (ValueError, TypeError) as e:  # the renderer's checks of the arrays and numbers
+        raise ValueError(f"{where}: {e}") from None
 
 
-def _scalar(a: np.ndarray, what: str) -> float:
+def _scalar(a: Any, what: str) -> float:
     """A 0-d finite number from a file, or a ValueError saying ``what`` it should have been."""
+    a = np.asarray(a)
     if a.shape != () or a.dtype.kind not in "iuf" or not np.isfinite(a):
         raise ValueError(f"{what}: must be one finite number, got {a.dtype} {a.shape}")
     return float(a)

@@ -94,8 +94,10 @@ def density_grid(tri: TriplaneData, grid: int) -> np.ndarray:
             np.broadcast_to(t[sl] if t.shape[0] > 1 else t, (sl.stop - i, grid, grid, t.shape[-1]))
             for t in terms
         ) / np.float32(len(PLANE_AXES))
-        h = _softplus(feats.reshape(-1, feats.shape[-1]) @ w0t + b0)
-        out[sl] = (h @ w1s + b1s).reshape(sl.stop - i, grid, grid)  # density only: 1 of 33 outputs
+        # Overflow (planes or weights too large for float32) is reported by extract_mesh, by name.
+        with np.errstate(over="ignore", invalid="ignore"):
+            h = _softplus(feats.reshape(-1, feats.shape[-1]) @ w0t + b0)
+            out[sl] = (h @ w1s + b1s).reshape(sl.stop - i, grid, grid)  # density only: 1 of 33 outputs
     return out
 
 
@@ -107,6 +109,12 @@ def extract_mesh(tri: TriplaneData, *, grid: int = 128, threshold: float = EG3D_
     from skimage.measure import marching_cubes
 
     sigma = density_grid(tri, grid)
+    bad = int(np.count_nonzero(~np.isfinite(sigma)))
+    if bad:
+        raise MeshError(
+            f"the decoder's density is not finite (NaN or Inf in float32) at {bad} of the {sigma.size} grid "
+            "points: the planes or the decoder weights are too large for float32"
+        )
     lo, hi = float(sigma.min()), float(sigma.max())
     if not lo < threshold < hi:
         raise MeshError(
@@ -132,8 +140,9 @@ def vertex_colors(tri: TriplaneData, points: np.ndarray, chunk: int = 1 << 15) -
     """The decoder's RGB (features 0..2 after sigmoid, in [0, 1]) at points (V, 3) -> (V, 3) float32."""
     out = np.empty((len(points), 3), np.float32)
     for i in range(0, len(points), chunk):
-        feats = sample_triplane(tri.planes, points[i : i + chunk], box_warp=tri.box_warp)
-        _, rgb = decode(feats, tri.w0, tri.b0, tri.w1, tri.b1)
+        with np.errstate(over="ignore"):  # a saturated sigmoid is 0 or 1, as it should be
+            feats = sample_triplane(tri.planes, points[i : i + chunk], box_warp=tri.box_warp)
+            _, rgb = decode(feats, tri.w0, tri.b0, tri.w1, tri.b1)
         out[i : i + chunk] = np.clip(rgb[:, :3], 0.0, 1.0)
     return out
 

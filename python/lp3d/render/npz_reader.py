@@ -2,6 +2,10 @@
 dtypes and unicode scalars only, never pickle. The Python twin of ``crates/renderer/src/npz.rs``:
 the same header grammar, dtypes and limits, so both readers accept and refuse the same files.
 
+:func:`open_regular_file` and :func:`read_npz` are the one way lp3d opens an ``.npz`` or another file
+someone else made (triplanes, baked fields, checkpoint parts): a regular file, opened without
+blocking, its size bounded before a byte is read.
+
 Nothing the file claims is trusted before it is checked: the zip's declared entry sizes are held
 against the file's real size and :data:`MAX_ENTRY_BYTES` before an entry is opened, and a ``.npy``
 header's shape and dtype against the entry's size before its data is read. A hostile size claim is
@@ -10,8 +14,11 @@ an error (:class:`NpzError`), never an allocation.
 
 from __future__ import annotations
 
+import os
+import stat
 import zipfile
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import IO
 
@@ -348,3 +355,72 @@ def _message(e: BaseException) -> str:
     if isinstance(e, EOFError):
         return "truncated data"
     return f"corrupt data ({e})"
+
+
+def _kind(mode: int) -> str:
+    if stat.S_ISFIFO(mode):
+        return "is a FIFO (named pipe)"
+    if stat.S_ISCHR(mode):
+        return "is a character device"
+    if stat.S_ISBLK(mode):
+        return "is a block device"
+    if stat.S_ISSOCK(mode):
+        return "is a socket"
+    return "is not a regular file"
+
+
+def open_regular_file(path: str | os.PathLike[str], what: str) -> tuple[IO[bytes], int]:
+    """``path`` opened for reading, and its size, after checking it is a regular file; ``what`` says
+    what it should have been ("a triplane .npz"). Opened non-blocking: a FIFO would otherwise wait for
+    a writer forever (for a regular file the flag changes nothing). A directory is an
+    ``IsADirectoryError``, a FIFO, device or socket an ``OSError``, both naming the path."""
+    flags = os.O_RDONLY
+    for name in ("O_NONBLOCK", "O_NOCTTY", "O_CLOEXEC", "O_BINARY"):
+        flags |= getattr(os, name, 0)
+    fd = os.open(path, flags)  # FileNotFoundError / PermissionError, naming the path
+    try:
+        st = os.fstat(fd)
+        if stat.S_ISDIR(st.st_mode):
+            raise IsADirectoryError(f"{os.fspath(path)}: is a directory, not a regular file ({what})")
+        if not stat.S_ISREG(st.st_mode):
+            raise OSError(f"{os.fspath(path)}: {_kind(st.st_mode)}, not a regular file ({what})")
+        return os.fdopen(fd, "rb"), st.st_size
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def read_regular_file(path: str | os.PathLike[str], what: str, max_bytes: int) -> bytes:
+    """The bytes of the regular file ``path`` (see :func:`open_regular_file`), refused with a
+    ``ValueError`` naming it when it is larger than ``max_bytes``, before it is read."""
+    file, size = open_regular_file(path, what)
+    with file:
+        if size > max_bytes:
+            raise ValueError(f"{os.fspath(path)}: {size} bytes, more than {what}'s cap of {max_bytes}")
+        data = file.read(max_bytes + 1)
+    if len(data) != size:
+        raise ValueError(f"{os.fspath(path)}: changed while it was read ({what})")
+    return data
+
+
+def read_npz(
+    file: IO[bytes],
+    file_bytes: int,
+    check_header: Callable[[str, NpyHeader], None] | None = None,
+) -> dict[str, np.ndarray | str]:
+    """Every entry of the ``.npz`` open in ``file`` (``file_bytes`` long, from
+    :func:`open_regular_file`), by key. ``check_header(key, header)`` sees each entry's header and
+    raises :class:`NpzError` for one the caller's format refuses, before any data is read; so every
+    allocation is one the caller agreed to. Raises :class:`NpzError` naming the key."""
+    if file.read(6) == _NPY_MAGIC:
+        raise NpzError("", "is a single .npy array, not an .npz archive")
+    file.seek(0)
+    npz = NpzReader(file, file_bytes)
+    try:
+        headers = {key: npz.header(key) for key in npz.keys()}
+        if check_header is not None:
+            for key, header in headers.items():
+                check_header(key, header)
+        return {key: npz.read(key, header) for key, header in headers.items()}
+    finally:
+        npz.close()

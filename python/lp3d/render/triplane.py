@@ -50,7 +50,7 @@ def mirror_planes(planes: Any) -> Any:
 
     Rendering the mirrored planes from the mirrored camera gives the horizontally flipped image, so a
     flipped input photo and mirrored target planes are a free training pair (the CPU recipe's
-    augmentation; checked against renders in ``tests/test_synthetic_data.py``)."""
+    augmentation; checked against renders in ``tests/training/test_cpu_recipe.py``)."""
     if isinstance(planes, np.ndarray):
         return np.stack([np.flip(planes[..., i, :, :, :], a) for i, a in enumerate(PLANE_X_AXES)], axis=-4)
     import torch
@@ -96,7 +96,8 @@ class TriplaneData:
     ``w1`` (33, 64), ``b1`` (33,) effective decoder weights (float32 or float64 in, stored float32),
     ``camera`` optional (25,) float64 label of the input view, ``occupancy`` optional (G, G, G) float32
     grid (per cell an upper bound on the raw density, ``docs/occupancy.md``; bake it with
-    ``lp3d_render.Triplane.bake_occupancy``), ``source`` optional short text. ``box_warp``: the
+    ``lp3d_render.Triplane.bake_occupancy``) with ``occupancy_checksum`` optional (what it was baked
+    for; checked when given), ``source`` optional short text. ``box_warp``: the
     triplane spans ``[-box_warp/2, box_warp/2]^3``; ``ray_start``/``ray_end``: the sampled depth range.
     The dataclass is frozen; arrays are not copied, so do not mutate them (call :meth:`validate` if you do).
     """
@@ -112,6 +113,9 @@ class TriplaneData:
     camera: np.ndarray | None = None
     occupancy: np.ndarray | None = None
     source: str | None = field(default=None)
+    #: What ``occupancy`` was baked for (:func:`occupancy_checksum`), when known: read from a file, or
+    #: kept by ``dataclasses.replace``, so a grid carried over to other planes is refused.
+    occupancy_checksum: int | None = None
 
     def __post_init__(self) -> None:
         # Normalise representations (frozen, hence object.__setattr__), then check everything.
@@ -216,8 +220,30 @@ class TriplaneData:
                 )
             if not np.all(np.isfinite(occ)):
                 raise TriplaneError("occupancy", "contains NaN/Inf")
+        if self.occupancy is not None and self.occupancy_checksum is not None:
+            actual = occupancy_checksum(self)
+            if int(self.occupancy_checksum) != actual:
+                raise TriplaneError(
+                    "occupancy",
+                    f"baked for other planes or another decoder (checksum {self.occupancy_checksum}, these "
+                    f"give {actual}); bake it again",
+                )
         if self.source is not None and not isinstance(self.source, str):
             raise TriplaneError("source", f"must be a str, got {type(self.source).__name__}")
+        if self.source is not None and not _is_unicode(self.source):
+            # A lone surrogate (a file name's undecodable byte, as os.fsdecode keeps it) cannot be
+            # stored: the file would be one every reader refuses. lp3d.errors.safe_text makes one text.
+            raise TriplaneError(
+                "source", "holds a lone surrogate, not text (pass names through lp3d.errors.safe_text)"
+            )
+
+
+def _is_unicode(text: str) -> bool:
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
 
 
 def occupancy_checksum(tri: TriplaneData) -> int:

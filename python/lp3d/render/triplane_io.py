@@ -8,11 +8,12 @@ half-written file and a failed write leaves nothing behind.
 
 from __future__ import annotations
 
+import dataclasses
+import io
 import os
-import stat
 import zipfile
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 import numpy as np
 
@@ -41,7 +42,8 @@ REQUIRED_KEYS: dict[str, str] = {
 OPTIONAL_KEYS: dict[str, str] = {"camera": "camera", "occupancy": "occupancy", "source": "source"}
 
 #: Stored with ``occupancy`` (and only with it): the CRC-32 of the planes and decoder the grid was
-#: baked for (:func:`lp3d.render.triplane.occupancy_checksum`). Checked on load, not kept in TriplaneData.
+#: baked for (:func:`lp3d.render.triplane.occupancy_checksum`). Checked on load, and kept in
+#: ``TriplaneData.occupancy_checksum``.
 CHECKSUM_KEY = "occupancy_checksum"
 
 _FIELD_OF_KEY = {**REQUIRED_KEYS, **OPTIONAL_KEYS}
@@ -95,6 +97,16 @@ def save_triplane(path: str | os.PathLike[str], tri: TriplaneData) -> None:
     with atomic_path(path, parents=False) as tmp, open(tmp, "wb") as f:
         # A file object, so numpy appends no ".npz"; our arrays are never object arrays (no pickle).
         np.savez(f, **arrays)
+
+
+def triplane_bytes(tri: TriplaneData) -> bytes:
+    """The ``.npz`` file :func:`save_triplane` writes for ``tri``, in memory (``lp3d serve``'s
+    download, which writes nothing to the server's disk)."""
+    tri.validate()
+    _check_writable_caps(Path("<memory>"), tri)
+    buffer = io.BytesIO()
+    np.savez(buffer, **_arrays_of(tri))
+    return buffer.getvalue()
 
 
 def _check_writable_caps(path: Path, tri: TriplaneData) -> None:
@@ -204,38 +216,6 @@ def _check_bounds(box_warp: float, ray_start: float, ray_end: float) -> None:
         raise npz_reader.NpzError(*bad)
 
 
-def _open_regular_file(path: Path) -> tuple[IO[bytes], int]:
-    """``path`` opened for reading, and its size, after checking it is a regular file. Opened
-    non-blocking: a FIFO would otherwise wait for a writer forever (for a regular file the flag
-    changes nothing)."""
-    flags = os.O_RDONLY
-    for name in ("O_NONBLOCK", "O_NOCTTY", "O_CLOEXEC", "O_BINARY"):
-        flags |= getattr(os, name, 0)
-    fd = os.open(path, flags)  # FileNotFoundError / PermissionError, naming the path
-    try:
-        st = os.fstat(fd)
-        if not stat.S_ISREG(st.st_mode):
-            mode = st.st_mode
-            if stat.S_ISDIR(mode):
-                raise IsADirectoryError(f"{path}: is a directory, not a regular file (a triplane .npz)")
-            kind = (
-                "is a FIFO (named pipe)"
-                if stat.S_ISFIFO(mode)
-                else "is a character device"
-                if stat.S_ISCHR(mode)
-                else "is a block device"
-                if stat.S_ISBLK(mode)
-                else "is a socket"
-                if stat.S_ISSOCK(mode)
-                else "is not a regular file"
-            )
-            raise OSError(f"{path}: {kind}, not a regular file (a triplane .npz)")
-        return os.fdopen(fd, "rb"), st.st_size
-    except BaseException:
-        os.close(fd)
-        raise
-
-
 def load_triplane(path: str | os.PathLike[str]) -> TriplaneData:
     """Read a triplane ``.npz`` written by :func:`save_triplane` (or the Rust writer).
 
@@ -245,10 +225,10 @@ def load_triplane(path: str | os.PathLike[str]) -> TriplaneData:
     compressed, too large for the caps (:data:`FILE_LIMITS`), pickled (object) arrays, missing or
     unknown keys, an unsupported ``format_version``, bad shapes, dtypes or values (NaN/Inf included).
     Every size the file claims is checked before anything is allocated. ``lp3d_render.Triplane.load``
-    makes the same decisions (``tests/test_triplane_files.py``).
+    makes the same decisions (``tests/render/test_triplane_files.py``).
     """
     path = Path(path)
-    file, size = _open_regular_file(path)
+    file, size = npz_reader.open_regular_file(path, "a triplane .npz")
     with file:
         if size == 0:
             raise _fail(path, None, "empty file, not an .npz triplane")
@@ -280,7 +260,8 @@ def load_triplane(path: str | os.PathLike[str]) -> TriplaneData:
             f"{checksum} does not match these planes and decoder ({actual}): the occupancy grid was "
             "baked for another triplane; bake it again",
         )
-    return tri
+    # Kept with the grid, so that a grid carried over to other planes (dataclasses.replace) is refused.
+    return tri if checksum is None else dataclasses.replace(tri, occupancy_checksum=checksum)
 
 
 def _read_values(npz: npz_reader.NpzReader) -> tuple[dict[str, object], int | None]:
@@ -344,8 +325,7 @@ def triplane_info(path: str | os.PathLike[str]) -> dict[str, Any]:
     decoder statistics, bounds, camera (:func:`~lp3d.render.camera.camera_summary`), source, occupancy."""
     path = Path(path)
     tri = load_triplane(path)
-    with np.load(path, allow_pickle=False) as npz:
-        version = int(npz["format_version"])
+    version = FORMAT_VERSION  # the only version load_triplane accepts
     planes = tri.planes.astype(np.float32)
     info: dict[str, Any] = {
         "file": str(path),

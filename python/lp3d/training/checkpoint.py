@@ -84,12 +84,51 @@ def load_checkpoint(
         raise CheckpointError(
             f"{str(p)!r} is not an lp3d training checkpoint of format {CHECKPOINT_FORMAT!r} (got {got!r})"
         )
+    _check_entries(ckpt, str(p))
     try:
         ckpt["train_config"] = TrainConfig.from_json(ckpt["config"])
     except (ValueError, TypeError, KeyError) as e:
         raise CheckpointError(f"{str(p)!r}: its configuration cannot be read by this version: {e}") from None
     ckpt["path"] = str(p)
     return ckpt
+
+
+#: The decoder's entries every student holds (``student_from_checkpoint`` reads them first).
+_DECODER_KEYS = tuple(f"decoder.{n}" for n in ("w0", "b0", "w1", "b1"))
+
+
+def _check_entries(ckpt: dict[Any, Any], where: str) -> None:
+    """The entries every reader of a checkpoint uses (:data:`WEIGHTS_ONLY_KEYS`), with their types,
+    so that a file someone edited or cut short is a :class:`CheckpointError` naming the entry here,
+    not a ``KeyError`` or ``AttributeError`` deep in evaluation or export."""
+
+    def bad(key: str, what: str) -> CheckpointError:
+        got = ckpt.get(key)
+        shown = type(got).__name__ if key in ckpt else "nothing"
+        return CheckpointError(f"checkpoint {where!r}: entry {key!r} must be {what}, got {shown}")
+
+    for key in ("config", "teacher", "scene"):
+        if not isinstance(ckpt.get(key), str):
+            raise bad(key, "a string")
+    if "teacher_args" in ckpt and not isinstance(ckpt["teacher_args"], str):
+        raise bad("teacher_args", "a JSON string")
+    step = ckpt.get("step")
+    if not isinstance(step, int) or isinstance(step, bool) or not 0 <= step < 2**62:
+        raise bad("step", "a step number (a non-negative int)")
+    try:
+        scene = json.loads(ckpt["scene"])
+    except ValueError:
+        scene = None
+    if not isinstance(scene, dict):
+        raise bad("scene", "the JSON of the scene bounds")
+    student = ckpt.get("student")
+    if not isinstance(student, dict) or not all(
+        isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in student.items()
+    ):
+        raise bad("student", "a state dict (names to tensors)")
+    missing = [k for k in _DECODER_KEYS if k not in student]
+    if missing:
+        raise CheckpointError(f"checkpoint {where!r}: its student has no {', '.join(missing)}")
 
 
 def load_shared_checkpoint(
@@ -113,13 +152,19 @@ def rank_seed(seed: int, rank: int, step: int) -> int:
 def student_from_checkpoint(ckpt: dict[str, Any], device: torch.device | str = "cpu") -> Student:
     """Rebuild the student of a checkpoint (from :func:`load_checkpoint`) in eval mode."""
     cfg: TrainConfig = ckpt["train_config"]
-    scene = SceneBounds(**json.loads(ckpt["scene"]))
-    dec = ckpt["student"]
-    decoder = tuple(dec[f"decoder.{n}"].cpu().numpy() for n in ("w0", "b0", "w1", "b1"))
-    student = Student(cfg, decoder, scene)  # type: ignore[arg-type]
+    where = ckpt.get("path", "?")
     try:
+        scene = SceneBounds(**json.loads(ckpt["scene"]))
+    except (TypeError, ValueError) as e:
+        raise CheckpointError(f"checkpoint {where!r}: entry 'scene' holds no scene bounds: {e}") from None
+    if (problem := scene.problem()) is not None:
+        raise CheckpointError(f"checkpoint {where!r}: entry 'scene': {problem[0]}: {problem[1]}")
+    dec = ckpt["student"]
+    decoder = tuple(dec[key].detach().cpu().float().numpy() for key in _DECODER_KEYS)
+    try:
+        student = Student(cfg, decoder, scene)  # type: ignore[arg-type]
         student.load_state_dict(ckpt["student"])
-    except RuntimeError as e:
+    except (RuntimeError, ValueError, TypeError) as e:
         raise CheckpointError(f"checkpoint weights do not fit configuration {cfg.name!r}: {e}") from None
     return student.to(device).eval()
 

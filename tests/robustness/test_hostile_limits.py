@@ -1,0 +1,146 @@
+"""Resource limits, library warnings, non-finite fields and the last hostile inputs of the previous
+rounds: each ends in one line that names the real cause (or a note), never a SIGBUS, a warning
+line from a library, a traceback or a silent acceptance. Each test failed before."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import signal
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from lp3d.render.sample_scenes import coloured_sphere
+from lp3d.render.triplane import TriplaneError
+from lp3d.render.triplane_io import load_triplane, save_triplane
+from support.cli import run
+
+
+@pytest.fixture(scope="module")
+def sphere(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("scene") / "sphere.npz"
+    save_triplane(path, coloured_sphere(size=16, radius=0.3))
+    return path
+
+
+def _limited(argv: list[str], limit_bytes: int) -> subprocess.CompletedProcess[str]:
+    """``lp3d ARGV`` in a fresh process under a file-size limit (``ulimit -f``)."""
+    import resource
+
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
+
+    cmd = [sys.executable, "-m", "lp3d.cli", *argv]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=240, preexec_fn=limit)
+
+
+@pytest.mark.parametrize("command", ["render", "orbit"])
+def test_a_file_size_limit_is_file_too_large_not_sigbus(sphere, tmp_path, command) -> None:
+    out = tmp_path / ("view.png" if command == "render" else "orbit.gif")
+    argv = [command, str(sphere), "-o", str(out), "--resolution", "16", "--samples", "4+4"]
+    if command == "orbit":
+        argv += ["--frames", "2"]
+    done = _limited(argv, 20 << 20)  # below the 64 MiB blocks lavapipe keeps its memory in
+    assert done.returncode == 1, (done.returncode, done.stderr)
+    assert "File too large" in done.stderr and "ulimit -f" in done.stderr, done.stderr
+    assert not out.exists()
+
+
+def test_a_photo_with_damaged_exif_is_a_note_not_a_warning(tmp_path) -> None:
+    from lp3d.photo.load import load_image
+
+    photo = tmp_path / "exif.jpg"
+    ifd = b"II*\x00\x08\x00\x00\x00\x05\x00\x12\x01\x03\x00\x01\x00\x00\x00\x06\x00\x00\x00"
+    ifd += b"\x0f\x01\x02\x00\x50\x00\x00\x00\x00\x10\x00\x00"  # a tag pointing past the end
+    Image.fromarray(np.zeros((64, 64, 3), np.uint8)).save(photo, exif=b"Exif\x00\x00" + ifd)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        arr, notes = load_image(photo)
+    assert arr.shape == (64, 64, 3)
+    assert len(notes) == 1 and notes[0].startswith("exif.jpg: damaged metadata ignored"), notes
+
+
+def test_mesh_of_planes_that_overflow_names_the_non_finite_decode(capsys, tmp_path) -> None:
+    tri = coloured_sphere(size=16)
+    path = tmp_path / "huge.npz"
+    save_triplane(path, dataclasses.replace(tri, planes=tri.planes * np.float32(1e36)))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        code, _, err = run(capsys, "mesh", path, "-o", tmp_path / "m.ply", "--grid", "16")
+    assert code == 1 and "not finite" in err and "nan" not in err, err
+    code, _, err = run(capsys, "mesh", path, "-o", tmp_path / "m.ply", "--threshold", "nan")
+    assert code == 2 and "--threshold" in err
+
+
+def test_mesh_export_of_large_planes_leaks_no_numpy_warning(capsys, tmp_path) -> None:
+    tri = coloured_sphere(size=16)
+    path = tmp_path / "strong.npz"
+    save_triplane(path, dataclasses.replace(tri, planes=tri.planes * np.float32(300)))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        code, _, err = run(capsys, "mesh", path, "-o", tmp_path / "m.glb", "--grid", "16", "--threshold", "0")
+    assert code in (0, 1) and "Warning" not in err, err
+
+
+def test_a_model_that_is_a_fifo_or_a_folder_is_named_as_such(capsys, sphere, tmp_path) -> None:
+    from lp3d.lift.inference import load_encoder
+    from lp3d.lift.model_package import ModelPackageError
+
+    fifo = tmp_path / "model.onnx"
+    os.mkfifo(fifo)
+    with pytest.raises(ModelPackageError, match="model.onnx: is a FIFO"):
+        load_encoder(fifo)
+    folder = tmp_path / "folder.onnx"
+    folder.mkdir()
+    with pytest.raises(ModelPackageError, match="folder.onnx: is a folder, not an ONNX model file"):
+        load_encoder(folder)
+    with pytest.raises(ModelPackageError, match="is a folder; an ONNX model is a file"):
+        load_encoder(folder, "onnx")
+
+
+@pytest.mark.parametrize(
+    ("flag", "value"), [("--tolerance", "-1"), ("--tolerance", "nan"), ("--opset", "99")]
+)
+def test_export_refuses_impossible_settings_when_parsing(capsys, tmp_path, flag, value) -> None:
+    code, _, err = run(capsys, "export", tmp_path / "x.pt", "-o", tmp_path / "y.onnx", flag, value)
+    assert code == 2 and flag in err and "Traceback" not in err, err
+
+
+def test_a_grid_baked_for_other_planes_is_refused(tmp_path) -> None:
+    import lp3d_render
+
+    tri = coloured_sphere(size=16)
+    path = tmp_path / "baked.npz"
+    save_triplane(path, dataclasses.replace(tri, occupancy=tri.to_native().bake_occupancy(8)))
+    loaded = load_triplane(path)
+    assert loaded.occupancy_checksum is not None
+    with pytest.raises(TriplaneError, match="occupancy: baked for other planes"):
+        dataclasses.replace(loaded, planes=loaded.planes * 2)
+    assert lp3d_render.Triplane.load(str(path)).occupancy is not None
+
+
+def test_an_error_after_ctrl_c_is_reported_as_the_interrupt() -> None:
+    """An import that Ctrl-C cut short fails as an ImportError, which the code around it reports as
+    a missing package ("the onnx backend needs onnxruntime"): the command says "interrupted"."""
+    script = (
+        "import argparse, os, signal, sys, time\n"
+        "from lp3d.errors import run_command\n"
+        # Ctrl-C as from a terminal: a shell starts a background job's processes with SIGINT ignored.
+        "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
+        "def func(args):\n"
+        "    try:\n"
+        "        os.kill(os.getpid(), signal.SIGINT); time.sleep(5)\n"
+        "    except KeyboardInterrupt:\n"
+        "        raise ValueError('the onnx backend needs onnxruntime') from None\n"
+        "p = argparse.ArgumentParser(prog='lp3d x')\n"
+        "p.set_defaults(func=func)\n"
+        "sys.exit(run_command(p, []))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 128 + signal.SIGINT and done.stderr == "lp3d x: interrupted\n", done
