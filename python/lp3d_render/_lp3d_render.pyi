@@ -1,6 +1,7 @@
-"""Type stubs for the native module; tests/test_stubs_and_packaging.py checks them against the runtime."""
+"""Type stubs for the native module; tests/project/test_stubs_and_packaging.py checks them against the
+runtime."""
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from os import PathLike
 from typing import Any
 
@@ -119,6 +120,29 @@ class BakedField:
     def values(self) -> npt.NDArray[np.float16]: ...
     @property
     def fine_values(self) -> npt.NDArray[np.float16]: ...
+
+class SuperRes:
+    """A folded super-resolution network on the GPU (FoldedSuperResolution's weights, one array per
+    ×2 block each): features (B, C, R, R) -> images (B, 3, R * 2**blocks, R * 2**blocks)."""
+
+    def __init__(
+        self,
+        convs_up: Sequence[npt.NDArray[np.floating[Any]]],
+        biases_up: Sequence[npt.NDArray[np.floating[Any]]],
+        convs: Sequence[npt.NDArray[np.floating[Any]]],
+        biases: Sequence[npt.NDArray[np.floating[Any]]],
+        rgb_weights: Sequence[npt.NDArray[np.floating[Any]]],
+        rgb_biases: Sequence[npt.NDArray[np.floating[Any]]],
+        *,
+        input_resolution: int,
+    ) -> None: ...
+    @property
+    def in_channels(self) -> int: ...
+    @property
+    def input_resolution(self) -> int: ...
+    @property
+    def output_resolution(self) -> int: ...
+    def apply(self, features: npt.NDArray[np.floating[Any]]) -> npt.NDArray[np.float32]: ...
 
 def bake(
     triplane: Triplane,

@@ -5,6 +5,7 @@
 //! One module per Python type or function: `triplane.rs` (`Triplane`), `render.rs` (`render`),
 //! `baked.rs` (`bake`, `BakedField`),
 //! `camera.rs` (`look_at_camera`), `shaders.rs` (`shader_sources`), `view.rs` (`view`),
+//! `superres.rs` (`SuperRes`, the super-resolution network on the GPU),
 //! `device.rs` (the shared GPU, `adapter_info`, `last_frame_device_bytes`); this file registers
 //! them and the constants.
 
@@ -15,6 +16,7 @@ mod device;
 mod error;
 mod render;
 mod shaders;
+mod superres;
 mod triplane;
 #[cfg(feature = "viewer")]
 mod view;
@@ -23,7 +25,7 @@ use lp3d_renderer::camera::{FFHQ_FOCAL, FFHQ_PIVOT, FFHQ_RADIUS};
 use lp3d_renderer::settings::{MAX_RESOLUTION, MAX_SAMPLES};
 use lp3d_renderer::Skips;
 // EG3D FFHQ's scene bounds: the defaults of ``Triplane(...)``, exposed as module constants;
-// ``lp3d.render.settings.DEFAULT_*`` must agree (tests/test_render_api.py checks, and that the
+// ``lp3d.render.settings.DEFAULT_*`` must agree (tests/render/test_render_api.py checks, and that the
 // text signatures in triplane.rs spell the same values).
 use lp3d_renderer::triplane::{DEFAULT_BOX_WARP, DEFAULT_RAY_END, DEFAULT_RAY_START};
 use pyo3::prelude::*;
@@ -33,6 +35,7 @@ use pyo3::types::PyDict;
 fn _lp3d_render(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<triplane::Triplane>()?;
     m.add_class::<baked::BakedField>()?;
+    m.add_class::<superres::SuperRes>()?;
     m.add_function(wrap_pyfunction!(baked::bake, m)?)?;
     m.add_function(wrap_pyfunction!(baked::attach_baked, m)?)?;
     m.add_function(wrap_pyfunction!(render::render, m)?)?;

@@ -22,7 +22,7 @@ use crate::triplane::Triplane;
 /// ``outputs`` restricts what is computed and returned. The defaults are exact EG3D semantics;
 /// ``transmittance_threshold`` > 0 stops rays once their transmittance falls below it and
 /// ``empty_threshold`` > 0 skips the importance pass of rays whose coarse opacity is below it;
-/// their accuracy cost is measured in bench/RESULTS.md. ``occupancy_epsilon`` > 0 skips samples
+/// their accuracy cost is in docs/performance.md, "Exact mode's skips". ``occupancy_epsilon`` > 0 skips samples
 /// in the empty cells of the triplane's occupancy grid (baked at G = 64 on first use if it has
 /// none), at most ``occupancy_epsilon`` opacity per skipped interval (docs/occupancy.md), in the
 /// final composite; ``occupancy_coarse`` skips in the coarse pass too (faster; moves the

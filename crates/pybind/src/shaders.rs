@@ -5,14 +5,15 @@ use lp3d_renderer::shaders;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-/// The stage files of the renderer's WGSL module (`crates/renderer/shaders/`, compiled into this
-/// extension), file name -> source, in the order the renderer joins them into one module
-/// (`shaders::render_module_stages`): `"\n".join(shader_sources().values())` is the module source
-/// the renderer compiles, with the entry points `render_rays`, `depth_bounds_pass` and `present`.
+/// The renderer's WGSL stage files (`crates/renderer/shaders/`, compiled into this extension), file
+/// name -> source: the render module's in the order the renderer joins them into one module
+/// (`shaders::render_module_stages`: the entry points `render_rays`, `depth_bounds_pass`, `present`
+/// and `bake_field`), then the super-resolution module's (`sr_conv_up`, `sr_fir_act`, `sr_conv`,
+/// `sr_rgb`, bound in group 2). `"\n".join(shader_sources().values())` is one module holding both.
 #[pyfunction]
 pub fn shader_sources(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     let sources = PyDict::new(py);
-    for stage in shaders::render_module_stages() {
+    for stage in shaders::render_module_stages().into_iter().chain(shaders::superres_module_stages()) {
         sources.set_item(stage.file, stage.source)?;
     }
     Ok(sources)

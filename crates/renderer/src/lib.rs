@@ -15,6 +15,7 @@
 //! - [`kernel`]: the fast and quick forms of the render kernel and which one a renderer uses.
 //! - [`device`]: the wgpu device, created headless or borrowed from the viewer.
 //! - [`renderer`]: GPU pipelines and dispatch.
+//! - [`superres`]: EG3D's super-resolution network (folded) on the feature image, after the render.
 //!
 //! Beside them: [`error`] (the crate's one error type) and [`atomic`] (atomic file writes).
 
@@ -30,6 +31,7 @@ pub mod occupancy;
 pub mod renderer;
 pub mod settings;
 pub mod shaders;
+pub mod superres;
 pub mod triplane;
 
 pub use baked::BakeSpec;
@@ -40,4 +42,5 @@ pub use kernel::{Kernel, KernelChoice};
 pub use occupancy::Occupancy;
 pub use renderer::{GpuBaked, GpuTriplane, RenderOutput, Renderer, DISPLAY_FORMAT};
 pub use settings::{Display, Outputs, RenderSettings, Skips};
+pub use superres::{SuperRes, SuperresBlock, SuperresKernels, SuperresWeights};
 pub use triplane::{Decoder, PlaneDtype, SceneBounds, SceneInfo, Triplane};

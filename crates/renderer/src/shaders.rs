@@ -44,9 +44,12 @@ pub const RENDER: Stage = stage!("render.wgsl");
 pub const DEPTH_BOUNDS: Stage = stage!("depth_bounds.wgsl");
 /// The viewer's `present` entry point.
 pub const PRESENT: Stage = stage!("present.wgsl");
+/// The super-resolution network's kernels (`sr_conv_up`, `sr_fir_act`, `sr_conv`, `sr_rgb`), a
+/// module of their own (`superres_module_source`).
+pub const SUPERRES: Stage = stage!("superres.wgsl");
 
 /// Every stage file. A test fails if a `.wgsl` file in `shaders/` is missing from this list.
-pub const STAGES: [Stage; 12] = [
+pub const STAGES: [Stage; 13] = [
     PARAMS,
     CAMERA,
     SAMPLING,
@@ -59,6 +62,7 @@ pub const STAGES: [Stage; 12] = [
     DEPTH_BOUNDS,
     PRESENT,
     BAKE,
+    SUPERRES,
 ];
 
 /// An entry point and the stage files its module is made of, in dependency order (a file uses
@@ -81,6 +85,15 @@ pub const BAKE_FIELD: EntryPoint =
 
 /// Every entry point of the renderer.
 pub const ENTRY_POINTS: [EntryPoint; 4] = [RENDER_RAYS, DEPTH_BOUNDS_PASS, PRESENT_PASS, BAKE_FIELD];
+
+pub const SR_CONV_UP: EntryPoint = EntryPoint { name: "sr_conv_up", stages: &[SUPERRES] };
+pub const SR_FIR_ACT: EntryPoint = EntryPoint { name: "sr_fir_act", stages: &[SUPERRES] };
+pub const SR_CONV: EntryPoint = EntryPoint { name: "sr_conv", stages: &[SUPERRES] };
+pub const SR_RGB: EntryPoint = EntryPoint { name: "sr_rgb", stages: &[SUPERRES] };
+
+/// The super-resolution network's entry points (`crate::superres`), one module apart from the
+/// render module: a renderer that never super-resolves never parses them.
+pub const SUPERRES_ENTRY_POINTS: [EntryPoint; 4] = [SR_CONV_UP, SR_FIR_ACT, SR_CONV, SR_RGB];
 
 /// Entry point names, as the pipelines ask for them.
 pub const RENDER_ENTRY: &str = RENDER_RAYS.name;
@@ -112,6 +125,24 @@ pub fn render_module_stages() -> Vec<Stage> {
 /// the specialisations of `render_rays` and `bake_field` by pipeline-overridable constants).
 pub fn render_module_source() -> String {
     module_source(&render_module_stages())
+}
+
+/// The stage files of the super-resolution module, merged as `render_module_stages` merges.
+pub fn superres_module_stages() -> Vec<Stage> {
+    let mut out: Vec<Stage> = Vec::new();
+    for entry in &SUPERRES_ENTRY_POINTS {
+        for stage in entry.stages {
+            if !out.iter().any(|s| s.file == stage.file) {
+                out.push(*stage);
+            }
+        }
+    }
+    out
+}
+
+/// The WGSL source of the super-resolution module (every `SUPERRES_ENTRY_POINTS` entry point).
+pub fn superres_module_source() -> String {
+    module_source(&superres_module_stages())
 }
 
 #[cfg(test)]
@@ -293,7 +324,7 @@ mod tests {
     #[test]
     fn every_name_is_defined_before_it_is_used() {
         let defined = definitions();
-        for entry in &ENTRY_POINTS {
+        for entry in ENTRY_POINTS.iter().chain(&SUPERRES_ENTRY_POINTS) {
             for (i, stage) in entry.stages.iter().enumerate() {
                 let before: Vec<&str> = entry.stages[..i].iter().map(|s| s.file).collect();
                 for name in scan(stage.source).uses.iter().filter(|u| defined.contains_key(*u)) {
@@ -311,7 +342,7 @@ mod tests {
 
     #[test]
     fn entry_lists_hold_only_what_they_need() {
-        for entry in &ENTRY_POINTS {
+        for entry in ENTRY_POINTS.iter().chain(&SUPERRES_ENTRY_POINTS) {
             let (last, rest) = entry.stages.split_last().unwrap();
             assert!(scan(last.source).defines.iter().any(|d| d == entry.name), "{}", entry.name);
             for (i, stage) in rest.iter().enumerate() {
@@ -328,7 +359,8 @@ mod tests {
     fn render_module_holds_each_file_once_in_an_order_that_works() {
         let stages = render_module_stages();
         let files: Vec<&str> = stages.iter().map(|s| s.file).collect();
-        assert_eq!(files.len(), STAGES.len(), "{files:?}");
+        let superres = superres_module_stages().len();
+        assert_eq!(files.len() + superres, STAGES.len(), "{files:?}");
         let defined = definitions();
         for (i, stage) in stages.iter().enumerate() {
             for name in scan(stage.source).uses.iter().filter(|u| defined.contains_key(*u)) {

@@ -16,7 +16,7 @@ from lp3d.render.settings import RenderSettings, resolve_settings
 if TYPE_CHECKING:
     from lp3d.render.triplane import TriplaneData
 
-__all__ = ["native_triplane", "render", "renderer"]
+__all__ = ["native_superres", "native_triplane", "render", "renderer"]
 
 
 def renderer() -> Any:
@@ -35,6 +35,15 @@ def native_triplane(tri: TriplaneData) -> Any:
     one-line error naming the fix when the renderer is not installed."""
     renderer()
     return tri.to_native()
+
+
+def native_superres(weights: dict[str, Sequence[np.ndarray]], *, input_resolution: int) -> Any:
+    """An ``lp3d_render.SuperRes``: a folded super-resolution network on the GPU, from its weights
+    under ``FoldedSuperResolution``'s names (``convs_up``, ``biases_up``, ``convs``, ``biases``,
+    ``rgb_weights``, ``rgb_biases``: one float32 array per ×2 block each) for feature images of side
+    ``input_resolution``. ``sr.apply(features (B, C, R, R))`` returns the images (B, 3, R_out, R_out)."""
+    arrays = {k: [np.ascontiguousarray(a, dtype=np.float32) for a in v] for k, v in weights.items()}
+    return renderer().SuperRes(**arrays, input_resolution=input_resolution)
 
 
 def render(
