@@ -5,6 +5,7 @@
     lp3d orbit head.npz -o orbit.mp4             a turntable video (.gif or .mp4)
     lp3d mesh head.npz -o head.glb               marching cubes (.ply, .obj or .glb)
     lp3d share head.npz -o head.html             one web page that renders it in the browser (WebGPU)
+    lp3d serve                                   a local web app: photo or webcam in, live 3D head out
     lp3d info head.npz                           what is in a triplane file
     lp3d video in.mp4 -o out.mp4 --yaw 20        lift a talking-head video frame by frame
     lp3d view head.npz                           the interactive viewer (also: lp3d-view)
@@ -58,6 +59,7 @@ COMMANDS: dict[str, ModuleType] = {
         "orbit",
         "mesh",
         "share",
+        "serve",
         "info",
         "video",
         "view",

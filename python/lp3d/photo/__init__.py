@@ -28,6 +28,7 @@ from lp3d.photo.load import (
     PHOTO_SUFFIXES,
     NoFaceError,
     PhotoError,
+    decode_image,
     load_image,
 )
 from lp3d.photo.prepare import FaceDetection, PreparedPhoto, detect_face, prepare_photo
@@ -50,6 +51,7 @@ __all__ = [
     "align_face",
     "centre_crop",
     "crop_image",
+    "decode_image",
     "detect_face",
     "face_descriptor",
     "find_faces",

@@ -114,6 +114,20 @@ def _coarse_projections(template_bytes: bytes) -> np.ndarray:
     return project_template(yy, pp, template)
 
 
+def _fine_grid(y0: float, p0: float) -> tuple[np.ndarray, np.ndarray]:
+    """The fine search's yaws and pitches around the coarse grid's best pose ``(y0, p0)``."""
+    fine = np.arange(-1.0, 1.0 + 1e-9, _FINE_STEP)
+    return np.clip(y0 + fine, -MAX_YAW_DEG, MAX_YAW_DEG), np.clip(p0 + fine, -MAX_PITCH_DEG, MAX_PITCH_DEG)
+
+
+@functools.lru_cache(maxsize=256)
+def _fine_projections(y0: float, p0: float, template_bytes: bytes) -> np.ndarray:
+    """The template's projections on the fine grid about a coarse pose: the faces of a video or a
+    live stream come back to the same few coarse poses, so each is projected once."""
+    template = np.frombuffer(template_bytes).reshape(-1, 3)
+    return project_template(*_grid(*_fine_grid(y0, p0)), template)
+
+
 def _grid(yaws: np.ndarray, pitches: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     yy, pp = np.meshgrid(yaws, pitches, indexing="ij")
     return yy.ravel(), pp.ravel()
@@ -148,12 +162,12 @@ def align_face(
     if pts.shape != (5, 2) or not np.isfinite(pts).all():
         raise ValueError(f"landmarks must be (5, 2) finite pixel positions, got shape {pts.shape}")
     tpl = FACE_TEMPLATE if template is None else np.asarray(template, np.float64)
-    coarse = _coarse_projections(np.ascontiguousarray(tpl, np.float64).tobytes())
+    tpl_bytes = np.ascontiguousarray(tpl, np.float64).tobytes()
+    coarse = _coarse_projections(tpl_bytes)
     _, (y0, p0, _), _ = _best_pose(pts, _COARSE_YAWS, _COARSE_PITCHES, tpl, prior, coarse)
-    fine = np.arange(-1.0, 1.0 + 1e-9, _FINE_STEP)
-    yaws = np.clip(y0 + fine, -MAX_YAW_DEG, MAX_YAW_DEG)
-    pitches = np.clip(p0 + fine, -MAX_PITCH_DEG, MAX_PITCH_DEG)
-    i, (yaw, pitch, resid), a = _best_pose(pts, yaws, pitches, tpl, prior)
+    yaws, pitches = _fine_grid(float(y0), float(p0))
+    fine = _fine_projections(float(y0), float(p0), tpl_bytes)
+    i, (yaw, pitch, resid), a = _best_pose(pts, yaws, pitches, tpl, prior, fine)
     a_best = complex(a[i])
     qm = project_template(np.array([yaw]), np.array([pitch]), tpl)[0].mean(axis=0)
     lm = pts.mean(axis=0)

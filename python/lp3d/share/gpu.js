@@ -167,7 +167,14 @@ class Gpu {
       ),
       make("lp3d render_rays (quick kernel)", "render_rays", renderPipelineLayout, { ROLLED_DECODER: 1 }),
     ]);
-    this.renderGroup = d.createBindGroup({
+    this.bindPlanes();
+    this.kernel = "quick";
+    this.pipeline = this.quick;
+  }
+
+  // The render bind group, over the current planes buffer.
+  bindPlanes() {
+    this.renderGroup = this.device.createBindGroup({
       label: "lp3d render bind group",
       layout: this.renderLayout,
       entries: [
@@ -178,8 +185,26 @@ class Gpu {
         { binding: 10, resource: this.noFineBricks.createView() },
       ],
     });
-    this.kernel = "quick";
-    this.pipeline = this.quick;
+  }
+
+  // New planes for the next frames (lp3d serve: each lifted photo or webcam frame), described as
+  // data.planes is: {height, width, dtype, bytes}. Planes of the same size overwrite the buffer in
+  // queue order (frames already submitted keep the old ones); others get a new buffer.
+  setPlanes(planes) {
+    const p = this.data.planes;
+    const same = planes.bytes.length === p.bytes.length;
+    this.data.planes = planes;
+    this.half = planes.dtype === "float16";
+    if (!same) {
+      this.planes.destroy();
+      this.planes = this.device.createBuffer({
+        label: "lp3d planes (3, H, W, 32)",
+        size: planes.bytes.length,
+        usage: GPUBufferUsage.STORAGE | GPUBufferUsage.COPY_DST,
+      });
+      this.bindPlanes();
+    }
+    this.device.queue.writeBuffer(this.planes, 0, planes.bytes);
   }
 
   // The fast (unrolled) kernel, compiled in the background as the renderer's KernelChoice::Auto

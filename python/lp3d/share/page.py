@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from lp3d.atomic import atomic_path
+from lp3d.errors import safe_text
 from lp3d.render.camera import FFHQ_FOCAL, FFHQ_PIVOT, FFHQ_RADIUS
 from lp3d.render.native import renderer
 from lp3d.render.settings import HIDDEN, N_CHANNELS, N_OUT, RenderSettings
@@ -42,12 +43,15 @@ __all__ = [
     "PAGE_VERSION",
     "PROBE_PREFIX",
     "PROBE_SETTINGS",
+    "assemble_page",
     "build_page",
     "decoder_uniform",
     "page_data",
     "plane_dtype",
     "plane_texels",
     "shader_stages",
+    "view_data",
+    "viewer_scripts",
     "write_page",
 ]
 
@@ -59,8 +63,10 @@ PROBE_PREFIX = "LP3D_PROBE "
 PROBE_SETTINGS = RenderSettings(resolution=64, depth_resolution=48, depth_resolution_importance=48)
 #: Float16's largest finite value: float32 planes beyond it cannot be stored as float16.
 FLOAT16_MAX = float(np.finfo(np.float16).max)
-#: The page's script: these files of this package, in this order.
-SCRIPTS = ("gpu.js", "viewer.js")
+#: The scripts of every page that renders a triplane: these files of this package, in this order.
+VIEWER_SCRIPTS = ("gpu.js", "viewer.js")
+#: The share page's own script (its entry point), after :data:`VIEWER_SCRIPTS`.
+SHARE_SCRIPT = "share.js"
 #: The entry points the page builds pipelines for (all three of the renderer's module).
 ENTRY_POINTS = ("render_rays", "depth_bounds_pass", "present")
 
@@ -71,7 +77,7 @@ def _package_text(name: str) -> str:
 
 def shader_stages() -> list[tuple[str, str]]:
     """``[(file, WGSL source)]``: the renderer's stage files in the order it joins them into its one
-    module (``lp3d_render.shader_sources()``; ``tests/test_share.py`` checks them against
+    module (``lp3d_render.shader_sources()``; ``tests/view/test_share.py`` checks them against
     ``crates/renderer/shaders/``)."""
     stages = list(renderer().shader_sources().items())
     module = "\n".join(source for _, source in stages)
@@ -113,39 +119,29 @@ def decoder_uniform(tri: TriplaneData) -> bytes:
     return np.concatenate([np.asarray(p, dtype="<f4") for p in parts]).tobytes()
 
 
-def page_data(
+def view_data(
     tri: TriplaneData,
     *,
-    title: str,
     settings: RenderSettings | None = None,
-    float16: bool = False,
     yaw_deg: float = 0.0,
     pitch_deg: float = 0.0,
+    probe: RenderSettings = PROBE_SETTINGS,
 ) -> dict[str, Any]:
-    """The page's data block (JSON-ready) for a validated triplane; ``settings`` is the final quality
-    of the viewer (default :class:`RenderSettings`), which renders exact EG3D semantics only."""
+    """What a page needs to render any triplane with ``tri``'s decoder and bounds (JSON-ready): the
+    decoder uniform, the bounds, the camera, the settings, the probe and the WGSL. Everything of
+    :func:`page_data` but the planes, so that a page whose planes arrive later (``lp3d serve``) shares
+    it; ``settings`` is the final quality of the viewer (default :class:`RenderSettings`), which
+    renders exact EG3D semantics only, ``probe`` what the test mode renders."""
     settings = RenderSettings() if settings is None else settings
-    settings.validate()
-    settings.require_exact("the shared page")
-    if not settings.deterministic:
-        raise ValueError("the shared page renders deterministically (deterministic=True)")
+    for s, what in ((settings, "the shared page"), (probe, "the page's probe")):
+        s.validate()
+        s.require_exact(what)
+        if not s.deterministic:
+            raise ValueError(f"{what} renders deterministically (deterministic=True)")
     if not -90.0 < pitch_deg < 90.0:
         raise ValueError(f"pitch_deg must be in (-90, 90), got {pitch_deg!r}")
-    tri.validate()
-    h, w = tri.plane_size
     decoder = decoder_uniform(tri)
     return {
-        "format": "lp3d-share",
-        "version": PAGE_VERSION,
-        "title": title,
-        "source": tri.source,
-        "planes": {
-            "height": h,
-            "width": w,
-            "dtype": plane_dtype(tri, float16=float16),
-            "layout": "(3, H, W, 32) channel-last, little-endian",
-            "base64": base64.b64encode(plane_texels(tri, float16=float16)).decode("ascii"),
-        },
         "decoder": {"uniform_bytes": len(decoder), "base64": base64.b64encode(decoder).decode("ascii")},
         "bounds": {"box_warp": tri.box_warp, "ray_start": tri.ray_start, "ray_end": tri.ray_end},
         "camera": {
@@ -162,12 +158,42 @@ def page_data(
             "white_back": settings.white_back,
         },
         "probe": {
-            "resolution": PROBE_SETTINGS.resolution,
-            "depth_resolution": PROBE_SETTINGS.depth_resolution,
-            "depth_resolution_importance": PROBE_SETTINGS.depth_resolution_importance,
+            "resolution": probe.resolution,
+            "depth_resolution": probe.depth_resolution,
+            "depth_resolution_importance": probe.depth_resolution_importance,
             "prefix": PROBE_PREFIX,
         },
         "shaders": [list(stage) for stage in shader_stages()],
+    }
+
+
+def page_data(
+    tri: TriplaneData,
+    *,
+    title: str,
+    settings: RenderSettings | None = None,
+    float16: bool = False,
+    yaw_deg: float = 0.0,
+    pitch_deg: float = 0.0,
+) -> dict[str, Any]:
+    """The page's data block (JSON-ready) for a validated triplane; ``settings`` is the final quality
+    of the viewer (default :class:`RenderSettings`), which renders exact EG3D semantics only."""
+    view = view_data(tri, settings=settings, yaw_deg=yaw_deg, pitch_deg=pitch_deg)
+    tri.validate()
+    h, w = tri.plane_size
+    return {
+        "format": "lp3d-share",
+        "version": PAGE_VERSION,
+        "title": safe_text(title),
+        "source": None if tri.source is None else safe_text(tri.source),
+        "planes": {
+            "height": h,
+            "width": w,
+            "dtype": plane_dtype(tri, float16=float16),
+            "layout": "(3, H, W, 32) channel-last, little-endian",
+            "base64": base64.b64encode(plane_texels(tri, float16=float16)).decode("ascii"),
+        },
+        **view,
     }
 
 
@@ -176,6 +202,26 @@ def _json_for_html(data: dict[str, Any]) -> str:
     ever inside strings) become ``\\u003c``, ``\\u003e``, ``\\u0026``; non-ASCII is escaped too."""
     text = json.dumps(data, ensure_ascii=True, allow_nan=False, separators=(",", ":"))
     return text.replace("<", "\\u003c").replace(">", "\\u003e").replace("&", "\\u0026")
+
+
+def viewer_scripts() -> list[str]:
+    """The texts of the scripts every page that renders a triplane runs first (``gpu.js``, the
+    renderer on WebGPU, and ``viewer.js``, the viewer and the test mode), in order."""
+    return [_package_text(name) for name in VIEWER_SCRIPTS]
+
+
+def assemble_page(template: str, scripts: list[str], data: dict[str, Any], values: dict[str, str]) -> str:
+    """An HTML page from ``template``: ``{{SCRIPT}}`` becomes the ``scripts`` joined (one inline
+    script, allowed by its hash: ``{{SCRIPT_HASH}}``), ``{{DATA}}`` the JSON of ``data`` made safe for a
+    ``<script type="application/json">`` block, and ``{{NAME}}`` each of ``values`` (already escaped
+    by the caller). The share page and ``lp3d serve``'s page are both built by it."""
+    script = "\n".join(scripts)
+    if re.search(r"</script|<!--", script, re.IGNORECASE):
+        raise RuntimeError("a page's scripts must not contain '</script' or '<!--'")
+    digest = base64.b64encode(hashlib.sha256(script.encode("utf-8")).digest()).decode("ascii")
+    filled = {**values, "SCRIPT_HASH": f"sha256-{digest}", "DATA": _json_for_html(data), "SCRIPT": script}
+    # One pass: inserted text is never scanned for markers again.
+    return re.sub(r"\{\{([A-Z_]+)\}\}", lambda m: filled[m.group(1)], template)
 
 
 def build_page(
@@ -193,19 +239,9 @@ def build_page(
     data = page_data(
         tri, title=title, settings=settings, float16=float16, yaw_deg=yaw_deg, pitch_deg=pitch_deg
     )
-    script = "\n".join(_package_text(name) for name in SCRIPTS)
-    if re.search(r"</script|<!--", script, re.IGNORECASE):
-        raise RuntimeError(f"{' and '.join(SCRIPTS)} must not contain '</script' or '<!--'")
-    digest = base64.b64encode(hashlib.sha256(script.encode("utf-8")).digest()).decode("ascii")
-    values = {
-        "TITLE": html.escape(title),
-        "VERSION": html.escape(__version__),
-        "SCRIPT_HASH": f"sha256-{digest}",
-        "DATA": _json_for_html(data),
-        "SCRIPT": script,
-    }
-    # One pass: inserted text is never scanned for markers again.
-    return re.sub(r"\{\{([A-Z_]+)\}\}", lambda m: values[m.group(1)], _package_text("page.html"))
+    scripts = [*viewer_scripts(), _package_text(SHARE_SCRIPT)]
+    values = {"TITLE": html.escape(safe_text(title)), "VERSION": html.escape(__version__)}
+    return assemble_page(_package_text("page.html"), scripts, data, values)
 
 
 def write_page(path: str | os.PathLike[str], tri: TriplaneData, **kwargs: Any) -> int:

@@ -7,83 +7,14 @@
 // Everything the page shows comes from the JSON block #lp3d-data, read with JSON.parse and shown
 // with textContent: nothing from the file is ever evaluated as code or inserted as HTML.
 //
-// The page's script is gpu.js (the camera and the Gpu class) followed by this file.
+// A page's script is gpu.js (the camera and the Gpu class), this file, then the page's own entry
+// point: share.js for lp3d share's page, lp3d/serve/serve.js for lp3d serve's.
 //
 // Test mode: the URL fragment #probe=YAW,PITCH renders that view at the probe settings (64²,
 // 48+48, exact EG3D semantics) and logs one console line "LP3D_PROBE " + base64 of the float32
 // RGB image (3, 64, 64), the layout of lp3d_render.render(...)["rgb"]. Errors are logged as
 // "LP3D_ERROR <message>".
 "use strict";
-
-async function main() {
-  const statusLine = document.getElementById("status");
-  const messageBox = document.getElementById("message");
-  const fail = (text) => {
-    messageBox.textContent = text;
-    messageBox.hidden = false;
-    document.getElementById("view").hidden = true;
-    document.getElementById("bar").hidden = true;
-    console.error("LP3D_ERROR " + text);
-  };
-
-  let data;
-  try {
-    data = JSON.parse(document.getElementById("lp3d-data").textContent);
-    checkData(data);
-  } catch (e) {
-    fail("This page's data is damaged: " + e.message);
-    return;
-  }
-  document.getElementById("title").textContent = data.title;
-  document.getElementById("source").textContent = data.source === null ? "" : data.source;
-  const probe = parseProbe(location.hash);
-  if (probe !== null && probe.error) {
-    fail(probe.error);
-    return;
-  }
-
-  if (!navigator.gpu) {
-    fail(
-      "This page needs WebGPU, and this browser does not offer it (navigator.gpu is missing). " +
-        "Open it in a current Chrome, Edge or Safari, or in Firefox where WebGPU is enabled; " +
-        "pages opened from a file need no server.",
-    );
-    return;
-  }
-  try {
-    const gpu = await Gpu.create(data, (e) => fail("The GPU reported an error: " + e));
-    if (probe !== null) {
-      await runProbe(gpu, data, probe);
-    } else {
-      runViewer(gpu, data, statusLine, fail);
-    }
-  } catch (e) {
-    fail(e && e.message ? e.message : String(e));
-  }
-}
-
-// ---- data ----------------------------------------------------------------------------------
-
-function checkData(d) {
-  if (d.format !== "lp3d-share" || d.version !== 1) {
-    throw new Error("not an lp3d share page of version 1");
-  }
-  const p = d.planes;
-  const bytesPer = p.dtype === "float16" ? 2 : p.dtype === "float32" ? 4 : 0;
-  if (!bytesPer || !(p.height >= 2 && p.width >= 2)) {
-    throw new Error("bad planes description");
-  }
-  p.bytes = base64Bytes(p.base64);
-  if (p.bytes.length !== 3 * p.height * p.width * 32 * bytesPer) {
-    throw new Error("the planes hold " + p.bytes.length + " bytes, not 3 x H x W x 32 values");
-  }
-  d.decoder.bytes = base64Bytes(d.decoder.base64);
-  if (d.decoder.bytes.length !== DECODER_BYTES) {
-    throw new Error("the decoder holds " + d.decoder.bytes.length + " bytes");
-  }
-  delete p.base64;
-  delete d.decoder.base64;
-}
 
 function base64Bytes(text) {
   const s = atob(text);
@@ -208,6 +139,7 @@ class FrameTimes {
   }
 }
 
+// Returns {refresh}: call refresh() after gpu.setPlanes to draw the new planes from the view held.
 function runViewer(gpu, data, statusLine, fail) {
   const canvas = document.getElementById("view");
   const context = canvas.getContext("webgpu");
@@ -222,8 +154,9 @@ function runViewer(gpu, data, statusLine, fail) {
   let lastChange = -Infinity;
   let running = false;
   let drag = null;
+  let generation = 0; // counts the planes drawn: new planes redraw the view
 
-  const key = () => view.yaw + "," + view.pitch + "," + view.zoom;
+  const key = () => generation + "," + view.yaw + "," + view.pitch + "," + view.zoom;
   const changed = () => {
     lastChange = performance.now();
     wake();
@@ -322,6 +255,10 @@ function runViewer(gpu, data, statusLine, fail) {
       .catch((e) => console.warn("lp3d: the fast kernel did not compile (" + e.message + "); keeping the quick one"));
   }
   wake();
+  return {
+    refresh() {
+      generation++;
+      changed();
+    },
+  };
 }
-
-main();
