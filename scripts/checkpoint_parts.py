@@ -1,8 +1,9 @@
 """A training run's student weights in parts no larger than a limit, and the parts joined back.
 
 Why: a GPU machine that hands back only small files (docs/training.md, "Continuing the shipped model
-on one GPU") cannot return a whole checkpoint, which holds the weights and twice that of Adam's state. The weights alone are what ``lp3d eval``, ``lp3d export`` and
-``--init-from`` read; ``--resume`` needs the optimiser's state and refuses such a checkpoint.
+on one GPU") cannot return a whole checkpoint, which holds the weights and twice that of Adam's
+state. The weights alone are what ``lp3d eval``, ``lp3d export`` and ``--init-from`` read;
+``--resume`` needs the optimiser's state and refuses such a checkpoint.
 
     python scripts/checkpoint_parts.py split RUN_OR_CHECKPOINT OUT_DIR [--part-mib 15]
     python scripts/checkpoint_parts.py join OUT_DIR/step-NNNNNN.parts.json runs/x/checkpoints/step-NNNNNN.pt
@@ -27,7 +28,7 @@ import sys
 from pathlib import Path
 
 PARTS_FORMAT = "lp3d-checkpoint-parts-v1"
-#: The device tool returns files named in letters, digits, '.', '_' and '-' alone.
+#: Part and manifest names: letters, digits, '.', '_' and '-' alone, safe on any file system and copy tool.
 SAFE_NAME = re.compile(r"^[A-Za-z0-9._-]{1,100}$")
 MAX_PARTS = 256
 #: Largest part (``--part-mib`` goes up to 4096) and largest manifest (256 parts take ~40 KB).

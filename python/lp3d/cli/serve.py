@@ -95,12 +95,8 @@ def run(args: argparse.Namespace) -> int:
     if state.refine is None:
         say("refinement is off (PyTorch is not installed)")
     if not loopback:
-        say(
-            f"listening on {args.host}, reachable from other computers: the address below holds the token"
-        )
-        say(
-            "webcams and WebGPU need a secure context: from another computer, use HTTPS or an SSH tunnel"
-        )
+        say(f"listening on {args.host}, reachable from other computers: the address below holds the token")
+        say("webcams and WebGPU need a secure context: from another computer, use HTTPS or an SSH tunnel")
     say(f"lp3d serve: open {server.url()}  (Ctrl-C to stop)")
     server.run()
     return 0
