@@ -1,4 +1,4 @@
-"""Time the shipped encoder with onnxruntime: milliseconds per image, batch 1, on this machine.
+"""Time the shipped encoder with onnxruntime: milliseconds per image, batch 1, on the machine it runs on.
 
     python bench/encode_speed.py                       # the shipped python/lp3d/lift/models/small.onnx
     python bench/encode_speed.py --model model.onnx --threads 2 --repeats 50

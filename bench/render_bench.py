@@ -5,7 +5,7 @@
 Prints ms/frame (median of --repeats after a warm-up that compiles the pipeline) for R in {64, 128}
 and samples in {24+24, 48+48, 96+96}, on a 256x256 random triplane seen from the frontal FFHQ camera.
 The NumPy reference (and the torch twin, when torch is installed) run at R=64 in the same process,
-so the ratios compare like with like on this machine.
+so the ratios compare like with like on one machine.
 """
 
 from __future__ import annotations

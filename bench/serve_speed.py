@@ -1,5 +1,5 @@
 """How fast ``lp3d serve`` lifts webcam frames: server-side frames per second of align + encode,
-camera-frame-to-triplane latency, and the bytes each frame costs, on this machine.
+camera-frame-to-triplane latency, and the bytes each frame costs, on the machine it runs on.
 
     python bench/serve_speed.py                        # the shipped model, 320x240 JPEG frames
     python bench/serve_speed.py --seconds 20 --width 640

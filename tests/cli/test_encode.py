@@ -39,7 +39,7 @@ def test_encode_onnx_single_photo(capsys, model, photos, tmp_path) -> None:
 
 
 def test_encode_refine_fits_the_head_to_its_photo(capsys, model, photos, tmp_path) -> None:
-    """``--refine N`` (issue 21): N steps of the torch fit after the ONNX encoder; the file records
+    """``--refine N``: N steps of the torch fit after the ONNX encoder; the file records
     them, keeps the package's decoder and differs from the feed-forward planes."""
     plain, refined = tmp_path / "plain.npz", tmp_path / "refined.npz"
     common = ("--model", model["onnx"], "--no-detect")

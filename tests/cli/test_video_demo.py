@@ -89,7 +89,7 @@ def test_video_gif_no_detect_and_bad_inputs(capsys, model, face_video, photos, t
 
 
 def test_video_steady_keeps_every_frame_and_changes_them(capsys, model, face_video, tmp_path) -> None:
-    """``--steady`` (issue 21) holds frames back until their window is whole, then flushes: the same
+    """``--steady`` holds frames back until their window is whole, then flushes: the same
     frames come out, in order, and (σ large against 4 frames) nearer to each other than without it."""
     import imageio_ffmpeg
 
@@ -110,7 +110,7 @@ def test_video_steady_keeps_every_frame_and_changes_them(capsys, model, face_vid
 
 
 def test_video_refine_and_flip_average_change_every_frame(capsys, model, face_video, tmp_path) -> None:
-    """``lp3d video --refine 1`` (issue 21): each frame's head is fitted to its crop (the camera searched
+    """``lp3d video --refine 1``: each frame's head is fitted to its crop (the camera searched
     for on the first frame, then followed), so the frames differ from plain lifting; so do
     ``--flip-average``'s (each frame encoded with its mirror image)."""
     import imageio_ffmpeg
@@ -188,7 +188,7 @@ def test_demo_lifts_a_teacher_portrait_and_the_astronaut(capsys, model, tmp_path
 
 
 def test_demo_refine_adds_refined_heads_and_rows(capsys, model, tmp_path) -> None:
-    """``lp3d demo --refine 2`` (issue 21): the refined triplanes beside the feed-forward ones, and
+    """``lp3d demo --refine 2``: the refined triplanes beside the feed-forward ones, and
     one more row per head in the contact sheet; with ``--flip-average`` the feed-forward heads are
     the flip-averaged ones."""
     plain, refined = tmp_path / "plain", tmp_path / "refined"

@@ -1,6 +1,7 @@
-"""``scripts/checkpoint_parts.py``: a run's student weights in parts of a size limit (what a lent GPU
-machine can return) and joined back, checked; ``--resume`` refuses such a weights-only checkpoint.
-``scripts/gpu_continue.sh``, which uses it on the GPU, is checked for the files it promises."""
+"""``scripts/checkpoint_parts.py``: a run's student weights in parts of a size limit (what a GPU
+machine that hands back only small files can return) and joined back, checked; ``--resume`` refuses
+such a weights-only checkpoint. ``scripts/gpu_continue.sh``, which uses it on the GPU, is checked for
+the files it promises."""
 
 from __future__ import annotations
 
