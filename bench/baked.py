@@ -29,12 +29,11 @@ from pathlib import Path
 import numpy as np
 
 import lp3d_render
-from harness import encoder_outputs  # bench/ is on sys.path when run as a script
+from harness import eg3d_renderer, encoder_outputs, timed  # bench/ is on sys.path when run as a script
 from lp3d.render.camera import look_at_camera
 from lp3d.render.psnr import psnr_db
 from lp3d.render.triplane import TriplaneData
 from lp3d.teachers import ProceduralTeacher
-from render_bench import median_ms
 
 os.environ.setdefault("LP3D_KERNEL", "fast")
 
@@ -134,8 +133,6 @@ def eg3d_timer(src: str, head: TriplaneData, cams: np.ndarray, repeats: int):
     """ms per frame of EG3D's ImportanceRenderer at 48+48 on ``cams`` (bench/eg3d_speed.py's set-up)."""
     import torch
 
-    from eg3d_speed import eg3d_renderer  # bench/ is on sys.path when run as a script
-
     renderer, rays, decoder = eg3d_renderer(Path(src), head.w0, head.b0, head.w1, head.b1)
     options = {
         "ray_start": head.ray_start,
@@ -157,7 +154,7 @@ def eg3d_timer(src: str, head: TriplaneData, cams: np.ndarray, repeats: int):
                 renderer(planes, decoder, origins, directions, options)
 
     frame()
-    return median_ms(frame, repeats) / len(cams)
+    return timed(frame, repeats)[0] / len(cams)
 
 
 def field_of(st: Setting) -> tuple[int, int] | None:
@@ -206,7 +203,7 @@ def measure(
             return lp3d_render.render(tri, cams, **common, **samples, **st.kwargs)["rgb"]
 
         rgb = call()
-        ms = median_ms(call, repeats) / len(cams)
+        ms = timed(call, repeats)[0] / len(cams)
         rows.append(
             {
                 "setting": st.name,

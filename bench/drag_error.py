@@ -25,7 +25,12 @@ from pathlib import Path
 import numpy as np
 
 import lp3d_render
-from harness import encoder_output  # bench/ is on sys.path when run as a script
+from harness import (  # bench/ is on sys.path when run as a script
+    FINE_FIELD,
+    QUICK_FIELD,
+    VIEWER_SKIPS,
+    encoder_output,
+)
 from lp3d.render.camera import look_at_camera
 from lp3d.render.psnr import psnr_db
 from lp3d.render.settings import BAKED
@@ -37,16 +42,7 @@ SEEDS = (0, 1_000_003, 1_000_011)
 YAWS = (-30.0, 0.0, 30.0)
 PITCH = 5.0
 R = 128
-#: The viewer's baked-frame skips (crates/viewer/src/bake.rs, `baked_settings`).
-VIEWER_SKIPS = {
-    "occupancy_epsilon": BAKED.occupancy_epsilon,
-    "occupancy_coarse": True,
-    "transmittance_threshold": 1e-3,
-    "empty_threshold": 1e-3,
-}
-#: The viewer's fields (crates/viewer/src/bake.rs, `QUICK_FIELD`, `FINE_FIELD`): k, k_f.
-QUICK = (BAKED.baked_subdivisions, BAKED.baked_fine_subdivisions)
-FINE = (4, 16)
+QUICK, FINE = QUICK_FIELD, FINE_FIELD
 #: (label, resolution, coarse samples, fine samples, field or None for exact).
 RUNGS = [
     ("exact 128² · 48+48 (the still frame)", 128, 48, 48, None),

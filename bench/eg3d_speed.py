@@ -27,22 +27,20 @@ differences in features and depth.
 from __future__ import annotations
 
 import argparse
-import contextlib
-import functools
 import os
 import platform
 import statistics
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 import lp3d_render
+from harness import eg3d_renderer, random_triplane  # bench/ is on sys.path when run as a script
 from lp3d.render.camera import look_at_camera
 from lp3d.teachers import ProceduralTeacher
-from render_bench import scene as random_scene  # bench/ is on sys.path when run as a script
 
 # Time the steady state: the fast kernel, not the quick one the renderer draws with while the fast
 # one compiles in the background on a machine whose shader cache lacks it (README, "first render").
@@ -63,58 +61,6 @@ def interleaved_s(
             times[k] = time.perf_counter() - start
         pairs.append((times[0], times[1]))
     return pairs
-
-
-@contextlib.contextmanager
-def eg3d_on_path(src: Path) -> Iterator[None]:
-    if not (src / "training" / "volumetric_rendering" / "renderer.py").is_file():
-        raise SystemExit(
-            f"EG3D_SRC={src}: no training/volumetric_rendering/renderer.py there "
-            "(want NVlabs/eg3d's eg3d/ folder)"
-        )
-    sys.path.insert(0, str(src))
-    try:
-        yield
-    finally:
-        sys.path.remove(str(src))
-
-
-def eg3d_renderer(src: Path, w0: np.ndarray, b0: np.ndarray, w1: np.ndarray, b1: np.ndarray):  # noqa: ANN201
-    """EG3D's (ImportanceRenderer, RaySampler, OSGDecoder) with the given effective decoder weights,
-    its random draws replaced by lp3d's deterministic mode."""
-    import torch
-
-    with eg3d_on_path(src):
-        from training.triplane import OSGDecoder
-        from training.volumetric_rendering.ray_sampler import RaySampler
-        from training.volumetric_rendering.renderer import ImportanceRenderer
-
-    lr_mul = 1.0
-    decoder = OSGDecoder(w0.shape[1], {"decoder_lr_mul": lr_mul, "decoder_output_dim": w1.shape[0] - 1})
-    first, last = decoder.net[0], decoder.net[2]
-    with torch.no_grad():
-        first.weight.copy_(torch.from_numpy(w0) / first.weight_gain)
-        first.bias.copy_(torch.from_numpy(b0) / first.bias_gain)
-        last.weight.copy_(torch.from_numpy(w1) / last.weight_gain)
-        last.bias.copy_(torch.from_numpy(b1) / last.bias_gain)
-    renderer = ImportanceRenderer()
-    # No coarse jitter: EG3D adds rand_like(depths) * delta; a zero draw leaves the linspace.
-    module = sys.modules[ImportanceRenderer.__module__]
-    module.torch = _TorchWithoutJitter(torch)
-    renderer.sample_pdf = functools.partial(renderer.sample_pdf, det=True)
-    return renderer, RaySampler(), decoder
-
-
-class _TorchWithoutJitter:
-    """``torch`` as EG3D's renderer module sees it, with ``rand_like`` returning zeros."""
-
-    def __init__(self, torch: object) -> None:
-        self._torch = torch
-
-    def __getattr__(self, name: str) -> object:
-        if name == "rand_like":
-            return self._torch.zeros_like  # type: ignore[attr-defined]
-        return getattr(self._torch, name)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -147,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     import torch
 
     torch.set_num_threads(args.threads)
-    head = ProceduralTeacher().sample(args.seed) if args.scene == "teacher" else random_scene()
+    head = ProceduralTeacher().sample(args.seed) if args.scene == "teacher" else random_triplane()
     w0, b0, w1, b1 = head.w0, head.b0, head.w1, head.b1
     renderer, rays, decoder = eg3d_renderer(Path(src), w0, b0, w1, b1)
     camera = look_at_camera(yaw_deg=20.0, pitch_deg=5.0)

@@ -30,7 +30,6 @@ Equal numbers on the two splits say the student is not short of data but of fit.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -39,6 +38,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from harness import add_model_argument, train_config_of  # bench/ is on sys.path when run as a script
 from lp3d.evaluation.metrics import psnr
 from lp3d.evaluation.protocol import (
     EvalSettings,
@@ -51,29 +51,11 @@ from lp3d.evaluation.protocol import (
 from lp3d.lift.inference import DEFAULT_MODEL, load_encoder
 from lp3d.lift.torch_backend import read_encoder_weights
 from lp3d.teachers.procedural_decoder import N_PARTS, PARTS
-from lp3d.training import TRAIN_CONFIGS, SceneBounds, TrainConfig, build_teacher
+from lp3d.training import SceneBounds, build_teacher
 
 METHODS = ("ceiling", "basis oracle", "ceiling + noise", "student", "mean head")
 #: The shipped model's torch weights (beside its ONNX encoder).
 MODEL = DEFAULT_MODEL.with_suffix(".pt")
-
-
-def add_model_argument(p: argparse.ArgumentParser) -> None:
-    """``--model``: the encoder these diagnostics read (also bench/part_probe.py's)."""
-    p.add_argument(
-        "--model",
-        type=Path,
-        default=MODEL,
-        help="torch weights of the encoder: a model package .pt (default: the shipped one) or a run "
-        "checkpoint",
-    )
-
-
-def train_config_of(ckpt: dict) -> TrainConfig:
-    """The training configuration named by a model package (its encoder config, a dict) or a run
-    checkpoint (its training config, as JSON)."""
-    raw = ckpt["config"]
-    return TRAIN_CONFIGS[(json.loads(raw) if isinstance(raw, str) else raw)["name"]]
 
 
 def basis_planes(state: dict[str, torch.Tensor], resolution: int) -> torch.Tensor:

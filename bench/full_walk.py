@@ -37,11 +37,13 @@ WALKS = (("every sample", "1"), ("ended walks", "0"))
 
 def scenes(folder: Path) -> list[tuple[str, object]]:
     """(name, native triplane) of every scene, the encoder's outputs encoded once and saved."""
-    from harness import saved_encoder_output  # bench/ is on sys.path when run as a script
+    from harness import (
+        random_triplane,  # bench/ is on sys.path when run as a script
+        saved_encoder_output,  # bench/ is on sys.path when run as a script
+    )
     from lp3d.teachers import ProceduralTeacher
-    from render_bench import scene as random_scene
 
-    out: list[tuple[str, object]] = [("random triplane", random_scene().to_native())]
+    out: list[tuple[str, object]] = [("random triplane", random_triplane().to_native())]
     for seed in SEEDS:
         out.append((f"teacher head {seed}", ProceduralTeacher().sample(seed).to_native()))
     for seed in SEEDS:

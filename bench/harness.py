@@ -1,6 +1,8 @@
 """What the benchmark scripts share, in one place: the timer, the encoder scenes (the shipped
 encoder's triplane of a frontal render of a head, as ``lp3d demo`` lifts its teacher portrait: what
-a user opens in the viewer), and the A/B runs in child processes with their Markdown table.
+a user opens in the viewer), a random triplane, the viewer's baked settings, EG3D's own renderer set
+up for comparisons, the encoder argument of the diagnostics, and the A/B runs in child processes with
+their Markdown table.
 
 Scores in dB are :func:`lp3d.render.psnr.psnr_db`, the one PSNR of lp3d: no script defines its own
 (``tests/project/test_layout.py`` checks bench/ and scripts/ too). Scripts import this module as
@@ -8,6 +10,9 @@ Scores in dB are :func:`lp3d.render.psnr.psnr_db`, the one PSNR of lp3d: no scri
 
 from __future__ import annotations
 
+import argparse
+import contextlib
+import functools
 import json
 import statistics
 import subprocess
@@ -15,12 +20,13 @@ import sys
 import time
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
 
 import lp3d_render
 from lp3d.render.camera import look_at_camera
+from lp3d.render.settings import BAKED
 from lp3d.render.triplane import TriplaneData
 
 T = TypeVar("T")
@@ -96,3 +102,111 @@ def emit_table(lines: list[str], out: Path | None) -> None:
     print("\n" + table)
     if out:
         out.write_text(table + "\n")
+
+
+# ============================================================================ scenes and settings
+
+
+def random_triplane() -> TriplaneData:
+    """A 256² random triplane with an EG3D-scaled decoder (the same one every run: seed 0)."""
+    rng = np.random.default_rng(0)
+    return TriplaneData(
+        planes=rng.standard_normal((3, 32, 256, 256)).astype(np.float32),
+        w0=(rng.standard_normal((64, 32)) / np.sqrt(32)).astype(np.float32),
+        b0=(0.1 * rng.standard_normal(64)).astype(np.float32),
+        w1=(rng.standard_normal((33, 64)) / 8).astype(np.float32),
+        b1=(0.1 * rng.standard_normal(33)).astype(np.float32),
+    )
+
+
+#: The viewer's baked-frame skips (crates/viewer/src/bake.rs, `baked_settings`).
+VIEWER_SKIPS = {
+    "occupancy_epsilon": BAKED.occupancy_epsilon,
+    "occupancy_coarse": True,
+    "transmittance_threshold": 1e-3,
+    "empty_threshold": 1e-3,
+}
+#: The viewer's fields (crates/viewer/src/bake.rs, `QUICK_FIELD`, `FINE_FIELD`): k, k_f.
+QUICK_FIELD = (BAKED.baked_subdivisions, BAKED.baked_fine_subdivisions)
+FINE_FIELD = (4, 16)
+
+
+# ============================================================================= EG3D's own renderer
+
+
+@contextlib.contextmanager
+def eg3d_on_path(src: Path) -> Iterator[None]:
+    """EG3D's source folder ``src`` first on ``sys.path`` for the block (checked to be one)."""
+    if not (src / "training" / "volumetric_rendering" / "renderer.py").is_file():
+        raise SystemExit(
+            f"EG3D_SRC={src}: no training/volumetric_rendering/renderer.py there "
+            "(want NVlabs/eg3d's eg3d/ folder)"
+        )
+    sys.path.insert(0, str(src))
+    try:
+        yield
+    finally:
+        sys.path.remove(str(src))
+
+
+def eg3d_renderer(src: Path, w0: np.ndarray, b0: np.ndarray, w1: np.ndarray, b1: np.ndarray):  # noqa: ANN201
+    """EG3D's (ImportanceRenderer, RaySampler, OSGDecoder) with the given effective decoder weights,
+    its random draws replaced by lp3d's deterministic mode."""
+    import torch
+
+    with eg3d_on_path(src):
+        from training.triplane import OSGDecoder
+        from training.volumetric_rendering.ray_sampler import RaySampler
+        from training.volumetric_rendering.renderer import ImportanceRenderer
+
+    lr_mul = 1.0
+    decoder = OSGDecoder(w0.shape[1], {"decoder_lr_mul": lr_mul, "decoder_output_dim": w1.shape[0] - 1})
+    first, last = decoder.net[0], decoder.net[2]
+    with torch.no_grad():
+        first.weight.copy_(torch.from_numpy(w0) / first.weight_gain)
+        first.bias.copy_(torch.from_numpy(b0) / first.bias_gain)
+        last.weight.copy_(torch.from_numpy(w1) / last.weight_gain)
+        last.bias.copy_(torch.from_numpy(b1) / last.bias_gain)
+    renderer = ImportanceRenderer()
+    # No coarse jitter: EG3D adds rand_like(depths) * delta; a zero draw leaves the linspace.
+    module = sys.modules[ImportanceRenderer.__module__]
+    module.torch = TorchWithoutJitter(torch)
+    renderer.sample_pdf = functools.partial(renderer.sample_pdf, det=True)
+    return renderer, RaySampler(), decoder
+
+
+class TorchWithoutJitter:
+    """``torch`` as EG3D's renderer module sees it, with ``rand_like`` returning zeros."""
+
+    def __init__(self, torch: object) -> None:
+        self._torch = torch
+
+    def __getattr__(self, name: str) -> object:
+        if name == "rand_like":
+            return self._torch.zeros_like  # type: ignore[attr-defined]
+        return getattr(self._torch, name)
+
+
+# ============================================================================ the encoder's model
+
+
+def add_model_argument(p: argparse.ArgumentParser) -> None:
+    """``--model``: the encoder that error_budget.py and part_probe.py read."""
+    from lp3d.lift.inference import DEFAULT_MODEL
+
+    p.add_argument(
+        "--model",
+        type=Path,
+        default=DEFAULT_MODEL.with_suffix(".pt"),
+        help="torch weights of the encoder: a model package .pt (default: the shipped one) or a run "
+        "checkpoint",
+    )
+
+
+def train_config_of(ckpt: dict) -> Any:
+    """The training configuration named by a model package (its encoder config, a dict) or a run
+    checkpoint (its training config, as JSON)."""
+    from lp3d.training import TRAIN_CONFIGS
+
+    raw = ckpt["config"]
+    return TRAIN_CONFIGS[(json.loads(raw) if isinstance(raw, str) else raw)["name"]]

@@ -27,7 +27,7 @@ import time
 import numpy as np
 import torch
 
-from error_budget import add_model_argument, train_config_of  # a sibling script (bench/ is on sys.path)
+from harness import add_model_argument, train_config_of  # bench/ is on sys.path when run as a script
 from lp3d.evaluation.protocol import input_camera, input_yaws, reference_teachers, render_truth
 from lp3d.lift.inference import load_encoder
 from lp3d.lift.torch_backend import read_encoder_weights

@@ -13,17 +13,12 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import statistics
 import sys
-import time
-from collections.abc import Callable
-
-import numpy as np
 
 import lp3d_render
+from harness import random_triplane, timed  # bench/ is on sys.path when run as a script
 from lp3d.render.camera import look_at_camera
 from lp3d.render.reference import render_reference
-from lp3d.render.triplane import TriplaneData
 
 # Time the steady state: the fast kernel, not the quick one the renderer draws with while the fast
 # one compiles in the background on a machine whose shader cache lacks it (README, "first render").
@@ -33,33 +28,13 @@ SAMPLES = [(24, 24), (48, 48), (96, 96)]
 RESOLUTIONS = [64, 128]
 
 
-def scene() -> TriplaneData:
-    rng = np.random.default_rng(0)
-    return TriplaneData(
-        planes=rng.standard_normal((3, 32, 256, 256)).astype(np.float32),
-        w0=(rng.standard_normal((64, 32)) / np.sqrt(32)).astype(np.float32),
-        b0=(0.1 * rng.standard_normal(64)).astype(np.float32),
-        w1=(rng.standard_normal((33, 64)) / 8).astype(np.float32),
-        b1=(0.1 * rng.standard_normal(33)).astype(np.float32),
-    )
-
-
-def median_ms(fn: Callable[[], object], repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append((time.perf_counter() - start) * 1e3)
-    return statistics.median(times)
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--markdown", action="store_true", help="print a Markdown table")
     args = parser.parse_args(argv)
 
-    data = scene()
+    data = random_triplane()
     tri = data.to_native()
     cam = look_at_camera()
     info = lp3d_render.adapter_info()
@@ -79,12 +54,12 @@ def main(argv: list[str] | None = None) -> int:
     for r in RESOLUTIONS:
         for s, n in SAMPLES:
             kw = {"resolution": r, "depth_resolution": s, "depth_resolution_importance": n}
-            wgsl = median_ms(lambda kw=kw: lp3d_render.render(tri, cam, **kw), args.repeats)
+            wgsl = timed(lambda kw=kw: lp3d_render.render(tri, cam, **kw), args.repeats)[0]
             ref = tw = None
             if r == 64:
-                ref = median_ms(lambda kw=kw: render_reference(data, cam, **kw), 1)
+                ref = timed(lambda kw=kw: render_reference(data, cam, **kw), 1)[0]
                 if render_with_twin is not None:
-                    tw = median_ms(lambda kw=kw: render_with_twin(data, cam, **kw), args.repeats)
+                    tw = timed(lambda kw=kw: render_with_twin(data, cam, **kw), args.repeats)[0]
             rows.append((r, f"{s}+{n}", wgsl, ref, tw))
             print(f"R={r:4d} {s}+{n}: lp3d_render {wgsl:9.1f} ms", file=sys.stderr)
 

@@ -346,7 +346,7 @@ def definitions(path: Path) -> set[str]:
                 found.add("latest checkpoint")
             if "atomic" in name:
                 found.add("atomic write")
-            if name.strip("_") in ("timed", "timer", "timeit"):
+            if name.strip("_") in ("timed", "timer", "timeit", "median_ms"):
                 found.add("timer")
         elif isinstance(node, ast.Call):
             callee = _dotted(node.func)
