@@ -15,7 +15,7 @@ every output (rgb, features, depth, weights), its pipeline compiled by an untime
 density and three colour channels; EG3D's always computes all 32 features, whose first three are
 the RGB image, so the two are compared on those).
 
-The scene: ``--scene random`` (default), ``bench/render_bench.py``'s 256² random triplane with an
+The scene: ``--scene random`` (default), ``harness.random_triplane()``, a 256² random triplane with an
 EG3D-scaled decoder, or ``--scene teacher``, a procedural teacher head (its decoder's gains of up to
 4000 turn float32 rounding in the plane fetch into feature differences of ~1e-2, so only its timing
 and depth compare). The two renderers' frames are timed in pairs, back to back (each first in turn),
