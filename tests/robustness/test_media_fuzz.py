@@ -15,15 +15,13 @@ renders are 8² with 4+4 samples.
 
 from __future__ import annotations
 
-import contextlib
 import os
 import re
-import signal
 import struct
 import subprocess
 import zlib
 from collections import Counter
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +30,7 @@ from PIL import Image
 
 from lp3d.cli import main
 from lp3d.render.triplane_io import load_triplane
+from support.deadline import Hang, deadline
 from support.tiny_model import tiny_onnx_package
 
 VIDEO_SMALL = ["--resolution", "8", "--samples", "4+4"]
@@ -133,24 +132,6 @@ def decoded_frames(path: Path) -> int:
     reader = imageio_ffmpeg.read_frames(str(path))
     next(reader)
     return sum(1 for _ in reader)
-
-
-class Hang(BaseException):
-    """A case outran its deadline (a BaseException, so no ``except Exception`` swallows it)."""
-
-
-@contextlib.contextmanager
-def deadline(seconds: float) -> Iterator[None]:
-    def on_alarm(signum: int, frame: object) -> None:
-        raise Hang(f"no result after {seconds:g} s")
-
-    previous = signal.signal(signal.SIGALRM, on_alarm)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
-    try:
-        yield
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, previous)
 
 
 # ================================================================================ targeted cases

@@ -3,20 +3,18 @@
 public loader, the run of a class of cases, and the worker process that runs the cases whose native
 code may hang or crash."""
 
-import contextlib
 import json
 import os
 import re
 import select
 import shutil
-import signal
 import subprocess
 import sys
 import time
 import traceback
 import warnings
 from collections import Counter
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,6 +22,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from support.deadline import Hang, deadline
 from support.paths import TESTS
 
 SCALE = float(os.environ.get("LP3D_FUZZ_SCALE", "1"))
@@ -234,24 +233,6 @@ def tail(e: BaseException) -> str:
     if isinstance(e, WorkerFailure):
         return e.detail
     return "".join(traceback.format_exception(type(e), e, e.__traceback__)[-4:])
-
-
-class Hang(BaseException):
-    """A case past its deadline (a BaseException: the loaders' ``except Exception`` cannot swallow it)."""
-
-
-@contextlib.contextmanager
-def deadline(seconds: float) -> Iterator[None]:
-    def on_alarm(signum: int, frame: object) -> None:
-        raise Hang(f"no result after {seconds:g} s")
-
-    previous = signal.signal(signal.SIGALRM, on_alarm)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
-    try:
-        yield
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, previous)
 
 
 def in_process(case: Case) -> str:
