@@ -10,9 +10,12 @@ use lp3d_renderer::{Camera, Outputs, RenderOutput, RenderSettings, Skips};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::convert::{bool_arg, camera_array, f32_arg, f32_array, int_arg, names_arg, Arg};
+use pyo3::exceptions::PyTypeError;
+
+use crate::convert::{bool_arg, camera_array, f32_arg, f32_array, int_arg, names_arg, type_name, Arg};
 use crate::device::{gpu, guarded};
 use crate::error::{invalid, to_py};
+use crate::superres::SuperRes;
 use crate::triplane::Triplane;
 
 /// Renders a triplane from one camera (25,) or a batch (B, 25).
@@ -32,6 +35,8 @@ use crate::triplane::Triplane;
 /// density and RGB only, so ``features`` cannot be asked for (docs/baked.md); it needs
 /// ``occupancy_epsilon`` > 0. ``baked_fine_subdivisions`` > k makes it a two-level field: the
 /// bricks a surface crosses get that many points per cell edge (docs/baked.md, "Two levels").
+/// ``superres`` (an ``lp3d_render.SuperRes`` taking ``resolution``² feature images) adds ``image``
+/// (3, R_out, R_out): the feature images super-resolved in the render's own command buffers.
 ///
 /// Every argument is checked here, before any GPU work: a wrong type is a TypeError and a bad
 /// value a ValueError, each naming the argument and the value (`resolution=True` and
@@ -43,8 +48,8 @@ use crate::triplane::Triplane;
                  outputs=None, white_back=Arg::Default(false), *,
                  transmittance_threshold=Arg::Default(0.0), empty_threshold=Arg::Default(0.0),
                  occupancy_epsilon=Arg::Default(0.0), occupancy_coarse=Arg::Default(false),
-                 baked_subdivisions=Arg::Default(0), baked_fine_subdivisions=Arg::Default(0)),
-    text_signature = "(triplane, camera, resolution=128, depth_resolution=48, depth_resolution_importance=48, deterministic=True, seed=None, outputs=None, white_back=False, *, transmittance_threshold=0.0, empty_threshold=0.0, occupancy_epsilon=0.0, occupancy_coarse=False, baked_subdivisions=0, baked_fine_subdivisions=0)"
+                 baked_subdivisions=Arg::Default(0), baked_fine_subdivisions=Arg::Default(0), superres=None),
+    text_signature = "(triplane, camera, resolution=128, depth_resolution=48, depth_resolution_importance=48, deterministic=True, seed=None, outputs=None, white_back=False, *, transmittance_threshold=0.0, empty_threshold=0.0, occupancy_epsilon=0.0, occupancy_coarse=False, baked_subdivisions=0, baked_fine_subdivisions=0, superres=None)"
 )]
 #[allow(clippy::too_many_arguments)]
 // Long because: every argument is checked here, before any GPU work, one after another in the
@@ -66,9 +71,19 @@ pub fn render<'py>(
     occupancy_coarse: Arg<'py, bool>,
     baked_subdivisions: Arg<'py, i64>,
     baked_fine_subdivisions: Arg<'py, i64>,
+    superres: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     guarded(|| {
         let tri = Triplane::arg(triplane)?;
+        let superres = match superres {
+            Some(o) if !o.is_none() => Some(o.cast::<SuperRes>().map_err(|_| {
+                PyTypeError::new_err(format!(
+                    "superres: expected an lp3d_render.SuperRes, got {}",
+                    type_name(o)
+                ))
+            })?),
+            _ => None,
+        };
         let (labels, batched) = camera_array(camera)?;
         let cameras = Camera::batch_from_labels(&labels).map_err(to_py)?;
         let deterministic = bool_arg(&deterministic, "deterministic")?;
@@ -127,10 +142,18 @@ pub fn render<'py>(
         let tri = tri.get();
         let need_grid = settings.skips.occupancy_epsilon > 0.0;
         let uploaded = py.detach(|| guarded(|| tri.on_gpu(gpu, need_grid)))?;
-        let out =
-            py.detach(|| gpu.renderer.render(&uploaded, &cameras, &settings, outputs)).map_err(to_py)?;
+        let sr = superres.as_ref().map(|s| s.get().network());
+        let (out, images) = py
+            .detach(|| gpu.renderer.render_with_superres(&uploaded, &cameras, &settings, outputs, sr))
+            .map_err(to_py)?;
 
-        output_dict(py, &out, settings.resolution as usize, cameras.len(), batched)
+        let dict = output_dict(py, &out, settings.resolution as usize, cameras.len(), batched)?;
+        if let (Some(images), Some(sr)) = (images, sr) {
+            let ro = sr.output_resolution();
+            let shape: Vec<usize> = if batched { vec![cameras.len(), 3, ro, ro] } else { vec![3, ro, ro] };
+            dict.set_item("image", f32_array(py, &images, &shape)?)?;
+        }
+        Ok(dict)
     })
 }
 

@@ -50,6 +50,13 @@ pub struct SuperRes {
     inner: lp3d_renderer::SuperRes,
 }
 
+impl SuperRes {
+    /// The network on the GPU, for `render(..., superres=)`.
+    pub fn network(&self) -> &lp3d_renderer::SuperRes {
+        &self.inner
+    }
+}
+
 #[pymethods]
 impl SuperRes {
     #[new]

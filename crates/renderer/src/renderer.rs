@@ -8,6 +8,7 @@ mod fine_bricks;
 mod frame;
 mod layouts;
 mod saved_field;
+mod superres_chain;
 mod upload;
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -24,6 +25,7 @@ use crate::kernel::{build_render_pipeline, fast_kernel_marker, Kernel, KernelCho
 use crate::occupancy::Occupancy;
 use crate::settings::{Display, Outputs, RenderSettings};
 use crate::shaders;
+use crate::superres::SuperRes;
 use crate::triplane::{PlaneDtype, SceneInfo, Triplane, N_CHANNELS};
 use background::spawn_fast_kernel_compile;
 use layouts::Layouts;
@@ -277,8 +279,6 @@ impl Renderer {
     }
 
     /// Renders `cameras` (one image each) of an uploaded triplane and reads the results back.
-    // Long because: the chunk loop dispatches, copies and reads back each chunk before the next
-    // reuses the frame's buffers; its steps share those buffers and the running offsets.
     pub fn render(
         &self,
         tri: &GpuTriplane,
@@ -286,9 +286,33 @@ impl Renderer {
         settings: &RenderSettings,
         outputs: Outputs,
     ) -> Result<RenderOutput> {
+        Ok(self.render_with_superres(tri, cameras, settings, outputs, None)?.0)
+    }
+
+    /// [`Renderer::render`], and with `superres` the feature images super-resolved in the same
+    /// command buffers (no round trip through the host): the images (B, 3, R_out, R_out) come
+    /// back beside `outputs`. The network must live on this renderer's device and take the
+    /// render's resolution and its 32 feature channels.
+    // Long because: the chunk loop dispatches, copies and reads back each chunk before the next
+    // reuses the frame's buffers; its steps share those buffers and the running offsets.
+    pub fn render_with_superres(
+        &self,
+        tri: &GpuTriplane,
+        cameras: &[Camera],
+        settings: &RenderSettings,
+        outputs: Outputs,
+        superres: Option<&SuperRes>,
+    ) -> Result<(RenderOutput, Option<Vec<f32>>)> {
+        if let Some(sr) = superres {
+            superres_chain::check(self, sr, settings)?;
+        }
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let mut frame = self.prepare(tri, cameras, settings, outputs)?;
-        let (n_cam, n_pix, fc, chunk) = (frame.n_cam, frame.n_pix, frame.fc, frame.chunk);
+        // The network reads the 32-channel feature image, asked for or not.
+        let computed = if superres.is_some() { Outputs { features: true, ..outputs } } else { outputs };
+        let mut frame = self.prepare(tri, cameras, settings, computed)?;
+        let (n_cam, n_pix, fc) = (frame.n_cam, frame.n_pix, frame.fc);
+        let sr = superres.map(|sr| superres_chain::Chain::new(self, sr, frame.chunk)).transpose()?;
+        let chunk = sr.as_ref().map_or(frame.chunk, |c| c.images());
         let readback = |label: &str, size: usize| {
             self.device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(label),
@@ -300,12 +324,14 @@ impl Renderer {
         let feat_read = readback("lp3d features readback", chunk * fc * n_pix);
         let depth_read = readback("lp3d depth readback", chunk * n_pix);
         let wsum_read = readback("lp3d weights_sum readback", chunk * n_pix);
-        let frame_bytes = frame.bytes + feat_read.size() + depth_read.size() + wsum_read.size();
+        let sr_bytes = sr.as_ref().map_or(0, |c| c.device_bytes());
+        let frame_bytes = frame.bytes + feat_read.size() + depth_read.size() + wsum_read.size() + sr_bytes;
         self.last_frame_bytes.store(frame_bytes, Ordering::Relaxed);
 
         let mut features = vec![0f32; n_cam * fc * n_pix];
         let mut depth = vec![0f32; n_cam * n_pix];
         let mut weights_sum = vec![0f32; n_cam * n_pix];
+        let mut images = sr.as_ref().map(|c| vec![0f32; n_cam * c.floats_per_image()]);
         let mut first = 0usize;
         while first < n_cam {
             let count = chunk.min(n_cam - first);
@@ -317,6 +343,9 @@ impl Renderer {
             }
             encoder.copy_buffer_to_buffer(&frame.depth, 0, &depth_read, 0, pbytes);
             encoder.copy_buffer_to_buffer(&frame.weights_sum, 0, &wsum_read, 0, pbytes);
+            if let Some(c) = &sr {
+                c.record(&mut encoder, &frame.features, count);
+            }
             self.queue.submit([encoder.finish()]);
             let mut jobs: Vec<(&wgpu::Buffer, u64, &mut [f32])> = vec![
                 (&depth_read, pbytes, &mut depth[first * n_pix..(first + count) * n_pix]),
@@ -325,6 +354,9 @@ impl Renderer {
             if fc > 0 {
                 let range = first * fc * n_pix..(first + count) * fc * n_pix;
                 jobs.push((&feat_read, fbytes, &mut features[range]));
+            }
+            if let (Some(c), Some(images)) = (&sr, images.as_mut()) {
+                jobs.push(c.job(first, count, images));
             }
             self.read_back(&mut jobs)?;
             first += count;
@@ -370,7 +402,10 @@ impl Renderer {
         if outputs.weights_sum {
             out.weights_sum = Some(weights_sum);
         }
-        Ok(out)
+        if let (Some(c), Some(images)) = (&sr, &images) {
+            c.check_finite(images)?;
+        }
+        Ok((out, images))
     }
 
     /// Renders one camera straight into `target` (an `Rgba8Unorm` storage texture of
@@ -429,46 +464,6 @@ impl Renderer {
         }
         self.queue.submit([encoder.finish()]);
         self.check(scope, "render to texture")
-    }
-
-    /// Pops a validation scope and reports any error wgpu raised meanwhile.
-    fn check(&self, scope: wgpu::ErrorScopeGuard, what: &str) -> Result<()> {
-        if let Some(e) = pollster::block_on(scope.pop()) {
-            return Err(Error::Gpu(format!("{what} failed: {e}")));
-        }
-        if let Some(e) = self.uncaptured.lock().ok().and_then(|mut s| s.take()) {
-            return Err(Error::Gpu(e));
-        }
-        Ok(())
-    }
-
-    /// Maps readback buffers and copies `bytes` of each into its destination.
-    fn read_back(&self, jobs: &mut [(&wgpu::Buffer, u64, &mut [f32])]) -> Result<()> {
-        let status = Arc::new(Mutex::new(Vec::new()));
-        for (buf, bytes, _) in jobs.iter() {
-            let status = status.clone();
-            buf.map_async(wgpu::MapMode::Read, 0..*bytes, move |r| {
-                if let Ok(mut s) = status.lock() {
-                    s.push(r.map_err(|e| e.to_string()));
-                }
-            });
-        }
-        self.device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| Error::Gpu(format!("waiting for the GPU failed: {e}")))?;
-        if let Some(Err(e)) = status.lock().ok().and_then(|s| s.iter().find(|r| r.is_err()).cloned()) {
-            return Err(Error::Gpu(format!("reading results back failed: {e}")));
-        }
-        for (buf, bytes, dst) in jobs.iter_mut() {
-            {
-                let view = buf
-                    .get_mapped_range(0..*bytes)
-                    .map_err(|e| Error::Gpu(format!("mapping results failed: {e}")))?;
-                dst.copy_from_slice(bytemuck::cast_slice(&view));
-            }
-            buf.unmap();
-        }
-        Ok(())
     }
 }
 

@@ -1,6 +1,7 @@
 //! One render request's GPU side: validating it, splitting its cameras into dispatches that
 //! fit a storage binding, allocating its buffers and bind group (`prepare`), and recording
-//! each chunk's dispatches (`encode_chunk`).
+//! each chunk's dispatches (`encode_chunk`), then checking the dispatch (`check`) and reading
+//! the results back (`read_back`).
 
 use super::*;
 use crate::gpu_types::FLAG_FULL_WALK;
@@ -196,5 +197,47 @@ impl Renderer {
             pass.dispatch_workgroups(groups_x, count as u32, 1);
         }
         encoder
+    }
+}
+
+impl Renderer {
+    /// Pops a validation scope and reports any error wgpu raised meanwhile.
+    pub(super) fn check(&self, scope: wgpu::ErrorScopeGuard, what: &str) -> Result<()> {
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(Error::Gpu(format!("{what} failed: {e}")));
+        }
+        if let Some(e) = self.uncaptured.lock().ok().and_then(|mut s| s.take()) {
+            return Err(Error::Gpu(e));
+        }
+        Ok(())
+    }
+
+    /// Maps readback buffers and copies `bytes` of each into its destination.
+    pub(super) fn read_back(&self, jobs: &mut [(&wgpu::Buffer, u64, &mut [f32])]) -> Result<()> {
+        let status = Arc::new(Mutex::new(Vec::new()));
+        for (buf, bytes, _) in jobs.iter() {
+            let status = status.clone();
+            buf.map_async(wgpu::MapMode::Read, 0..*bytes, move |r| {
+                if let Ok(mut s) = status.lock() {
+                    s.push(r.map_err(|e| e.to_string()));
+                }
+            });
+        }
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| Error::Gpu(format!("waiting for the GPU failed: {e}")))?;
+        if let Some(Err(e)) = status.lock().ok().and_then(|s| s.iter().find(|r| r.is_err()).cloned()) {
+            return Err(Error::Gpu(format!("reading results back failed: {e}")));
+        }
+        for (buf, bytes, dst) in jobs.iter_mut() {
+            {
+                let view = buf
+                    .get_mapped_range(0..*bytes)
+                    .map_err(|e| Error::Gpu(format!("mapping results failed: {e}")))?;
+                dst.copy_from_slice(bytemuck::cast_slice(&view));
+            }
+            buf.unmap();
+        }
+        Ok(())
     }
 }

@@ -98,6 +98,11 @@ impl SuperRes {
         self.in_channels
     }
 
+    /// The device the network lives on.
+    pub fn device(&self) -> &wgpu::Device {
+        &self.kernels.device
+    }
+
     pub fn input_resolution(&self) -> usize {
         self.input_resolution
     }
