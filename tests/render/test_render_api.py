@@ -112,7 +112,7 @@ def test_file_round_trips_across_languages(gpu, tmp_path: Path) -> None:
         # Python writes (with the optional keys), Rust reads.
         py_file = tmp_path / f"py-{np.dtype(dtype).name}.npz"
         cam = pycam.look_at_camera(yaw_deg=12.0)
-        occ = np.linspace(0, 1, 4 * 4 * 4, dtype=np.float32).reshape(4, 4, 4)
+        occ = scene.data.to_native().bake_occupancy(4)
         written = dataclasses.replace(
             scene.data,
             box_warp=1.2,

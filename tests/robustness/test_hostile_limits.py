@@ -17,7 +17,7 @@ import pytest
 from PIL import Image
 
 from lp3d.render.sample_scenes import coloured_sphere
-from lp3d.render.triplane import TriplaneError
+from lp3d.render.triplane import TriplaneError, occupancy_checksum
 from lp3d.render.triplane_io import load_triplane, save_triplane
 from support.cli import run
 
@@ -123,6 +123,37 @@ def test_a_grid_baked_for_other_planes_is_refused(tmp_path) -> None:
     with pytest.raises(TriplaneError, match="occupancy: baked for other planes"):
         dataclasses.replace(loaded, planes=loaded.planes * 2)
     assert lp3d_render.Triplane.load(str(path)).occupancy is not None
+
+
+def test_a_grid_of_unknown_origin_must_bound_the_planes(tmp_path) -> None:
+    """A grid handed over without the checksum it was baked for is checked against a fresh bake: the
+    renderer's constructor and save_triplane refuse one baked for other planes, and write nothing."""
+    tri = coloured_sphere(size=16)
+    own = tri.to_native().bake_occupancy(8)
+    # Fainter planes: their grid is below this sphere's somewhere, so it would skip its density.
+    other = dataclasses.replace(tri, planes=tri.planes * 0.3).to_native().bake_occupancy(8)
+    assert (other < own).any()
+    foreign = dataclasses.replace(tri, occupancy=other)
+    with pytest.raises(ValueError, match=r"occupancy: not an upper bound of these planes' density: cell"):
+        foreign.to_native()
+    path = tmp_path / "foreign.npz"
+    with pytest.raises(TriplaneError, match="occupancy: not an upper bound"):
+        save_triplane(path, foreign)
+    assert list(tmp_path.iterdir()) == []
+    # A wrong checksum is refused; the right one, a looser grid and the grid's own bake are taken.
+    with pytest.raises(ValueError, match="occupancy: baked for other planes or another decoder"):
+        dataclasses.replace(tri, occupancy=own, occupancy_checksum=occupancy_checksum(tri) ^ 1)
+    import lp3d_render
+
+    weights = (tri.planes, tri.w0, tri.b0, tri.w1, tri.b1)
+    with pytest.raises(ValueError, match="occupancy: baked for other planes or another decoder"):
+        lp3d_render.Triplane(*weights, occupancy=own, occupancy_checksum=occupancy_checksum(tri) ^ 1)
+    with pytest.raises(ValueError, match="occupancy_checksum: given without an occupancy grid"):
+        lp3d_render.Triplane(*weights, occupancy_checksum=occupancy_checksum(tri))
+    lp3d_render.Triplane(*weights, occupancy=own, occupancy_checksum=occupancy_checksum(tri))
+    dataclasses.replace(tri, occupancy=own + 1.0).to_native()
+    save_triplane(path, dataclasses.replace(tri, occupancy=own))
+    assert load_triplane(path).occupancy_checksum == occupancy_checksum(tri)
 
 
 def test_an_error_after_ctrl_c_is_reported_as_the_interrupt() -> None:

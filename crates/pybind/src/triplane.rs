@@ -69,14 +69,57 @@ fn bound_arg(arg: &Arg<'_, f64>, field: &str) -> PyResult<f64> {
     Ok(v)
 }
 
+/// Refuses an occupancy grid that does not bound these planes' density: with the checksum it was
+/// baked for (a file's `occupancy_checksum`), that checksum must be these planes' and decoder's;
+/// without one, the grid must be at least a fresh bake at its resolution in every cell (a looser
+/// bound skips less but stays exact; a lower one would skip samples that hold density).
+fn check_grid_is_for(tri: &lp3d_renderer::Triplane, checksum: Option<u32>) -> PyResult<()> {
+    let Some(grid) = &tri.occupancy else {
+        return match checksum {
+            Some(_) => Err(invalid("occupancy_checksum", "given without an occupancy grid")),
+            None => Ok(()),
+        };
+    };
+    if let Some(stored) = checksum {
+        let actual = tri.occupancy_checksum();
+        if stored != actual {
+            return Err(invalid(
+                "occupancy",
+                format!(
+                    "baked for other planes or another decoder (checksum {stored}, these planes' {actual}): \
+                     bake it again with Triplane.bake_occupancy"
+                ),
+            ));
+        }
+        return Ok(());
+    }
+    let fresh = Occupancy::bake(tri, grid.resolution).map_err(to_py)?;
+    let g = grid.resolution;
+    if let Some(i) = grid.bound.iter().zip(&fresh.bound).position(|(given, need)| given < need) {
+        return Err(invalid(
+            "occupancy",
+            format!(
+                "not an upper bound of these planes' density: cell ({}, {}, {}) holds {} where the planes \
+                 reach {} (baked for other planes or another decoder?): bake it with Triplane.bake_occupancy",
+                i / (g * g),
+                (i / g) % g,
+                i % g,
+                grid.bound[i],
+                fresh.bound[i]
+            ),
+        ));
+    }
+    Ok(())
+}
+
 #[pymethods]
 impl Triplane {
     #[new]
     #[pyo3(
         signature = (planes, w0, b0, w1, b1, box_warp=Arg::Default(DEFAULT_BOX_WARP),
                      ray_start=Arg::Default(DEFAULT_RAY_START), ray_end=Arg::Default(DEFAULT_RAY_END), *,
-                     camera=None, source=None, occupancy=None),
-        text_signature = "(planes, w0, b0, w1, b1, box_warp=1.0, ray_start=2.25, ray_end=3.3, *, camera=None, source=None, occupancy=None)"
+                     camera=None, source=None, occupancy=None, occupancy_checksum=None),
+        text_signature = "(planes, w0, b0, w1, b1, box_warp=1.0, ray_start=2.25, ray_end=3.3, *, camera=None, source=None, occupancy=None, occupancy_checksum=None)"
     )]
     #[allow(clippy::too_many_arguments)]
     fn new<'py>(
@@ -91,6 +134,7 @@ impl Triplane {
         camera: Option<&Bound<'py, PyAny>>,
         source: Option<String>,
         occupancy: Option<&Bound<'py, PyAny>>,
+        occupancy_checksum: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Self> {
         guarded(|| {
             let p = float_array(planes, "planes", &["float16", "float32"])?;
@@ -147,6 +191,13 @@ impl Triplane {
                 source,
             };
             inner.validate().map_err(to_py)?;
+            let checksum = match occupancy_checksum {
+                Some(c) if !c.is_none() => {
+                    Some(int_arg(&Arg::Given(c.clone()), "occupancy_checksum", 0, u32::MAX as i64)? as u32)
+                }
+                _ => None,
+            };
+            check_grid_is_for(&inner, checksum)?;
             Ok(Triplane::wrap(inner))
         })
     }

@@ -146,7 +146,9 @@ class TriplaneData:
     def to_native(self) -> lp3d_render.Triplane:
         """This triplane as an ``lp3d_render.Triplane``, the GPU renderer's handle: planes (dtype
         kept), decoder, bounds and the optional camera, source and occupancy grid, so the handle
-        renders and saves exactly what this value holds. Raises ImportError without ``lp3d_render``
+        renders and saves exactly what this value holds. A grid without ``occupancy_checksum`` is
+        checked against a fresh bake (ValueError naming ``occupancy`` when it does not bound these
+        planes' density). Raises ImportError without ``lp3d_render``
         (imported here: this module works without the renderer, which creates the GPU device)."""
         import lp3d_render
 
@@ -162,6 +164,7 @@ class TriplaneData:
             camera=self.camera,
             source=self.source,
             occupancy=self.occupancy,
+            occupancy_checksum=self.occupancy_checksum,
         )
 
     @property

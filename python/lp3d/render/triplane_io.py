@@ -73,11 +73,26 @@ def _arrays_of(tri: TriplaneData) -> dict[str, np.ndarray]:
     if tri.camera is not None:
         arrays["camera"] = np.array(tri.camera, dtype="<f8")
     if tri.occupancy is not None:
+        if tri.occupancy_checksum is None:
+            # A grid of unknown origin gets the checksum of these planes only once it is shown to
+            # bound their density (the renderer's check against a fresh bake), so a grid baked for
+            # other planes is never written as if it were theirs.
+            _check_grid_bounds(tri)
         arrays["occupancy"] = _little_endian(tri.occupancy.astype(np.float32))
         arrays[CHECKSUM_KEY] = np.array(occupancy_checksum(tri), dtype="<i8")
     if tri.source is not None:
         arrays["source"] = np.array(tri.source, dtype="<U")  # 0-d unicode (UTF-32LE in the file)
     return arrays
+
+
+def _check_grid_bounds(tri: TriplaneData) -> None:
+    """TriplaneError naming ``occupancy`` unless ``tri``'s grid bounds its planes' density."""
+    from lp3d.render.native import native_triplane
+
+    try:
+        native_triplane(tri)
+    except ValueError as e:
+        raise TriplaneError("occupancy", str(e).removeprefix("occupancy: ")) from None
 
 
 def save_triplane(path: str | os.PathLike[str], tri: TriplaneData) -> None:
