@@ -23,12 +23,13 @@ from lp3d.errors import UserError
 __all__ = [
     "IMAGE_SUFFIXES",
     "MESH_SUFFIXES",
-    "VIDEO_SUFFIXES",
     "Staged",
+    "VIDEO_SUFFIXES",
     "VideoWriter",
     "check_distinct",
     "check_folder",
     "check_output",
+    "gif_bytes",
     "progress",
     "write_image",
 ]
@@ -175,6 +176,21 @@ def write_image(path: Path, image: np.ndarray, fmt_suffix: str) -> None:
         raise _named(e, path) from None
 
 
+def gif_bytes(frames: Sequence[np.ndarray], fps: float) -> bytes:
+    """Frames (H, W, 3) uint8 as an endlessly looping GIF (Pillow), in memory."""
+    import io
+
+    from PIL import Image
+
+    if not frames:
+        raise UserError("no frames to write")
+    images = [Image.fromarray(np.ascontiguousarray(f, dtype=np.uint8)) for f in frames]
+    more = {"save_all": True, "append_images": images[1:]} if len(images) > 1 else {}
+    out = io.BytesIO()
+    images[0].save(out, format="GIF", duration=1000.0 / fps, loop=0, **more)
+    return out.getvalue()
+
+
 class VideoWriter:
     """Frames (H, W, 3) uint8 into a ``.gif`` (Pillow, written on :meth:`close`) or an ``.mp4``
     (H.264 by the ffmpeg binary bundled with imageio-ffmpeg, streamed to its stdin).
@@ -211,13 +227,10 @@ class VideoWriter:
             raise UserError("no frames to write")
 
     def _write_gif(self) -> None:
-        from PIL import Image
-
-        images = [Image.fromarray(f) for f in self.frames]
-        more = {"save_all": True, "append_images": images[1:]} if len(images) > 1 else {}
+        data = gif_bytes(self.frames, self.fps)
         try:
             with open(self.path, "wb") as f:
-                images[0].save(f, format="GIF", duration=1000.0 / self.fps, loop=0, **more)
+                f.write(data)
         except OSError as e:
             raise _named(e, self.path) from None
 

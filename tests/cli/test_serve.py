@@ -145,6 +145,46 @@ def test_photo_upload_lifts_it_and_the_downloads_hold_what_the_page_draws(server
     status, _, page = http(server, f"/api/photo/{header['id']}.html")
     assert status == 200 and b'"format":"lp3d-share"' in page
     assert http(server, "/api/photo/nosuchid.npz")[0] == 404
+    assert http(server, f"/api/photo/{header['id']}.exe")[0] == 404
+
+
+def test_the_mesh_and_orbit_downloads_are_the_lifted_head(server, photo, tmp_path) -> None:
+    import io
+
+    import trimesh
+    from PIL import Image, ImageSequence
+
+    from lp3d.images import rgb_to_uint8
+    from lp3d.render.camera import look_at_camera, orbit_angles
+    from lp3d.render.mesh import extract_mesh
+    from lp3d.render.native import render
+    from lp3d.serve.downloads import ORBIT
+
+    status, _, body = http(server, "/api/photo?detect=0&name=teacher.png", photo)
+    assert status == 200, body[:300]
+    pid = parse_message(body)[0]["id"]
+    (tmp_path / "head.npz").write_bytes(http(server, f"/api/photo/{pid}.npz")[2])
+    tri = load_triplane(tmp_path / "head.npz")
+    status, headers, glb = http(server, f"/api/photo/{pid}.glb")
+    assert status == 200 and headers["Content-Type"] == "model/gltf-binary"
+    assert 'filename="teacher.glb"' in headers["Content-Disposition"]
+    mesh = trimesh.load(io.BytesIO(glb), file_type="glb", force="mesh", process=False)
+    want = extract_mesh(tri)
+    assert len(want.vertices) > 1000
+    np.testing.assert_allclose(np.asarray(mesh.vertices), want.vertices, rtol=0, atol=1e-6)
+    status, headers, gif = http(server, f"/api/photo/{pid}.gif")
+    assert status == 200 and headers["Content-Type"] == "image/gif"
+    frames = [np.asarray(f.convert("RGB")) for f in ImageSequence.Iterator(Image.open(io.BytesIO(gif)))]
+    assert len(frames) == ORBIT.frames and frames[0].shape == (ORBIT.resolution, ORBIT.resolution, 3)
+    yaw, pitch = orbit_angles(ORBIT.frames, ORBIT.yaw_range, 0.0)[5]
+    cam = look_at_camera(yaw_deg=yaw, pitch_deg=pitch)
+    coarse, fine = ORBIT.samples
+    rgb = render(
+        tri, cam, resolution=ORBIT.resolution, depth_resolution=coarse, depth_resolution_importance=fine
+    )["rgb"]
+    # A GIF holds 256 colours per frame: its frame is the render up to that quantisation.
+    diff = np.abs(frames[5].astype(int) - rgb_to_uint8(rgb).astype(int))
+    assert diff.mean() < 3.0, diff.mean()
 
 
 def test_bad_uploads_get_a_clear_answer(server, photo, photos) -> None:

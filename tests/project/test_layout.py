@@ -32,8 +32,9 @@ ALLOWED = {
     "teachers": {"render", "nets", "images", "atomic", "errors"},
     "lift": {"render", "nets", "array_cache", "atomic", "errors"},
     "share": {"render", "atomic", "errors", "__version__"},
-    # lp3d serve's web app: photos and webcam frames lifted (photo, lift), drawn by share's page scripts.
-    "serve": {"share", "lift", "photo", "render", "atomic", "errors", "__version__"},
+    # lp3d serve's web app: photos and webcam frames lifted (photo, lift), drawn by share's page scripts;
+    # images and outputs for the orbit GIF download.
+    "serve": {"share", "lift", "photo", "render", "images", "outputs", "atomic", "errors", "__version__"},
     # outputs: lp3d export's check that no output replaces an input (lp3d.outputs.check_distinct).
     "training": {
         "render",

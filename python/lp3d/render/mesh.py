@@ -36,6 +36,8 @@ __all__ = [
     "MeshError",
     "density_grid",
     "extract_mesh",
+    "glb_bytes",
+    "ply_bytes",
     "write_glb",
     "write_obj",
     "write_ply",
@@ -176,14 +178,19 @@ def _write(path: str | os.PathLike[str], data: bytes | str) -> None:
         out.write(data.encode("ascii") if isinstance(data, str) else data)
 
 
-def write_ply(path: str | os.PathLike[str], mesh: Mesh, *, binary: bool = True) -> None:
+def ply_bytes(mesh: Mesh, *, binary: bool = True) -> bytes:
     """PLY (trimesh): float x y z, nx ny nz, uchar red green blue alpha (255) per vertex and
     uchar-counted int faces; binary little-endian or ASCII."""
     encoding = "binary" if binary else "ascii"
     data = _trimesh(mesh).export(
         file_type="ply", encoding=encoding, vertex_normal=True, include_attributes=False
     )
-    _write(path, data)
+    return data.encode("ascii") if isinstance(data, str) else data
+
+
+def write_ply(path: str | os.PathLike[str], mesh: Mesh, *, binary: bool = True) -> None:
+    """:func:`ply_bytes` into ``path``."""
+    _write(path, ply_bytes(mesh, binary=binary))
 
 
 def write_obj(path: str | os.PathLike[str], mesh: Mesh) -> None:
@@ -211,14 +218,19 @@ def _color_0(tree: dict) -> None:
             attrs["COLOR_0"] = attrs.pop(key)
 
 
-def write_glb(path: str | os.PathLike[str], mesh: Mesh) -> None:
+def glb_bytes(mesh: Mesh) -> bytes:
     """glTF 2.0 binary (trimesh): one mesh, one triangle primitive with POSITION, NORMAL, COLOR_0 and
     uint32 indices. COLOR_0 is float VEC3 and linear (glTF vertex colours are linear, so the decoder's
     sRGB colours are converted). Float rather than trimesh's 8-bit colours: 8-bit linear keeps 183 of
     the 256 sRGB levels, shows the darkest 7 as black and others up to 6 levels off. trimesh writes it
     as a custom attribute and :func:`_color_0` names it ``COLOR_0``."""
     tm = _trimesh(mesh, colors=False, vertex_attributes={"COLOR_0": _srgb_to_linear(mesh.colors)})
-    _write(path, tm.export(file_type="glb", include_normals=True, tree_postprocessor=_color_0))
+    return tm.export(file_type="glb", include_normals=True, tree_postprocessor=_color_0)
+
+
+def write_glb(path: str | os.PathLike[str], mesh: Mesh) -> None:
+    """:func:`glb_bytes` into ``path``."""
+    _write(path, glb_bytes(mesh))
 
 
 #: Writers by suffix.

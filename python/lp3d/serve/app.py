@@ -8,8 +8,9 @@ Routes (every one needs the access token when the server has one: ``?token=`` or
   :data:`~lp3d.serve.lifting.MAX_UPLOAD_BYTES`); answers one triplane message (its header: ``id``,
   ``description``, ``notes``, ``pose``, ``timings_ms``), or ``{"error": ...}`` with 400 (not a usable
   image), 413 (too large) or 503 (busy);
-* ``GET /api/photo/ID.npz`` and ``GET /api/photo/ID.html``: the lifted photo's triplane file and its
-  share page, made in memory (results are kept in memory only, the last :data:`KEPT_PHOTOS`);
+* ``GET /api/photo/ID.npz``, ``.html``, ``.glb`` and ``.gif``: the lifted photo's triplane file, its
+  share page, a mesh and an orbit GIF, made in memory (:mod:`lp3d.serve.downloads`; results are kept
+  in memory only, the last :data:`KEPT_PHOTOS`);
 * ``POST /api/photo/ID/refine?steps=N``, ``GET /api/photo/ID/refine`` (progress, JSON) and
   ``GET /api/photo/ID/triplane`` (the current planes as a triplane message) (:mod:`lp3d.serve.jobs`);
 * ``WS /ws/live``: the webcam stream (:mod:`lp3d.serve.live`).
@@ -33,6 +34,7 @@ from starlette.responses import JSONResponse, Response
 from starlette.routing import Route, WebSocketRoute
 
 from lp3d.photo import PhotoError
+from lp3d.serve.downloads import DOWNLOADS, download_bytes
 from lp3d.serve.jobs import PhotoStore, RefineJobs
 from lp3d.serve.lifting import MAX_UPLOAD_BYTES, Lifter, triplane_message
 from lp3d.serve.live import LiveLimits, live_endpoint
@@ -163,25 +165,26 @@ def _photo_or_404(request: Request, state: ServeState) -> tuple[str, Any] | Resp
 
 
 async def download(request: Request) -> Response:
-    from lp3d.render.triplane_io import triplane_bytes
-    from lp3d.share import build_page
-
     state: ServeState = request.app.state.serve
     found = _photo_or_404(request, state)
     if isinstance(found, Response):
         return found
-    pid, result = found
+    _, result = found
     kind = request.path_params["kind"]
-    if kind not in ("npz", "html"):
-        return _error("downloads are ID.npz (the triplane) and ID.html (its share page)", 404, state)
+    if kind not in DOWNLOADS:
+        kinds = ", ".join(f"ID.{k} ({what})" for k, (_, what) in DOWNLOADS.items())
+        return _error(f"downloads are {kinds}", 404, state)
     stem = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in result.name.rsplit(".", 1)[0])[:60]
-    if kind == "npz":
-        body, media = triplane_bytes(result.triplane), "application/octet-stream"
-    else:
-        body = build_page(result.triplane, title=f"{result.name} (lp3d serve)").encode("utf-8")
-        media = "text/html; charset=utf-8"
+    title = f"{result.name} (lp3d serve)"
+    try:
+        # The mesh and the orbit take seconds: off the event loop, as the lifting is.
+        body = await asyncio.get_running_loop().run_in_executor(
+            state.workers, lambda: download_bytes(result.triplane, kind, title)
+        )
+    except ValueError as e:
+        return _error(f"{result.name}: {DOWNLOADS[kind][1]}: {e}", 400, state)
     disposition = {"Content-Disposition": f'attachment; filename="{stem or "head"}.{kind}"'}
-    return Response(body, media_type=media, headers={**state.headers(), **disposition})
+    return Response(body, media_type=DOWNLOADS[kind][0], headers={**state.headers(), **disposition})
 
 
 async def current_triplane(request: Request) -> Response:

@@ -169,6 +169,8 @@ function setUpPhoto(data, display, withToken, note, clearNote) {
     if (h.notes.length) note(h.notes.join("; "));
     $("get-npz").href = withToken("/api/photo/" + h.id + ".npz");
     $("get-html").href = withToken("/api/photo/" + h.id + ".html");
+    $("get-glb").href = withToken("/api/photo/" + h.id + ".glb");
+    $("get-gif").href = withToken("/api/photo/" + h.id + ".gif");
     await display.show(answer);
   }
   $("file").addEventListener("change", (e) => {
