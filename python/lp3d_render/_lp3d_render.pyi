@@ -46,6 +46,7 @@ class Triplane:
         camera: npt.NDArray[np.floating] | None = None,
         source: str | None = None,
         occupancy: npt.NDArray[np.float32] | None = None,
+        occupancy_checksum: int | None = None,
     ) -> None: ...
     @staticmethod
     def load(path: str | PathLike[str]) -> Triplane: ...
@@ -93,6 +94,7 @@ def render(
     occupancy_coarse: bool = False,
     baked_subdivisions: int = 0,
     baked_fine_subdivisions: int = 0,
+    superres: SuperRes | None = None,
 ) -> dict[str, npt.NDArray[np.float32]]: ...
 
 class BakedField:
