@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import zipfile
@@ -22,10 +23,9 @@ def make_triplane(dtype: type = np.float32, *, optional: bool = False, size: int
     if optional:
         extra = {
             "camera": look_at_camera(yaw_deg=10.0),
-            "occupancy": rng.random((4, 4, 4), dtype=np.float32),
             "source": "procedural teacher, seed 7 — ünïcode",
         }
-    return TriplaneData(
+    tri = TriplaneData(
         planes=rng.normal(size=(3, 32, size, size + 1)).astype(dtype),
         w0=rng.normal(size=(64, 32)).astype(np.float32),
         b0=rng.normal(size=64).astype(np.float32),
@@ -36,6 +36,8 @@ def make_triplane(dtype: type = np.float32, *, optional: bool = False, size: int
         ray_end=3.3,
         **extra,  # type: ignore[arg-type]
     )
+    # A grid must bound its planes' density to be saved: the renderer's own bake.
+    return dataclasses.replace(tri, occupancy=tri.to_native().bake_occupancy(4)) if optional else tri
 
 
 def good_arrays(dtype: type = np.float32) -> dict[str, np.ndarray]:

@@ -343,6 +343,7 @@ def _valid_python_written(folder: Path) -> Path:
         b1=a["decoder_b1"],
         camera=look_at_camera(yaw_deg=10.0),
         occupancy=a["occupancy"],
+        occupancy_checksum=int(a["occupancy_checksum"]),
         source="python writer — ünïcode",
     )
     path = folder / "python.npz"
