@@ -313,6 +313,8 @@ impl Renderer {
         let (n_cam, n_pix, fc) = (frame.n_cam, frame.n_pix, frame.fc);
         let sr = superres.map(|sr| superres_chain::Chain::new(self, sr, frame.chunk)).transpose()?;
         let chunk = sr.as_ref().map_or(frame.chunk, |c| c.images());
+        // Features computed only for the network stay on the device.
+        let read_fc = if outputs.features || outputs.rgb { fc } else { 0 };
         let readback = |label: &str, size: usize| {
             self.device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(label),
@@ -321,14 +323,14 @@ impl Renderer {
                 mapped_at_creation: false,
             })
         };
-        let feat_read = readback("lp3d features readback", chunk * fc * n_pix);
+        let feat_read = readback("lp3d features readback", chunk * read_fc * n_pix);
         let depth_read = readback("lp3d depth readback", chunk * n_pix);
         let wsum_read = readback("lp3d weights_sum readback", chunk * n_pix);
         let sr_bytes = sr.as_ref().map_or(0, |c| c.device_bytes());
         let frame_bytes = frame.bytes + feat_read.size() + depth_read.size() + wsum_read.size() + sr_bytes;
         self.last_frame_bytes.store(frame_bytes, Ordering::Relaxed);
 
-        let mut features = vec![0f32; n_cam * fc * n_pix];
+        let mut features = vec![0f32; n_cam * read_fc * n_pix];
         let mut depth = vec![0f32; n_cam * n_pix];
         let mut weights_sum = vec![0f32; n_cam * n_pix];
         let mut images = sr.as_ref().map(|c| vec![0f32; n_cam * c.floats_per_image()]);
@@ -336,9 +338,9 @@ impl Renderer {
         while first < n_cam {
             let count = chunk.min(n_cam - first);
             let mut encoder = self.encode_chunk(&mut frame, first, count);
-            let fbytes = (count * fc * n_pix * 4) as u64;
+            let fbytes = (count * read_fc * n_pix * 4) as u64;
             let pbytes = (count * n_pix * 4) as u64;
-            if fc > 0 {
+            if read_fc > 0 {
                 encoder.copy_buffer_to_buffer(&frame.features, 0, &feat_read, 0, fbytes);
             }
             encoder.copy_buffer_to_buffer(&frame.depth, 0, &depth_read, 0, pbytes);
@@ -351,8 +353,8 @@ impl Renderer {
                 (&depth_read, pbytes, &mut depth[first * n_pix..(first + count) * n_pix]),
                 (&wsum_read, pbytes, &mut weights_sum[first * n_pix..(first + count) * n_pix]),
             ];
-            if fc > 0 {
-                let range = first * fc * n_pix..(first + count) * fc * n_pix;
+            if read_fc > 0 {
+                let range = first * read_fc * n_pix..(first + count) * read_fc * n_pix;
                 jobs.push((&feat_read, fbytes, &mut features[range]));
             }
             if let (Some(c), Some(images)) = (&sr, images.as_mut()) {
@@ -369,7 +371,7 @@ impl Renderer {
         // one pass over the results (cheap next to the render) keeps a broken promise from
         // reaching the caller as a silently black image.
         for (name, values, per_cam) in [
-            ("features", &features, fc * n_pix),
+            ("features", &features, read_fc * n_pix),
             ("depth", &depth, n_pix),
             ("weights_sum", &weights_sum, n_pix),
         ] {
