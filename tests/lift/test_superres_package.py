@@ -220,6 +220,9 @@ def _edited(package: dict[str, object], tmp_path: Path, edit) -> Path:
         (lambda e: e.update(sha256="abc"), "'superres.sha256' must be 64 lowercase hex"),
         (lambda e: e.pop("sha256"), "missing field 'superres.sha256'"),
         (lambda e: e.update(about=[1]), "'superres.about' must be an object"),
+        (lambda e: e.pop("weights"), "missing field 'superres.weights'"),
+        (lambda e: e.update(weights="sub/x.npz"), "'superres.weights' must be an .npz file name"),
+        (lambda e: e.update(weights_sha256="0" * 63), "'superres.weights_sha256' must be 64 lowercase hex"),
     ],
 )
 def test_package_rejects_a_bad_superres_entry(package, tmp_path, edit, words) -> None:
@@ -259,6 +262,48 @@ def test_superres_file_missing_altered_or_of_another_shape(package, tmp_path) ->
     # Removing the entry leaves a package without a network.
     set_package_superres(path, None)
     assert load_model_package(path).superres is None and load_superres(path) is None
+
+
+def test_the_weights_file_is_the_exported_network(package, tmp_path) -> None:
+    """Export writes MODEL.superres.npz beside the ONNX graph: the folded network's arrays, which the
+    renderer's reader loads (no torch, no onnx) into the same network as the graph's (equal images on
+    the GPU), and whose checksum the package checks."""
+    from lp3d.lift.gpu_superres import gpu_superres, load_gpu_superres
+    from lp3d.render.native import renderer
+
+    pkg = load_model_package(package["onnx"])
+    entry = pkg.superres
+    assert entry is not None and entry.weights_path == superres_path(package["onnx"]).with_suffix(".npz")
+    with np.load(entry.weights_path) as f:
+        assert sorted(f.files) == sorted(
+            ["format_version", "input_resolution"]
+            + [f"{k}_{i}" for k in ("convs_up", "biases_up", "convs", "biases", "rgb_weights", "rgb_biases")
+               for i in range(2)]
+        )  # fmt: skip
+        assert int(f["input_resolution"]) == SR_IN and f["convs_0"].dtype == np.float32
+    from_file = load_gpu_superres(package["onnx"])
+    from_torch = gpu_superres(FoldedSuperResolution(package["sr"]))
+    features = np.random.default_rng(3).uniform(-1, 1, (2, 32, SR_IN, SR_IN)).astype(np.float32)
+    np.testing.assert_array_equal(from_file.apply(features), from_torch.apply(features))
+    direct = renderer().SuperRes.load(entry.weights_path)
+    assert (direct.input_resolution, direct.output_resolution) == (SR_IN, SR_OUT)
+
+    path = _edited(package, tmp_path, lambda e: None)
+    weights = path.with_name("tiny.superres.npz")
+    data = weights.read_bytes()
+    weights.write_bytes(data[:-1] + bytes([data[-1] ^ 1]))
+    with pytest.raises(ModelPackageError, match="'superres.weights_sha256'"):
+        load_gpu_superres(path)
+    weights.unlink()
+    with pytest.raises(ModelPackageError, match="tiny.superres.npz: no such file.*'superres.weights'"):
+        load_gpu_superres(path)
+    # A file that is not a weights file, under a correct checksum: the reader names it and the key.
+    np.savez(weights, format_version=np.array(1), input_resolution=np.array(SR_IN))
+    entry_json = json.loads(path.with_suffix(".json").read_text())["superres"]
+    entry_json["weights_sha256"] = __import__("hashlib").sha256(weights.read_bytes()).hexdigest()
+    set_package_superres(path, entry_json)
+    with pytest.raises(ValueError, match="tiny.superres.npz.*expected format_version, input_resolution"):
+        load_gpu_superres(path)
 
 
 # ============================================================================================= CLI

@@ -15,9 +15,10 @@ import torch
 
 import lp3d_render
 from lp3d.export import export_superres
-from lp3d.lift.gpu_superres import FOLDED_PARTS, folded_weights, gpu_superres, load_gpu_superres
+from lp3d.lift.gpu_superres import gpu_superres, load_gpu_superres
 from lp3d.lift.inference import DEFAULT_MODEL
 from lp3d.lift.model_package import load_model_package
+from lp3d.lift.superres_weights import FOLDED_PARTS, folded_weights
 from lp3d.nets.stylegan_ops import LRELU_ALPHA, LRELU_GAIN
 from lp3d.nets.superres import FoldedSuperResolution, SuperresConfig, SuperResolution
 from lp3d.nets.superres_onnx import read_superres_onnx

@@ -86,8 +86,8 @@ def micro_config() -> Any:
 def make_seeds(folder: Path) -> Seeds:
     import torch
 
-    from lp3d.export.superres import export_superres
-    from lp3d.lift.model_package import save_model_package, superres_entry
+    from lp3d.export.superres import package_superres
+    from lp3d.lift.model_package import save_model_package
     from lp3d.nets.encoder import build_encoder
     from lp3d.nets.superres import SuperresConfig, SuperResolution
     from lp3d.render.sample_scenes import coloured_sphere
@@ -113,8 +113,7 @@ def make_seeds(folder: Path) -> Seeds:
     sr = SuperResolution(
         SuperresConfig(name="t", input_resolution=8, output_resolution=16, block_channels=(4,), w_dim=4)
     )
-    sr_path = export_superres(sr, folder / "m.superres.onnx")
-    entry = superres_entry(sr_path, input_resolution=8, output_resolution=16)
+    entry, _ = package_superres(sr, path)
     side = save_model_package(path, decoder, cfg, bounds, superres=entry)
     state = {k: v.detach().clone() for k, v in enc.state_dict().items()}
     weights = {
@@ -136,7 +135,7 @@ def make_seeds(folder: Path) -> Seeds:
         "step": 1,
         "student": student,
     }
-    return Seeds(path.read_bytes(), sr_path.read_bytes(), json.loads(side.read_text()), weights, training)
+    return Seeds(path.read_bytes(), (folder / "m.superres.onnx").read_bytes(), json.loads(side.read_text()), weights, training)
 
 
 # ============================================================================= one case, end to end

@@ -7,6 +7,7 @@ use std::sync::{Arc, OnceLock};
 use lp3d_renderer::superres::{SuperresBlock, SuperresKernels, SuperresWeights, MAX_OUTPUT_RESOLUTION};
 use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyList};
 
 use crate::convert::{expect_shape, f32_array, float_array, int_arg, type_name, Arg, FloatArray};
 use crate::device::{gpu, guarded};
@@ -51,6 +52,22 @@ pub struct SuperRes {
 }
 
 impl SuperRes {
+    /// Checked `weights` resident on the shared GPU.
+    fn on_gpu(py: Python<'_>, weights: &SuperresWeights) -> PyResult<SuperRes> {
+        let g = gpu(py)?;
+        let kernels = py
+            .detach(|| {
+                KERNELS.get_or_init(|| {
+                    SuperresKernels::new(&g.info.device).map(Arc::new).map_err(|e| e.to_string())
+                })
+            })
+            .as_ref()
+            .map_err(|e| PyRuntimeError::new_err(e.clone()))?
+            .clone();
+        let inner = py.detach(|| lp3d_renderer::SuperRes::new(&g.info, kernels, weights)).map_err(to_py)?;
+        Ok(SuperRes { inner })
+    }
+
     /// The network on the GPU, for `render(..., superres=)`.
     pub fn network(&self) -> &lp3d_renderer::SuperRes {
         &self.inner
@@ -124,19 +141,17 @@ impl SuperRes {
             }
             let weights = SuperresWeights { in_channels, input_resolution: r, blocks };
             weights.validate().map_err(to_py)?;
-            let g = gpu(py)?;
-            let kernels = py
-                .detach(|| {
-                    KERNELS.get_or_init(|| {
-                        SuperresKernels::new(&g.info.device).map(Arc::new).map_err(|e| e.to_string())
-                    })
-                })
-                .as_ref()
-                .map_err(|e| PyRuntimeError::new_err(e.clone()))?
-                .clone();
-            let inner =
-                py.detach(|| lp3d_renderer::SuperRes::new(&g.info, kernels, &weights)).map_err(to_py)?;
-            Ok(SuperRes { inner })
+            SuperRes::on_gpu(py, &weights)
+        })
+    }
+
+    /// The network of a model package's weights file (`MODEL.superres.npz`), read and checked by
+    /// the renderer's reader (`lp3d_renderer::SuperresWeights::load`; errors name the file and key).
+    #[staticmethod]
+    fn load(py: Python<'_>, path: std::path::PathBuf) -> PyResult<SuperRes> {
+        guarded(|| {
+            let weights = py.detach(|| SuperresWeights::load(&path)).map_err(to_py)?;
+            SuperRes::on_gpu(py, &weights)
         })
     }
 
@@ -179,6 +194,47 @@ impl SuperRes {
             let shape: Vec<usize> = if batched { vec![n, 3, ro, ro] } else { vec![3, ro, ro] };
             f32_array(py, &out, &shape)
         })
+    }
+
+    /// The network as the web page runs it: ``weights`` (float32, the packed vec4s), ``steps`` (in
+    /// order: ``kernel`` entry point, ``layer`` (its eight u32 uniform fields), the ``src``, ``dst``
+    /// and ``skip`` buffers by name, ``workgroups`` x and y; z is the images), the floats per image
+    /// of each scratch buffer and image, and ``output`` (the buffer the image lands in).
+    fn plan<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let plan = self.inner.plan();
+        let flat: Vec<f32> = plan.packed.iter().flatten().copied().collect();
+        let steps = PyList::empty(py);
+        for step in &plan.steps {
+            let d = PyDict::new(py);
+            let l = &step.layer;
+            d.set_item("kernel", step.kernel.name())?;
+            let layer = [
+                l.in_channels,
+                l.out_channels,
+                l.in_res,
+                l.out_res,
+                l.weights,
+                l.bias,
+                l.skip_channels,
+                l.first_channel,
+            ];
+            d.set_item("layer", layer.to_vec())?;
+            d.set_item("src", step.src.name())?;
+            d.set_item("dst", step.dst.name())?;
+            d.set_item("skip", step.skip.name())?;
+            d.set_item("workgroups", step.workgroups.to_vec())?;
+            steps.append(d)?;
+        }
+        let out = PyDict::new(py);
+        out.set_item("weights", f32_array(py, &flat, &[flat.len()])?)?;
+        out.set_item("steps", steps)?;
+        out.set_item("scratch_floats", plan.scratch_floats)?;
+        out.set_item("image_floats", plan.image_floats)?;
+        out.set_item("output", plan.output.name())?;
+        out.set_item("in_channels", self.inner.in_channels())?;
+        out.set_item("input_resolution", self.inner.input_resolution())?;
+        out.set_item("output_resolution", self.inner.output_resolution())?;
+        Ok(out)
     }
 
     fn __repr__(&self) -> String {

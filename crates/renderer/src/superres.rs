@@ -2,7 +2,8 @@
 //! the folded form of `lp3d.nets.superres` (`FoldedSuperResolution`: its constant w folded into
 //! every weight, so each layer is a plain convolution), run by the four kernels of
 //! `shaders/superres.wgsl`. [`SuperresWeights`] holds a network's weights under the names the
-//! Python module gives them and checks them; [`SuperresKernels`] are the pipelines, built once per
+//! Python module gives them and checks them (and reads them from a model package's
+//! `MODEL.superres.npz`, `superres/file.rs`); [`SuperresKernels`] are the pipelines, built once per
 //! device and shared; [`SuperRes`] is one network resident on the device, which turns feature
 //! images (B, C, R, R) into images (B, 3, R·2^blocks, R·2^blocks), batched.
 //!
@@ -11,6 +12,7 @@
 //! lrelu) and `sr_rgb` (the image skip upsampled, plus ToRGB). [`SuperRes::record`] records them
 //! into a caller's encoder reading any feature buffer of that layout, such as a render's.
 
+mod file;
 mod kernels;
 mod layers;
 mod network;
@@ -19,7 +21,9 @@ use bytemuck::{Pod, Zeroable};
 
 use crate::error::{Error, Result};
 
+pub use file::{WEIGHTS_FORMAT_VERSION, WEIGHTS_PARTS};
 pub use kernels::SuperresKernels;
+pub use layers::{NetworkPlan, Slot, SrKernel, Step};
 pub use network::{SuperRes, SuperresFrame};
 
 /// Most channels of the feature image (`SUPERRES_CAPS` in `lp3d.nets.superres`).

@@ -6,6 +6,7 @@
 mod file;
 pub mod occupancy;
 
+pub(crate) use file::{format_error, open_regular_file};
 pub use file::{OPTIONAL_KEYS, REQUIRED_KEYS};
 
 use crate::camera::Camera;

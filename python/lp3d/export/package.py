@@ -74,6 +74,7 @@ from lp3d.lift.model_package import (
     sidecar_path,
     superres_path,
 )
+from lp3d.lift.superres_weights import superres_weights_path
 from lp3d.nets.superres import SuperResolution
 from lp3d.outputs import check_distinct
 from lp3d.training.checkpoint import load_checkpoint, student_from_checkpoint
@@ -191,7 +192,8 @@ def export_package(
     out = Path(output)
     with _staging_folder(out) as folder:
         err, sr_entry, sr_err = _write_package(options, student, sr, about, folder / out.name)
-        names = [superres_path(out).name] if sr_entry is not None else []
+        sr_file = superres_path(out)
+        names = [sr_file.name, superres_weights_path(sr_file).name] if sr_entry is not None else []
         names += [out.name, sidecar_path(out).name]  # the sidecar last: it names the others
         publish_all([(folder / name, out.parent / name) for name in names])
     written = Path(save_weights(student, weights, superres=sr)) if weights else None
@@ -266,9 +268,11 @@ def _check_paths(
             raise ValueError(f"-o {out} is a folder; give a file name such as {out / 'model.onnx'}")
         outputs += [("-o", out), ("its sidecar", sidecar_path(out))]
         outputs.append(("its super-resolution model", superres_path(out)))
+        outputs.append(("its super-resolution weights", superres_weights_path(superres_path(out))))
     if package is not None:
         inputs.append(("--package", Path(package)))
         outputs.append(("its super-resolution model", superres_path(package)))
+        outputs.append(("its super-resolution weights", superres_weights_path(superres_path(package))))
     if weights is not None:
         outputs.append(("--weights", Path(weights)))
     check_distinct(inputs, outputs)

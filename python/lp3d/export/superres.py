@@ -26,6 +26,7 @@ from lp3d.lift.model_package import (
     superres_entry,
     superres_path,
 )
+from lp3d.lift.superres_weights import folded_weights, superres_weights_path, write_superres_weights
 from lp3d.nets.superres import FoldedSuperResolution, SuperResolution
 
 
@@ -77,7 +78,8 @@ def package_superres(
     opset: int = MIN_OPSET,
     tolerance: float = 1e-3,
 ) -> tuple[dict[str, Any], float]:
-    """Export ``sr`` to ``MODEL.superres.onnx`` beside ``model_path`` and check it with onnxruntime.
+    """Export ``sr`` to ``MODEL.superres.onnx`` beside ``model_path`` and check it with onnxruntime; write
+    its folded weights for the GPU renderer to ``MODEL.superres.npz``.
 
     Returns ``(the sidecar's superres entry, max abs error)``. Raises :class:`ParityError` when the
     error exceeds ``tolerance``: the network is exported and checked under a temporary name and moved
@@ -95,8 +97,14 @@ def package_superres(
         raise
     publish(tmp, path)
     cfg = sr.config
+    weights = write_superres_weights(
+        superres_weights_path(path),
+        folded_weights(FoldedSuperResolution(sr.eval())),
+        input_resolution=cfg.input_resolution,
+    )
     entry = superres_entry(
         path,
+        weights,
         input_resolution=cfg.input_resolution,
         output_resolution=cfg.output_resolution,
         in_channels=cfg.in_channels,

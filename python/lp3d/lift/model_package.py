@@ -60,6 +60,7 @@ from lp3d.lift.sidecar import (
     sidecar_field,
     sidecar_number,
     verify_superres_file,
+    verify_superres_weights,
 )
 from lp3d.render.settings import N_CHANNELS, SceneBounds
 from lp3d.render.triplane import TriplaneData
@@ -79,6 +80,7 @@ __all__ = [
     "superres_entry",
     "superres_path",
     "verify_superres_file",
+    "verify_superres_weights",
 ]
 
 
@@ -286,17 +288,22 @@ def _write_sidecar(path: Path, data: dict[str, Any]) -> None:
 
 def superres_entry(
     onnx_path: str | os.PathLike[str],
+    weights_path: str | os.PathLike[str],
     *,
     input_resolution: int,
     output_resolution: int,
     in_channels: int = N_CHANNELS,
     about: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """The sidecar's ``superres`` object for an exported SR network at ``onnx_path`` (which must exist:
-    its SHA-256 is recorded). The file must sit beside the sidecar it goes into."""
-    p = Path(onnx_path)
-    if not p.is_file():
-        raise ModelPackageError(f"{p}: no such super-resolution model file")
+    """The sidecar's ``superres`` object for an exported SR network at ``onnx_path`` and its folded
+    weights at ``weights_path`` (:mod:`lp3d.lift.superres_weights`). Both must exist (their SHA-256
+    are recorded) and sit beside the sidecar it goes into."""
+    p, w = Path(onnx_path), Path(weights_path)
+    for f in (p, w):
+        if not f.is_file():
+            raise ModelPackageError(f"{f}: no such super-resolution model file")
+    if w.parent != p.parent:
+        raise ModelPackageError(f"{w}: the weights file must sit beside {p}")
     entry: dict[str, Any] = {
         "model": p.name,
         "input_resolution": int(input_resolution),
@@ -305,6 +312,8 @@ def superres_entry(
         "sha256": file_sha256(p),
         "input_name": "features",
         "output_name": "image",
+        "weights": w.name,
+        "weights_sha256": file_sha256(w),
     }
     if about is not None:
         entry["about"] = json.loads(json.dumps(dict(about)))  # plain JSON values only

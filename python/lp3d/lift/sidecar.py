@@ -69,11 +69,13 @@ def short_text(text: object, limit: int = 400) -> str:
 class SuperresEntry:
     """A package's super-resolution network (the sidecar's ``superres`` object).
 
-    ``path`` is the ONNX file (beside the sidecar; it may not exist: :func:`verify_superres_file`
-    checks it and its ``sha256`` when it is loaded). The network maps a raw feature render
-    ``features (B, in_channels, input_resolution, input_resolution)`` (the renderer's ``features``
-    output, rgb = its first 3 channels, values in about [-1, 1]) to ``image (B, 3, output_resolution,
-    output_resolution)`` in about [-1, 1]. ``about`` is informational (how it was made, its scores).
+    ``path`` is the ONNX file (beside the sidecar; it may not exist: :func:`verify_superres_file` checks it
+    and its ``sha256`` when it is loaded), ``weights_path`` the same network's folded weights for the GPU
+    renderer (:mod:`lp3d.lift.superres_weights`; :func:`verify_superres_weights`). The network maps a raw
+    feature render ``features (B, in_channels, input_resolution, input_resolution)`` (the renderer's
+    ``features`` output, rgb = its first 3 channels, values in about [-1, 1]) to ``image (B, 3,
+    output_resolution, output_resolution)`` in about [-1, 1]. ``about`` is informational (how it was made, its
+    scores).
     """
 
     path: Path
@@ -81,6 +83,8 @@ class SuperresEntry:
     output_resolution: int
     in_channels: int
     sha256: str
+    weights_path: Path
+    weights_sha256: str
     about: dict[str, Any] | None = None
 
     @property
@@ -187,6 +191,15 @@ def parse_superres(where: str, entry: Any, folder: Path) -> SuperresEntry:
     digest = field("sha256", str)
     if not _SHA256.fullmatch(digest):
         raise ModelPackageError(f"{where}: field 'superres.sha256' must be 64 lowercase hex digits")
+    weights = field("weights", str)
+    if Path(weights).name != weights or not weights.lower().endswith(".npz"):
+        raise ModelPackageError(
+            f"{where}: field 'superres.weights' must be an .npz file name beside the sidecar, "
+            f"got {short_repr(weights)}"
+        )
+    weights_digest = field("weights_sha256", str)
+    if not _SHA256.fullmatch(weights_digest):
+        raise ModelPackageError(f"{where}: field 'superres.weights_sha256' must be 64 lowercase hex digits")
     about = entry.get("about")
     if about is not None and not isinstance(about, dict):
         raise ModelPackageError(f"{where}: field 'superres.about' must be an object")
@@ -196,21 +209,32 @@ def parse_superres(where: str, entry: Any, folder: Path) -> SuperresEntry:
         output_resolution=r_out,
         in_channels=channels,
         sha256=digest,
+        weights_path=folder / weights,
+        weights_sha256=weights_digest,
         about=about,
     )
 
 
 def verify_superres_file(entry: SuperresEntry) -> None:
-    """The SR file exists and has the recorded SHA-256 (:class:`ModelPackageError` naming it if not)."""
-    if not entry.path.is_file():
+    """The SR's ONNX file exists and has the recorded SHA-256 (:class:`ModelPackageError` if not)."""
+    _verify_file(entry.path, entry.sha256, "superres.model", "superres.sha256")
+
+
+def verify_superres_weights(entry: SuperresEntry) -> None:
+    """The SR's weights file exists and has the recorded SHA-256 (:class:`ModelPackageError` if not)."""
+    _verify_file(entry.weights_path, entry.weights_sha256, "superres.weights", "superres.weights_sha256")
+
+
+def _verify_file(path: Path, sha256: str, name_field: str, digest_field: str) -> None:
+    if not path.is_file():
         raise ModelPackageError(
-            f"{entry.path}: no such file (the package's field 'superres.model' names it beside the sidecar)"
+            f"{path}: no such file (the package's field '{name_field}' names it beside the sidecar)"
         )
-    digest = file_sha256(entry.path)
-    if digest != entry.sha256:
+    digest = file_sha256(path)
+    if digest != sha256:
         raise ModelPackageError(
-            f"{entry.path}: its SHA-256 ({digest[:12]}…) differs from the package's field 'superres.sha256' "
-            f"({entry.sha256[:12]}…): the file was changed or replaced after export"
+            f"{path}: its SHA-256 ({digest[:12]}…) differs from the package's field '{digest_field}' "
+            f"({sha256[:12]}…): the file was changed or replaced after export"
         )
 
 

@@ -5,8 +5,8 @@ use std::sync::{Arc, Mutex};
 
 use wgpu::util::DeviceExt;
 
-use super::layers::{self, BlockPlan};
-use super::{SuperresKernels, SuperresWeights, GROUP, SR_BIND_GROUP, WORKGROUP};
+use super::layers::{self, NetworkPlan, Slot, SrKernel};
+use super::{SuperresKernels, SuperresWeights, SR_BIND_GROUP};
 use crate::device::GpuContext;
 use crate::error::{Error, Result};
 
@@ -18,14 +18,26 @@ pub struct SuperresFrame {
     scratch: [wgpu::Buffer; 3],
     image: [wgpu::Buffer; 2],
     /// The last block's image.
-    last: usize,
+    last: Slot,
     bytes: u64,
 }
 
 impl SuperresFrame {
     /// The output images (images, 3, R_out, R_out) float32, once the recorded work has run.
     pub fn output(&self) -> &wgpu::Buffer {
-        &self.image[self.last]
+        self.slot(self.last).expect("the output is one of the frame's images")
+    }
+
+    /// The frame's buffer of `slot` (None for the network's input and for no buffer).
+    fn slot(&self, slot: Slot) -> Option<&wgpu::Buffer> {
+        match slot {
+            Slot::X => Some(&self.scratch[0]),
+            Slot::Up => Some(&self.scratch[1]),
+            Slot::Act => Some(&self.scratch[2]),
+            Slot::ImageA => Some(&self.image[0]),
+            Slot::ImageB => Some(&self.image[1]),
+            Slot::Features | Slot::Empty => None,
+        }
     }
 
     /// Images the frame holds.
@@ -44,12 +56,12 @@ pub struct SuperRes {
     queue: wgpu::Queue,
     kernels: Arc<SuperresKernels>,
     weights: wgpu::Buffer,
-    blocks: Vec<BlockPlan>,
+    plan: NetworkPlan,
+    /// Each step's layer uniform, in the plan's order.
+    uniforms: Vec<wgpu::Buffer>,
     in_channels: usize,
     input_resolution: usize,
     output_resolution: usize,
-    /// Floats per image of each scratch activation (`scratch_floats`).
-    scratch_floats: usize,
     max_binding: u64,
 }
 
@@ -63,7 +75,8 @@ impl SuperRes {
     ) -> Result<SuperRes> {
         weights.validate()?;
         let device = &kernels.device;
-        let (packed, plans, floats) = layers::plan(device, weights);
+        let plan = layers::plan(weights);
+        let packed = &plan.packed;
         let limit = ctx.limits.max_storage_buffer_binding_size.min(ctx.limits.max_buffer_size);
         let weight_bytes = (packed.len() * 16) as u64;
         if weight_bytes > limit {
@@ -75,9 +88,20 @@ impl SuperRes {
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("lp3d superres weights"),
-            contents: bytemuck::cast_slice(&packed),
+            contents: bytemuck::cast_slice(packed),
             usage: wgpu::BufferUsages::STORAGE,
         });
+        let uniforms = plan
+            .steps
+            .iter()
+            .map(|step| {
+                device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some("lp3d superres layer"),
+                    contents: bytemuck::bytes_of(&step.layer),
+                    usage: wgpu::BufferUsages::UNIFORM,
+                })
+            })
+            .collect();
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(Error::Gpu(format!("uploading the super-resolution weights failed: {e}")));
         }
@@ -85,11 +109,11 @@ impl SuperRes {
             queue: ctx.queue.clone(),
             kernels,
             weights: buffer,
-            blocks: plans,
+            plan,
+            uniforms,
             in_channels: weights.in_channels,
             input_resolution: weights.input_resolution,
             output_resolution: weights.output_resolution(),
-            scratch_floats: floats,
             max_binding: limit,
         })
     }
@@ -113,7 +137,12 @@ impl SuperRes {
 
     /// Floats per image of a scratch activation and of an image.
     fn per_image(&self) -> (usize, usize) {
-        (self.scratch_floats, 3 * self.output_resolution * self.output_resolution)
+        (self.plan.scratch_floats, self.plan.image_floats)
+    }
+
+    /// The network's packed weights and dispatches, for a runner of its own (the web page's).
+    pub fn plan(&self) -> &NetworkPlan {
+        &self.plan
     }
 
     /// Most images one frame may hold on this device (at least 1 when the network fits).
@@ -167,7 +196,7 @@ impl SuperRes {
             return Err(Error::Gpu(format!("out of device memory for {images} super-resolved images: {e}")));
         }
         let bytes = scratch.iter().chain(&image).map(|b| b.size()).sum();
-        Ok(SuperresFrame { images, scratch, image, last: (self.blocks.len() - 1) % 2, bytes })
+        Ok(SuperresFrame { images, scratch, image, last: self.plan.output, bytes })
     }
 
     /// Records the network into `encoder`: `features` holds `frame.images()` feature images
@@ -194,39 +223,22 @@ impl SuperRes {
             label: Some("lp3d superres pass"),
             timestamp_writes: None,
         });
-        let [x, up, act] = &frame.scratch;
-        for (i, b) in self.blocks.iter().enumerate() {
-            // x_in -> (conv_up) -> up -> (fir) -> act, by chunks of channels; act -> (conv) -> x,
-            // which the next block reads (x_in is dead once every chunk has read it).
-            let x_in = if i == 0 { features } else { x };
-            let skip = if i == 0 { features } else { &frame.image[(i + 1) % 2] };
-            let r = b.res as u32;
-            let groups = |c: usize| (c as u32).div_ceil(GROUP as u32);
-            let pixels = |side: u32| (side * side).div_ceil(WORKGROUP);
-            let mut steps: Vec<(&wgpu::ComputePipeline, wgpu::BindGroup, [u32; 3])> = Vec::new();
-            for (n, conv_up, fir) in &b.chunks {
-                steps.push((
-                    &k.conv_up,
-                    group(conv_up, x_in, up, &k.placeholder),
-                    [pixels(r + 1), groups(*n), images],
-                ));
-                steps.push((
-                    &k.fir_act,
-                    group(fir, up, act, &k.placeholder),
-                    [pixels(2 * r), *n as u32, images],
-                ));
-            }
-            steps.push((
-                &k.conv,
-                group(&b.conv, act, x, &k.placeholder),
-                [(2 * r * r).div_ceil(WORKGROUP), groups(b.channels), images],
-            ));
-            steps.push((&k.rgb, group(&b.rgb, x, &frame.image[i % 2], skip), [pixels(2 * r), 1, images]));
-            for (pipeline, bind, [gx, gy, gz]) in &steps {
-                pass.set_pipeline(pipeline);
-                pass.set_bind_group(SR_BIND_GROUP, bind, &[]);
-                pass.dispatch_workgroups(*gx, *gy, *gz);
-            }
+        let bound = |slot: Slot| match slot {
+            Slot::Features => features,
+            Slot::Empty => &k.placeholder,
+            s => frame.slot(s).expect("a frame buffer"),
+        };
+        for (step, uniform) in self.plan.steps.iter().zip(&self.uniforms) {
+            let pipeline = match step.kernel {
+                SrKernel::ConvUp => &k.conv_up,
+                SrKernel::FirAct => &k.fir_act,
+                SrKernel::Conv => &k.conv,
+                SrKernel::Rgb => &k.rgb,
+            };
+            let bind = group(uniform, bound(step.src), bound(step.dst), bound(step.skip));
+            pass.set_pipeline(pipeline);
+            pass.set_bind_group(SR_BIND_GROUP, &bind, &[]);
+            pass.dispatch_workgroups(step.workgroups[0], step.workgroups[1], images);
         }
     }
 

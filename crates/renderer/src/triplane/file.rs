@@ -19,7 +19,7 @@ impl Triplane {
     /// before any data is read. `lp3d.render.triplane_io.load_triplane` makes the same decisions.
     pub fn load(path: impl AsRef<Path>) -> Result<Triplane> {
         let path = path.as_ref();
-        let (file, bytes) = open_regular_file(path)?;
+        let (file, bytes) = open_regular_file(path, "a triplane .npz")?;
         Triplane::from_reader(BufReader::new(file), bytes, path)
     }
 
@@ -110,10 +110,11 @@ pub const REQUIRED_KEYS: [&str; 9] = [
 /// Keys it may hold besides (`occupancy` and `occupancy_checksum` only together).
 pub const OPTIONAL_KEYS: [&str; 4] = ["camera", "occupancy", "occupancy_checksum", "source"];
 
-/// Opens `path` for reading and checks that it is a regular file, returning it and its size.
-/// Opened non-blocking: a FIFO would otherwise wait for a writer forever (and a blocked open
-/// ignores Ctrl-C); for a regular file the flag changes nothing.
-fn open_regular_file(path: &Path) -> Result<(File, u64)> {
+/// Opens `path` for reading and checks that it is a regular file (`what` names the file it should
+/// be, in the error), returning it and its size. Opened non-blocking: a FIFO would otherwise wait
+/// for a writer forever (and a blocked open ignores Ctrl-C); for a regular file the flag changes
+/// nothing.
+pub(crate) fn open_regular_file(path: &Path, what: &str) -> Result<(File, u64)> {
     let mut options = std::fs::OpenOptions::new();
     options.read(true);
     #[cfg(unix)]
@@ -126,7 +127,7 @@ fn open_regular_file(path: &Path) -> Result<(File, u64)> {
     if !meta.is_file() {
         let kind =
             if meta.is_dir() { std::io::ErrorKind::IsADirectory } else { std::io::ErrorKind::InvalidInput };
-        let message = format!("{}, not a regular file (a triplane .npz)", file_kind(&meta.file_type()));
+        let message = format!("{}, not a regular file ({what})", file_kind(&meta.file_type()));
         return Err(Error::io_kind(path, kind, message));
     }
     Ok((file, meta.len()))
@@ -161,7 +162,7 @@ fn file_kind(t: &std::fs::FileType) -> &'static str {
 const VERSION: &str = "format_version";
 
 /// A [`Error::Format`] about `field` of the file at `path`.
-fn format_error(path: &Path, field: &str, message: String) -> Error {
+pub(crate) fn format_error(path: &Path, field: &str, message: String) -> Error {
     Error::Format { path: path.into(), field: field.into(), message }
 }
 
