@@ -197,6 +197,63 @@ def test_drag_draws_from_the_baked_field_once_it_is_ready(gpu, sphere_file: Path
     assert 0.0 < np.abs(moving[view] - still[view]).mean() < 2.0, "the drag image is not the baked frame"
 
 
+def test_the_still_image_of_a_shipped_model_head_is_super_resolved(gpu, tmp_path: Path) -> None:
+    """``lp3d view`` of a head the shipped model lifted picks its super-resolution network: once the
+    exact image is up, the viewer renders its 64² feature image and shows the network's 256² image,
+    equal to ``lp3d_render.render(..., superres=)`` of the same camera and samples (to 8-bit
+    rounding). ``--no-superres`` keeps the raw image as the final one; another decoder's file gets
+    no network."""
+    from lp3d.lift.gpu_superres import load_gpu_superres
+    from lp3d.lift.inference import DEFAULT_MODEL, load_encoder
+
+    encoder = load_encoder(DEFAULT_MODEL)
+    image = np.random.default_rng(5).uniform(-1, 1, (1, 3, 128, 128)).astype(np.float32)
+    head = tmp_path / "head.npz"
+    save_triplane(head, encoder.package.triplane(encoder.run(image)[0]))
+    shot = tmp_path / "sr.png"
+    yaw, res, coarse, fine = 15.0, 32, 12, 12
+    common = ("--yaw", str(yaw), "--resolution", str(res), "--samples", f"{coarse}+{fine}", "--no-bake")
+    proc = run_view("--screenshot", str(shot), *common, str(head))
+    assert proc.returncode == 0, proc.stderr
+    meta = json.loads(shot.with_suffix(".json").read_text())
+    assert meta["quality"] == f"256² super-resolved from 64² · {coarse}+{fine} (final)"
+    last, before = meta["frames"][-1], meta["frames"][-2]
+    assert (last["superres"], last["phase"], last["resolution"]) == (True, "final", 64), last
+    # The exact image at the chosen settings came first, no longer final once the network is on.
+    assert (before["superres"], before["phase"], before["resolution"]) == (False, "refining", res)
+    sr = load_gpu_superres()
+    camera = look_at_camera(yaw_deg=meta["yaw"], pitch_deg=meta["pitch"])
+    out = lp3d_render.render(
+        lp3d_render.Triplane.load(head), camera, resolution=64, depth_resolution=coarse,
+        depth_resolution_importance=fine, outputs=["depth"], superres=sr,
+    )  # fmt: skip
+    expected = rgb_to_uint8(out["image"]).astype(int)
+    rendered = np.asarray(Image.open(shot.parent / meta["render"]))
+    assert rendered.shape == (256, 256, 4) and meta["view"]["resolution"] == 256
+    diff = np.abs(rendered[..., :3].astype(int) - expected)
+    assert diff.max() <= 1, f"max difference {diff.max()} levels"
+
+    raw_shot = tmp_path / "raw.png"
+    proc = run_view("--screenshot", str(raw_shot), *common, "--no-superres", str(head))
+    assert proc.returncode == 0, proc.stderr
+    raw = json.loads(raw_shot.with_suffix(".json").read_text())
+    assert raw["quality"] == f"{res}² · {coarse}+{fine} (final)"
+    assert not any(f["superres"] for f in raw["frames"])
+
+
+def test_a_bad_superres_file_is_refused_before_the_window_opens(sphere_file: Path, tmp_path: Path) -> None:
+    bad = tmp_path / "sr.npz"
+    np.savez(bad, format_version=np.array(1), input_resolution=np.array(64))
+    proc = run_view("--screenshot", str(tmp_path / "s.png"), "--superres", str(bad), str(sphere_file))
+    assert proc.returncode == 1 and "sr.npz" in proc.stderr and "expected format_version" in proc.stderr
+    assert not (tmp_path / "s.png").exists()
+    both = subprocess.run(
+        [sys.executable, "-m", "lp3d.cli", "view", "--superres", str(bad), "--no-superres", str(sphere_file)],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert both.returncode == 2 and "not both" in both.stderr
+
+
 def test_bad_inputs_exit_non_zero(tmp_path: Path) -> None:
     missing = run_view("--screenshot", str(tmp_path / "s.png"), str(tmp_path / "nope.npz"), timeout=120)
     assert missing.returncode != 0 and "nope.npz" in missing.stderr
@@ -245,6 +302,8 @@ def test_viewer_flags_are_parsed_in_one_place() -> None:
         "drag_frames": 0,
         "bake": True,
         "fine_field": True,
+        "superres": None,
+        "no_superres": False,
     }
     assert lp3d_render.view_options(["-h"])["help"] is True
     assert lp3d_render.view_options(["--no-bake", "h.npz"])["bake"] is False

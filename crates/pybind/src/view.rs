@@ -20,7 +20,8 @@ use crate::error::invalid;
 /// returns. While the camera moves, frames render at the quality predicted to fit
 /// ``frame_budget_ms``; with ``bake`` (the default), once the file's baked field is made (in the
 /// background), at the final quality from the field when that fits; with ``fine_field`` (the
-/// default) a finer field follows the quick one and replaces it (``lp3d-view --help``). Call from
+/// default) a finer field follows the quick one and replaces it; with ``superres`` (a model
+/// package's ``MODEL.superres.npz``) the still image is super-resolved (``lp3d-view --help``). Call from
 /// the main thread, once per process (a windowing limitation).
 #[pyfunction]
 #[pyo3(
@@ -28,8 +29,8 @@ use crate::error::invalid;
                  resolution=Arg::Default(128), depth_resolution=Arg::Default(48),
                  depth_resolution_importance=Arg::Default(48), frame_budget_ms=Arg::Default(100.0),
                  frames=Arg::Default(3), drag_frames=Arg::Default(0), bake=Arg::Default(true),
-                 fine_field=Arg::Default(true)),
-    text_signature = "(path=None, *, screenshot=None, yaw=0.0, pitch=0.0, resolution=128, depth_resolution=48, depth_resolution_importance=48, frame_budget_ms=100.0, frames=3, drag_frames=0, bake=True, fine_field=True)"
+                 fine_field=Arg::Default(true), superres=None, no_superres=Arg::Default(false)),
+    text_signature = "(path=None, *, screenshot=None, yaw=0.0, pitch=0.0, resolution=128, depth_resolution=48, depth_resolution_importance=48, frame_budget_ms=100.0, frames=3, drag_frames=0, bake=True, fine_field=True, superres=None, no_superres=False)"
 )]
 #[allow(clippy::too_many_arguments)]
 pub fn view<'py>(
@@ -46,6 +47,8 @@ pub fn view<'py>(
     drag_frames: Arg<'py, i64>,
     bake: Arg<'py, bool>,
     fine_field: Arg<'py, bool>,
+    superres: Option<PathBuf>,
+    no_superres: Arg<'py, bool>,
 ) -> PyResult<()> {
     let samples = MAX_SAMPLES as i64;
     let options = lp3d_viewer::ViewerOptions {
@@ -66,6 +69,8 @@ pub fn view<'py>(
         drag_frames: int_arg(&drag_frames, "drag_frames", 0, 10_000)? as u32,
         bake: bool_arg(&bake, "bake")?,
         fine_field: bool_arg(&fine_field, "fine_field")?,
+        superres,
+        no_superres: bool_arg(&no_superres, "no_superres")?,
         help: false,
     };
     options.validate().map_err(|e| invalid("view", e))?;
@@ -94,5 +99,7 @@ pub fn view_options<'py>(py: Python<'py>, argv: Vec<String>) -> PyResult<Bound<'
     dict.set_item("drag_frames", o.drag_frames)?;
     dict.set_item("bake", o.bake)?;
     dict.set_item("fine_field", o.fine_field)?;
+    dict.set_item("superres", o.superres)?;
+    dict.set_item("no_superres", o.no_superres)?;
     Ok(dict)
 }

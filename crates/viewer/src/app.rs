@@ -14,6 +14,7 @@ mod baking;
 mod panel;
 mod record;
 mod scripted;
+mod superres;
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
@@ -30,6 +31,7 @@ use crate::quality::{FrameTimes, Ladder, Rung};
 use crate::screenshot::{drag_path, json_number, json_string, save_screenshot, RenderImage, ViewRect};
 use record::{FrameRecord, Phase, Shown};
 use scripted::DragScript;
+use superres::StillSuperRes;
 
 /// How long the view must stay unchanged (with no pointer button held) before refining.
 const SETTLE: Duration = Duration::from_millis(200);
@@ -52,6 +54,8 @@ struct FrameKey {
     settings: RenderSettings,
     display: Display,
     generation: u64,
+    /// The still image is super-resolved (`StillSuperRes`).
+    superres: bool,
 }
 
 struct Loaded {
@@ -76,6 +80,8 @@ struct Target {
 pub struct ViewerApp {
     /// Shared with the bake threads.
     renderer: Arc<Renderer>,
+    /// The network that super-resolves the still image (`--superres`).
+    superres: Option<StillSuperRes>,
     render_state: egui_wgpu::RenderState,
     egui_ctx: egui::Context,
     /// Bake each opened file's field in the background (not with `--no-bake`).
@@ -148,6 +154,7 @@ impl ViewerApp {
         cc: &eframe::CreationContext<'_>,
         options: &ViewerOptions,
         triplane: Option<(PathBuf, Triplane)>,
+        superres: Option<(PathBuf, lp3d_renderer::SuperresWeights)>,
         outcome: Outcome,
     ) -> Result<ViewerApp, String> {
         let render_state = cc
@@ -160,10 +167,12 @@ impl ViewerApp {
             render_state.adapter.get_info(),
         );
         let renderer = Arc::new(Renderer::new(&ctx).map_err(|e| e.to_string())?);
+        let superres = superres.map(|(path, w)| StillSuperRes::new(&ctx, &path, &w)).transpose()?;
         let orbit = Orbit::new(options.yaw, options.pitch);
         let now = Instant::now();
         let mut app = ViewerApp {
             renderer,
+            superres,
             render_state,
             egui_ctx: cc.egui_ctx.clone(),
             bake_enabled: options.bakes(),
@@ -270,7 +279,9 @@ impl ViewerApp {
 
     fn key(&self) -> Option<FrameKey> {
         let generation = self.loaded.as_ref()?.generation;
-        Some(FrameKey { orbit: self.orbit, settings: self.settings, display: self.display(), generation })
+        let (orbit, settings, display, superres) =
+            (self.orbit, self.settings, self.display(), self.superres_on());
+        Some(FrameKey { orbit, settings, display, generation, superres })
     }
 
     /// The final image of the current view is on screen and nothing is changing.
@@ -302,7 +313,8 @@ impl ViewerApp {
             format: DISPLAY_FORMAT,
             usage: wgpu::TextureUsages::STORAGE_BINDING
                 | wgpu::TextureUsages::TEXTURE_BINDING
-                | wgpu::TextureUsages::COPY_SRC,
+                | wgpu::TextureUsages::COPY_SRC
+                | wgpu::TextureUsages::COPY_DST,
             view_formats: &[],
         });
         let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
@@ -329,6 +341,13 @@ impl ViewerApp {
         }
         let ladder = Ladder::new(&self.settings);
         let shown = self.shown.filter(|s| s.key == key);
+        // The exact image is up: super-resolve it (a failure turns the network off).
+        let exact_top = shown.is_some_and(|s| !s.baked && !s.superres && s.index == ladder.top());
+        if key.superres && exact_top && !self.moving {
+            self.render_superres(ctx, key, &ladder);
+            ctx.request_repaint();
+            return;
+        }
         let next = match shown {
             None if self.moving => Some(self.moving_frame(&key, &ladder)),
             None => Some(Draw::Ladder(ladder.interactive(&self.times, self.frame_budget_ms))),
@@ -392,7 +411,20 @@ impl ViewerApp {
                 let ui_frame = ctx.cumulative_frame_nr();
                 // What was drawn: a baked frame may take more coarse samples than its rung.
                 let drawn = Rung::of(&settings);
-                let shown = Shown { key, rung: drawn, index, top, baked, render_ms, at: end, ui_frame };
+                let texture = settings.resolution;
+                let superres = false;
+                let shown = Shown {
+                    key,
+                    rung: drawn,
+                    texture,
+                    index,
+                    top,
+                    baked,
+                    superres,
+                    render_ms,
+                    at: end,
+                    ui_frame,
+                };
                 let phase = if shown.is_final() {
                     Phase::Final
                 } else if self.moving {
@@ -404,21 +436,7 @@ impl ViewerApp {
                 self.move_frames = if phase == Phase::Moving { self.move_frames + 1 } else { 0 };
                 self.failed = None;
                 self.render_error = None;
-                if self.log.len() < LOG_CAP {
-                    self.log.push(FrameRecord {
-                        t_ms: end.duration_since(self.started).as_secs_f64() * 1e3,
-                        ui_frame,
-                        render_ms,
-                        interval_ms: self.interval_ms,
-                        rung: drawn,
-                        index,
-                        rungs: ladder.rungs.len(),
-                        phase,
-                        dragging,
-                        baked,
-                        bake: self.bake_state_name(),
-                    });
-                }
+                self.log_frame(shown, ladder, phase, dragging);
             }
             // A baked frame that fails leaves exact frames (the next step draws one).
             Err(e) if baked => {

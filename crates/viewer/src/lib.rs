@@ -15,7 +15,7 @@ pub use options::{ViewerOptions, USAGE};
 pub use orbit::Orbit;
 
 use eframe::egui_wgpu::{WgpuSetup, WgpuSetupCreateNew};
-use lp3d_renderer::Triplane;
+use lp3d_renderer::{SuperresWeights, Triplane};
 
 /// Opens the viewer window and blocks until it is closed. In `--screenshot` mode, renders until
 /// the final quality is on screen (after the scripted drag of `--drag-frames`, if any), saves the
@@ -25,6 +25,10 @@ pub fn run(options: ViewerOptions) -> Result<(), String> {
     // Load before opening a window, so a bad file is a clear error and a non-zero exit.
     let triplane = match &options.path {
         Some(p) => Some((p.clone(), Triplane::load(p).map_err(|e| e.to_string())?)),
+        None => None,
+    };
+    let superres = match &options.superres {
+        Some(p) => Some((p.clone(), SuperresWeights::load(p).map_err(|e| e.to_string())?)),
         None => None,
     };
     let outcome: app::Outcome = Arc::new(Mutex::new(None));
@@ -46,7 +50,7 @@ pub fn run(options: ViewerOptions) -> Result<(), String> {
         "lp3d-view",
         native,
         Box::new(move |cc| {
-            let app = app::ViewerApp::new(cc, &opts, triplane, app_outcome)?;
+            let app = app::ViewerApp::new(cc, &opts, triplane, superres, app_outcome)?;
             Ok(Box::new(app))
         }),
     )

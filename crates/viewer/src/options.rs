@@ -34,6 +34,12 @@ options:
   --no-fine-field     bake only the quick field (k 4 / 10: smaller, quicker to bake): by default
                       a fine one (k 4 / 16: larger, slower to bake) follows and replaces it, whose
                       moving frames are as close to the exact image as the still one
+  --superres FILE     super-resolve the still image with the network of a model package's
+                      weights file (MODEL.superres.npz): once the exact image is up, its feature
+                      image at the network's input side is rendered and super-resolved (64² to
+                      256² for lp3d's shipped model); moving frames stay raw. lp3d view picks the
+                      shipped model's for a file lifted by it
+  --no-superres       show the raw volume render only (lp3d view: do not pick the shipped model's)
   --frames N          UI frames before a screenshot; it waits for the final quality too [3]
   --drag-frames N     with --screenshot: once the final image is up and the bake has ended
                       (ready or failed), drag the view to orbit
@@ -60,6 +66,10 @@ pub struct ViewerOptions {
     pub bake: bool,
     /// After the quick field, bake the fine one (`--no-fine-field`: false).
     pub fine_field: bool,
+    /// A super-resolution weights file for the still image (`--superres`).
+    pub superres: Option<PathBuf>,
+    /// `--no-superres`: none, and none picked for the file by `lp3d view`.
+    pub no_superres: bool,
     pub help: bool,
 }
 
@@ -78,6 +88,8 @@ impl Default for ViewerOptions {
             drag_frames: 0,
             bake: true,
             fine_field: true,
+            superres: None,
+            no_superres: false,
             help: false,
         }
     }
@@ -105,6 +117,8 @@ impl ViewerOptions {
                 "--drag-frames" => o.drag_frames = integer(&value("--drag-frames")?, "--drag-frames")?,
                 "--no-bake" => o.bake = false,
                 "--no-fine-field" => o.fine_field = false,
+                "--superres" => o.superres = Some(PathBuf::from(value("--superres")?)),
+                "--no-superres" => o.no_superres = true,
                 flag if flag.starts_with('-') => return Err(format!("unknown option {flag}")),
                 path => {
                     if o.path.is_some() {
@@ -155,6 +169,9 @@ impl ViewerOptions {
         if self.screenshot.is_some() && self.path.is_none() {
             return Err("--screenshot needs a triplane file".into());
         }
+        if self.superres.is_some() && self.no_superres {
+            return Err("give --superres FILE or --no-superres, not both".into());
+        }
         Ok(())
     }
 
@@ -162,7 +179,10 @@ impl ViewerOptions {
     /// status 1), checked before the window opens.
     pub fn check_outputs(&self) -> Result<(), String> {
         if let (Some(shot), Some(input)) = (&self.screenshot, &self.path) {
-            check_screenshot_paths(input, shot, self.drag_frames > 0)?;
+            check_screenshot_paths(input, "triplane file", shot, self.drag_frames > 0)?;
+            if let Some(weights) = &self.superres {
+                check_screenshot_paths(weights, "super-resolution file", shot, self.drag_frames > 0)?;
+            }
         }
         Ok(())
     }
@@ -188,7 +208,7 @@ impl ViewerOptions {
 /// with a scripted drag, `drag`, the window during the drag as another PNG). Refused here, before
 /// any window opens: any of them being the triplane file or another of them (by name, link or
 /// relative path), a name that is not `.png`, a folder in their place, a missing folder.
-fn check_screenshot_paths(input: &Path, shot: &Path, drag: bool) -> Result<(), String> {
+fn check_screenshot_paths(input: &Path, input_kind: &str, shot: &Path, drag: bool) -> Result<(), String> {
     let s = shot.display();
     let mut outputs = vec![
         ("screenshot", shot.to_path_buf()),
@@ -203,10 +223,10 @@ fn check_screenshot_paths(input: &Path, shot: &Path, drag: bool) -> Result<(), S
     for ((what, p), id) in outputs.iter().zip(&ids) {
         if *id == input_id {
             return Err(if *what == "screenshot" {
-                format!("--screenshot {s} is the triplane file {}: it would be replaced", input.display())
+                format!("--screenshot {s} is the {input_kind} {}: it would be replaced", input.display())
             } else {
                 format!(
-                    "--screenshot {s}: its {what} {} is the triplane file {}: it would be replaced",
+                    "--screenshot {s}: its {what} {} is the {input_kind} {}: it would be replaced",
                     p.display(),
                     input.display()
                 )

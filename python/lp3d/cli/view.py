@@ -5,6 +5,8 @@ parsed by the viewer crate (``crates/viewer/src/options.rs``) in both."""
 from __future__ import annotations
 
 import argparse
+import os
+from pathlib import Path
 
 from lp3d.cli.common import UsageError, UserError
 
@@ -38,13 +40,30 @@ def run(args: argparse.Namespace) -> int:
     if options.pop("help"):  # the viewer's usage, under the name it was called by (lp3d view)
         print(lp3d_render.VIEW_USAGE.replace("lp3d-view", args.command_parser.prog, 1))
         return 0
+    path = options.pop("path")
+    if options["superres"] is None and not options["no_superres"] and path is not None:
+        options["superres"] = shipped_superres_for(path)
     try:
-        lp3d_render.view(options.pop("path"), **options)
+        lp3d_render.view(path, **options)
     except RuntimeError as e:  # the window system or GPU (ValueError and OSError name their input)
         raise UserError(str(e)) from None
     if options["screenshot"] is not None:
         print(f"wrote {options['screenshot']}")
     return 0
+
+
+def shipped_superres_for(path: str | os.PathLike[str]) -> Path | None:
+    """The shipped model's super-resolution weights when the triplane at ``path`` was lifted by it
+    (:func:`lp3d.lift.gpu_superres.shipped_superres_file`), else None. A file that does not load is
+    left to the viewer, whose error names it."""
+    from lp3d.lift.gpu_superres import shipped_superres_file
+    from lp3d.render.triplane_io import load_triplane
+
+    try:
+        tri = load_triplane(path)
+    except (OSError, ValueError):
+        return None
+    return shipped_superres_file(tri)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -9,6 +9,7 @@ impl ViewerApp {
     pub(super) fn quality_label(&self) -> String {
         match &self.shown {
             None => "nothing rendered yet".into(),
+            Some(s) if s.superres => format!("{}² super-resolved from {} (final)", s.texture, s.rung.label()),
             Some(s) if s.is_final() => format!("{} (final)", s.rung.label()),
             Some(s) if s.baked && self.moving => format!("{} (moving, baked)", s.rung.label()),
             Some(s) if s.baked => format!("{} (baked, refining)", s.rung.label()),
@@ -123,7 +124,20 @@ impl ViewerApp {
             let text = egui::RichText::new(line);
             ui.label(if failed { text.color(egui::Color32::from_rgb(255, 110, 110)) } else { text });
         }
-        ui.label(egui::RichText::new("raw volume render (no super-resolution)").small());
+        match self.superres.as_mut() {
+            Some(sr) => {
+                let text = format!("super-resolve the still image ({})", sr.sides());
+                ui.checkbox(&mut sr.enabled, text).on_hover_text(format!(
+                    "{}: once the view stops, the exact feature image at the network's input side, \
+                     super-resolved; moving frames are the raw volume render",
+                    sr.file
+                ));
+                ui.label(egui::RichText::new("moving frames: raw volume render").small());
+            }
+            None => {
+                ui.label(egui::RichText::new("raw volume render (no super-resolution: --superres)").small());
+            }
+        }
         ui.label(egui::RichText::new(self.renderer_name()).small());
         if let Some(s) = &self.status {
             ui.label(s);
@@ -186,8 +200,7 @@ impl ViewerApp {
         let pointer_down = ui.input(|i| i.pointer.any_down());
         self.step(ui.ctx(), pointer_down);
 
-        let shown =
-            self.shown.and_then(|s| Some((s, self.targets.iter().find(|t| t.size == s.rung.resolution)?)));
+        let shown = self.shown.and_then(|s| Some((s, self.targets.iter().find(|t| t.size == s.texture)?)));
         match shown {
             Some((_, target)) => {
                 egui::Image::new((target.id, rect.size())).paint_at(ui, rect);

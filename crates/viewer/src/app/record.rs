@@ -10,12 +10,16 @@ pub(super) struct Shown {
     /// The resolution and samples drawn (a baked frame may take more coarse samples than its
     /// ladder rung, `bake::Field::coarse_scale`).
     pub rung: Rung,
+    /// Side of the texture on screen: the rung's, or the network's output side.
+    pub texture: u32,
     /// Index in the key's ladder, and the ladder's top index (a baked frame is at the top's
     /// resolution and samples).
     pub index: usize,
     pub top: usize,
     /// Drawn from the baked field (`crate::bake`) instead of decoding every sample.
     pub baked: bool,
+    /// The network's image of the exact feature render (`app/superres.rs`).
+    pub superres: bool,
     pub render_ms: f64,
     /// When it finished, and in which UI frame.
     pub at: Instant,
@@ -23,9 +27,10 @@ pub(super) struct Shown {
 }
 
 impl Shown {
-    /// The chosen settings, exact: a baked frame at the same quality is not final.
+    /// The chosen settings, exact: a baked frame at the same quality is not final, nor the exact
+    /// one while the key wants it super-resolved.
     pub fn is_final(&self) -> bool {
-        self.index == self.top && !self.baked
+        self.index == self.top && !self.baked && self.superres == self.key.superres
     }
 }
 
@@ -67,6 +72,8 @@ pub(super) struct FrameRecord {
     pub dragging: bool,
     /// Drawn from the baked field.
     pub baked: bool,
+    /// The network's image (`rung` is then its feature render's).
+    pub superres: bool,
     /// The file's bake when the frame was drawn (`BakeState::name`, or `off` / `none`).
     pub bake: &'static str,
 }
@@ -76,7 +83,7 @@ impl FrameRecord {
         format!(
             "{{\"t_ms\": {}, \"ui_frame\": {}, \"render_ms\": {}, \"interval_ms\": {}, \"resolution\": {}, \
              \"depth_resolution\": {}, \"depth_resolution_importance\": {}, \"rung\": {}, \"rungs\": {}, \
-             \"phase\": \"{}\", \"dragging\": {}, \"baked\": {}, \"bake\": \"{}\"}}",
+             \"phase\": \"{}\", \"dragging\": {}, \"baked\": {}, \"superres\": {}, \"bake\": \"{}\"}}",
             json_number(self.t_ms),
             self.ui_frame,
             json_number(self.render_ms),
@@ -89,7 +96,30 @@ impl FrameRecord {
             self.phase.name(),
             self.dragging,
             self.baked,
+            self.superres,
             self.bake
         )
+    }
+}
+
+impl ViewerApp {
+    /// Adds `shown`, just rendered, to the screenshot's frame log.
+    pub(super) fn log_frame(&mut self, shown: Shown, ladder: &Ladder, phase: Phase, dragging: bool) {
+        if self.log.len() < LOG_CAP {
+            self.log.push(FrameRecord {
+                t_ms: shown.at.duration_since(self.started).as_secs_f64() * 1e3,
+                ui_frame: shown.ui_frame,
+                render_ms: shown.render_ms,
+                interval_ms: self.interval_ms,
+                rung: shown.rung,
+                index: shown.index,
+                rungs: ladder.rungs.len(),
+                phase,
+                dragging,
+                baked: shown.baked,
+                superres: shown.superres,
+                bake: self.bake_state_name(),
+            });
+        }
     }
 }

@@ -49,8 +49,7 @@ impl ViewerApp {
     /// Reads the texture on screen back (for the screenshot's render image).
     pub(super) fn read_shown(&self) -> Result<RenderImage, String> {
         let s = self.shown.ok_or("nothing rendered")?;
-        let target =
-            self.targets.iter().find(|t| t.size == s.rung.resolution).ok_or("the render texture is gone")?;
+        let target = self.targets.iter().find(|t| t.size == s.texture).ok_or("the render texture is gone")?;
         let device = &self.render_state.device;
         let size = target.size;
         let row = size * 4;
@@ -247,8 +246,8 @@ impl ViewerApp {
                 x: (rect.min.x * ppp).round() as u32,
                 y: (rect.min.y * ppp).round() as u32,
                 size,
-                scale: size as f64 / shown.rung.resolution as f64,
-                resolution: shown.rung.resolution,
+                scale: size as f64 / shown.texture as f64,
+                resolution: shown.texture,
                 yaw: shown.key.orbit.yaw,
                 pitch: shown.key.orbit.pitch,
             };
