@@ -229,6 +229,67 @@ def _final_view(browser: Chromium, session: str, accept) -> dict:
     return view(line)
 
 
+@pytest.fixture(scope="module")
+def model_head_page(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, Path]:
+    """``(head.npz, head.html, raw.html)``: a head the shipped model lifted, its page (which carries
+    the model's super-resolution network) and its page without it (``--no-superres``)."""
+    from lp3d.lift.inference import DEFAULT_MODEL, load_encoder
+
+    folder = tmp_path_factory.mktemp("share-sr")
+    encoder = load_encoder(DEFAULT_MODEL)
+    image = np.random.default_rng(7).uniform(-1, 1, (1, 3, 128, 128)).astype(np.float32)
+    npz = folder / "head.npz"
+    save_triplane(npz, encoder.package.triplane(encoder.run(image)[0]))
+    args = ["--resolution", "32", "--samples", "12+12"]
+    raw = _share(npz, folder / "raw.html", *args, "--no-superres")
+    return npz, _share(npz, folder / "head.html", *args), raw
+
+
+def test_a_shipped_model_head_page_carries_its_network(model_head_page) -> None:
+    """The page holds the renderer's plan of the network (its packed weights and dispatches), as
+    ``lp3d_render.SuperRes.plan`` makes it; ``--no-superres`` leaves it out; a teacher head's page
+    (another decoder) has none."""
+    from lp3d.lift.gpu_superres import load_gpu_superres
+
+    _, page, raw = model_head_page
+    data = _data_block(page.read_text())["superres"]
+    plan = load_gpu_superres().plan()
+    weights = np.frombuffer(base64.b64decode(data.pop("weights_base64")), "<f4")
+    np.testing.assert_array_equal(weights, plan.pop("weights"))
+    assert data == {**plan, "weights_floats": weights.size}
+    assert (data["input_resolution"], data["output_resolution"]) == (64, 256)
+    assert _data_block(raw.read_text())["superres"] is None
+    extra = page.stat().st_size - raw.stat().st_size
+    print(f"the network adds {extra} bytes to the page")
+    assert 0 < extra < 4 * weights.nbytes / 3 + 20_000  # base64 of the weights, the steps
+
+
+def test_browser_super_resolves_what_lp3d_render_super_resolves(browser, model_head_page) -> None:
+    """The test mode's network image (the page's samples, 64² features to 256²) equals
+    ``lp3d_render.render(..., superres=)``'s; the viewer's final view is the network's image."""
+    from lp3d.lift.gpu_superres import load_gpu_superres
+
+    npz, page, _ = model_head_page
+    yaw, pitch = PROBE_VIEW
+    session = browser.open(f"{page.as_uri()}#probe={yaw:g},{pitch:g}&superres=1")
+    line = browser.wait_console(session, lambda t: t.startswith(PROBE_PREFIX), timeout=240)
+    image = np.frombuffer(base64.b64decode(line[len(PROBE_PREFIX) :]), "<f4").reshape(3, 256, 256)
+    camera = look_at_camera(yaw_deg=yaw, pitch_deg=pitch)
+    tri = lp3d_render.Triplane.load(str(npz))
+    kwargs = {"resolution": 64, "depth_resolution": 12, "depth_resolution_importance": 12}
+    expected = lp3d_render.render(tri, camera, outputs=["depth"], superres=load_gpu_superres(), **kwargs)
+    error = np.abs(image - expected["image"]).max()
+    print(f"browser super-resolution at yaw {yaw:g}, pitch {pitch:g}: max abs error {error:.2e}")
+    assert error <= MAX_PROBE_ERROR
+    assert expected["image"].std() > 0.1
+
+    session = browser.open(page.as_uri())
+    line = browser.wait_console(session, lambda t: t.startswith("LP3D_FINAL "), timeout=240)
+    final = json.loads(line[line.index("{") :])
+    assert line.startswith("LP3D_FINAL 32² · 12+12") and final["superres"] is True, line
+    print(f"the page's still view: exact {final['exact_ms']:.0f} ms, super-resolved {final['ms']:.0f} ms")
+
+
 def test_browser_says_when_webgpu_is_missing(browser, head_page) -> None:
     """A browser without WebGPU (navigator.gpu removed before the page runs) gets a message, not a
     blank page."""

@@ -2,7 +2,9 @@
 // script) that mirrors the renderer: the look-at camera of lp3d.render.camera, and the Gpu class,
 // which builds what crates/renderer's Renderer builds (the render module from the embedded WGSL,
 // the bindings of renderer/layouts.rs, the Params uniform of gpu_types.rs) and records the
-// dispatches of renderer/frame.rs and render_to_texture.
+// dispatches of renderer/frame.rs and render_to_texture; with a super-resolution network in the
+// page's data, it runs the network's plan (crates/renderer/src/superres/layers.rs, NetworkPlan:
+// the packed weights and the dispatches in order, made by the renderer) after a 32-channel render.
 "use strict";
 
 // ---- camera (lp3d.render.camera.look_at_camera, roll 0) -------------------------------------
@@ -44,6 +46,9 @@ const DECODER_BYTES = (512 + 16 + 528 + 9) * 16;
 const FLAG_WHITE_BACK = 2;
 const FLAG_HALF_PLANES = 4;
 const PARAMS_BYTES = 96;
+// The render's feature channels: rgb only, or all 32 for the super-resolution network.
+const RGB_CHANNELS = 3;
+const FEATURE_CHANNELS = 32;
 
 class Gpu {
   static async create(data, onError) {
@@ -92,7 +97,14 @@ class Gpu {
     this.maxPixels = maxRes * maxRes;
     this.params = buffer("lp3d params", PARAMS_BYTES, U.UNIFORM | U.COPY_DST);
     this.cameras = buffer("lp3d cameras (1, 25)", 25 * 4, U.STORAGE | U.COPY_DST);
-    this.features = buffer("lp3d features out", 3 * this.maxPixels * 4, U.STORAGE | U.COPY_SRC);
+    // With a network, the features also hold its 32-channel input and, for the present pass, its image.
+    const sr = data.superres;
+    const featureFloats = Math.max(
+      3 * this.maxPixels,
+      sr ? FEATURE_CHANNELS * sr.input_resolution ** 2 : 0,
+      sr ? 3 * sr.output_resolution ** 2 : 0,
+    );
+    this.features = buffer("lp3d features out", featureFloats * 4, U.STORAGE | U.COPY_SRC | U.COPY_DST);
     this.depth = buffer("lp3d depth out", this.maxPixels * 4, U.STORAGE);
     this.weightsSum = buffer("lp3d weights_sum out", this.maxPixels * 4, U.STORAGE);
     this.depthBounds = buffer("lp3d depth bounds", 8, U.STORAGE | U.COPY_DST);
@@ -170,6 +182,66 @@ class Gpu {
     this.bindPlanes();
     this.kernel = "quick";
     this.pipeline = this.quick;
+    if (this.data.superres) await this.buildSuperres(this.data.superres);
+  }
+
+  // The network of the page's data (superres: the renderer's NetworkPlan, its weights as bytes):
+  // its weights and layer uniforms uploaded once, its buffers for one image, its four pipelines
+  // (shaders/superres.wgsl binds group 2; groups 0 and 1 are bound empty).
+  async buildSuperres(sr) {
+    const d = this.device;
+    const U = GPUBufferUsage;
+    const S = GPUShaderStage.COMPUTE;
+    const storage = (binding, readOnly) => ({
+      binding,
+      visibility: S,
+      buffer: { type: readOnly ? "read-only-storage" : "storage" },
+    });
+    const layout = d.createBindGroupLayout({
+      label: "lp3d superres bindings",
+      entries: [{ binding: 0, visibility: S, buffer: { type: "uniform" } }, storage(1, true), storage(2, true),
+        storage(3, false), storage(4, true)],
+    });
+    const empty = d.createBindGroupLayout({ label: "lp3d empty", entries: [] });
+    const pipelineLayout = d.createPipelineLayout({ bindGroupLayouts: [empty, empty, layout] });
+    const kernels = [...new Set(sr.steps.map((s) => s.kernel))];
+    const pipelines = await Promise.all(
+      kernels.map((entryPoint) =>
+        d.createComputePipelineAsync({ label: "lp3d " + entryPoint, layout: pipelineLayout, compute: { module: this.module, entryPoint } }),
+      ),
+    );
+    const buffer = (label, size, usage) => d.createBuffer({ label, size: Math.max(size, 16), usage });
+    const weights = buffer("lp3d superres weights", sr.weights.length, U.STORAGE | U.COPY_DST);
+    d.queue.writeBuffer(weights, 0, sr.weights);
+    const slots = {
+      features: this.features,
+      x: buffer("lp3d superres x", sr.scratch_floats * 4, U.STORAGE),
+      up: buffer("lp3d superres up", sr.scratch_floats * 4, U.STORAGE),
+      act: buffer("lp3d superres act", sr.scratch_floats * 4, U.STORAGE),
+      image_a: buffer("lp3d superres image a", sr.image_floats * 4, U.STORAGE | U.COPY_SRC),
+      image_b: buffer("lp3d superres image b", sr.image_floats * 4, U.STORAGE | U.COPY_SRC),
+      empty: buffer("lp3d superres no skip", 16, U.STORAGE),
+    };
+    const steps = sr.steps.map((step) => {
+      const uniform = buffer("lp3d superres layer", 32, U.UNIFORM | U.COPY_DST);
+      d.queue.writeBuffer(uniform, 0, new Uint32Array(step.layer));
+      const group = d.createBindGroup({
+        label: "lp3d superres layer bindings",
+        layout,
+        entries: [uniform, weights, slots[step.src], slots[step.dst], slots[step.skip]].map((b, binding) => ({
+          binding,
+          resource: { buffer: b },
+        })),
+      });
+      return { pipeline: pipelines[kernels.indexOf(step.kernel)], group, workgroups: step.workgroups };
+    });
+    this.superres = {
+      steps,
+      emptyGroup: d.createBindGroup({ label: "lp3d empty", layout: empty, entries: [] }),
+      output: slots[sr.output],
+      inputResolution: sr.input_resolution,
+      outputResolution: sr.output_resolution,
+    };
   }
 
   // The render bind group, over the current planes buffer.
@@ -222,8 +294,8 @@ class Gpu {
     });
   }
 
-  // gpu_types.rs's Params::new for one camera, rgb only (3 feature channels), no skips.
-  writeParams(rung) {
+  // gpu_types.rs's Params::new for one camera, `channels` feature channels (rgb only by default), no skips.
+  writeParams(rung, channels = RGB_CHANNELS) {
     const b = this.data.bounds;
     const s = rung.depth_resolution;
     const n = rung.depth_resolution_importance;
@@ -235,7 +307,7 @@ class Gpu {
     const buf = new ArrayBuffer(PARAMS_BYTES);
     const u = new Uint32Array(buf);
     const x = new Float32Array(buf);
-    u.set([rung.resolution, s, n, 0, this.data.planes.height, this.data.planes.width, 3, flags]);
+    u.set([rung.resolution, s, n, 0, this.data.planes.height, this.data.planes.width, channels, flags]);
     x.set([start, end, b.box_warp], 8);
     u[11] = 0; // seed (deterministic)
     x[12] = f(f(end - start) / (s - 1)); // lin_step: float32 arithmetic, as torch.linspace
@@ -248,9 +320,9 @@ class Gpu {
   }
 
   // Records depth_bounds_pass and render_rays for one camera at `rung` (frame.rs, encode_chunk).
-  encodeRender(rung, label) {
+  encodeRender(rung, label, channels = RGB_CHANNELS) {
     const q = this.device.queue;
-    this.writeParams(rung);
+    this.writeParams(rung, channels);
     q.writeBuffer(this.cameras, 0, new Float32Array(label));
     q.writeBuffer(this.depthBounds, 0, new Uint32Array([0x7f800000, 0])); // [+inf, 0] as bits
     const encoder = this.device.createCommandEncoder({ label: "lp3d render" });
@@ -320,6 +392,79 @@ class Gpu {
       usage: GPUBufferUsage.MAP_READ | GPUBufferUsage.COPY_DST,
     });
     encoder.copyBufferToBuffer(this.features, 0, read, 0, bytes);
+    this.device.queue.submit([encoder.finish()]);
+    await read.mapAsync(GPUMapMode.READ);
+    const out = new Uint8Array(read.getMappedRange().slice(0));
+    read.unmap();
+    read.destroy();
+    return out;
+  }
+
+  // The network's image of `label`: the 32-channel feature image at its input side and the
+  // settings' samples, then the plan's dispatches (SuperRes::record), in one command buffer; the
+  // image (3, R_out, R_out) lands in the plan's output buffer, which is returned.
+  encodeSuperres(label) {
+    const sr = this.superres;
+    const s = this.data.settings;
+    const rung = {
+      resolution: sr.inputResolution,
+      depth_resolution: s.depth_resolution,
+      depth_resolution_importance: s.depth_resolution_importance,
+    };
+    const { encoder, pass } = this.encodeRender(rung, label, FEATURE_CHANNELS);
+    pass.end();
+    const srPass = encoder.beginComputePass({ label: "lp3d superres pass" });
+    srPass.setBindGroup(0, sr.emptyGroup);
+    srPass.setBindGroup(1, sr.emptyGroup);
+    for (const step of sr.steps) {
+      srPass.setPipeline(step.pipeline);
+      srPass.setBindGroup(2, step.group);
+      srPass.dispatchWorkgroups(step.workgroups[0], step.workgroups[1], 1);
+    }
+    srPass.end();
+    return encoder;
+  }
+
+  // Draws the network's image of `label` into the canvas: the image is copied into the features
+  // buffer, which the present pass then shows at the output side (a second submit, after the
+  // params of that side are written); resolves with the time, submit to completion.
+  async drawSuperres(label, context, canvas) {
+    const t0 = performance.now();
+    const sr = this.superres;
+    const r = sr.outputResolution;
+    const encoder = this.encodeSuperres(label);
+    encoder.copyBufferToBuffer(sr.output, 0, this.features, 0, 3 * r * r * 4);
+    this.device.queue.submit([encoder.finish()]);
+    this.writeParams({ resolution: r, depth_resolution: 2, depth_resolution_importance: 0 });
+    const present = this.device.createCommandEncoder({ label: "lp3d present superres" });
+    const pass = present.beginComputePass({ label: "lp3d present pass" });
+    const target = this.target(r);
+    pass.setBindGroup(0, this.renderGroup);
+    pass.setPipeline(this.presentPipeline);
+    pass.setBindGroup(1, target.group);
+    pass.dispatchWorkgroups(Math.ceil(r / 8), Math.ceil(r / 8), 1);
+    pass.end();
+    if (canvas.width !== r) {
+      canvas.width = r;
+      canvas.height = r;
+    }
+    present.copyTextureToTexture({ texture: target.texture }, { texture: context.getCurrentTexture() }, [r, r]);
+    this.device.queue.submit([present.finish()]);
+    await this.device.queue.onSubmittedWorkDone();
+    return performance.now() - t0;
+  }
+
+  // The network's image of `label` read back: (3, R_out, R_out) float32 bytes.
+  async readSuperres(label) {
+    const sr = this.superres;
+    const bytes = 3 * sr.outputResolution * sr.outputResolution * 4;
+    const encoder = this.encodeSuperres(label);
+    const read = this.device.createBuffer({
+      label: "lp3d superres readback",
+      size: bytes,
+      usage: GPUBufferUsage.MAP_READ | GPUBufferUsage.COPY_DST,
+    });
+    encoder.copyBufferToBuffer(sr.output, 0, read, 0, bytes);
     this.device.queue.submit([encoder.finish()]);
     await read.mapAsync(GPUMapMode.READ);
     const out = new Uint8Array(read.getMappedRange().slice(0));

@@ -10,7 +10,9 @@ holds, in one JSON block:
 * the scene bounds, the camera conventions (:mod:`lp3d.render.camera`'s FFHQ focal, radius and pivot)
   and the render settings (:class:`~lp3d.render.settings.RenderSettings`);
 * the renderer's WGSL stage files as the renderer compiles them (``lp3d_render.shader_sources()``,
-  ``include_str!``-ed from ``crates/renderer/shaders/`` into the extension), in module order.
+  ``include_str!``-ed from ``crates/renderer/shaders/`` into the extension), in module order;
+* optionally a super-resolution network as the renderer lays it out (``lp3d_render.SuperRes.plan``:
+  the packed weights, base64, and the dispatches in order), which super-resolves the still view.
 
 Nothing is fetched when the page is viewed (its Content-Security-Policy forbids it), and no text from
 the file is run as code: the data is JSON in a ``<script type="application/json">`` block (``<``,
@@ -50,6 +52,7 @@ __all__ = [
     "plane_dtype",
     "plane_texels",
     "shader_stages",
+    "superres_data",
     "view_data",
     "viewer_scripts",
     "write_page",
@@ -126,12 +129,14 @@ def view_data(
     yaw_deg: float = 0.0,
     pitch_deg: float = 0.0,
     probe: RenderSettings = PROBE_SETTINGS,
+    superres: Any | None = None,
 ) -> dict[str, Any]:
     """What a page needs to render any triplane with ``tri``'s decoder and bounds (JSON-ready): the
     decoder uniform, the bounds, the camera, the settings, the probe and the WGSL. Everything of
     :func:`page_data` but the planes, so that a page whose planes arrive later (``lp3d serve``) shares
     it; ``settings`` is the final quality of the viewer (default :class:`RenderSettings`), which
-    renders exact EG3D semantics only, ``probe`` what the test mode renders."""
+    renders exact EG3D semantics only, ``probe`` what the test mode renders, ``superres`` (an
+    ``lp3d_render.SuperRes`` for ``tri``'s decoder) the network that super-resolves the still view."""
     settings = RenderSettings() if settings is None else settings
     for s, what in ((settings, "the shared page"), (probe, "the page's probe")):
         s.validate()
@@ -164,6 +169,19 @@ def view_data(
             "prefix": PROBE_PREFIX,
         },
         "shaders": [list(stage) for stage in shader_stages()],
+        "superres": None if superres is None else superres_data(superres),
+    }
+
+
+def superres_data(sr: Any) -> dict[str, Any]:
+    """An ``lp3d_render.SuperRes`` as the page runs it (``gpu.js``, ``buildSuperres``): the renderer's
+    plan of it, with its packed float32 weights base64."""
+    plan = sr.plan()
+    weights = np.ascontiguousarray(plan.pop("weights"), dtype="<f4")
+    return {
+        **plan,
+        "weights_floats": int(weights.size),
+        "weights_base64": base64.b64encode(weights).decode("ascii"),
     }
 
 
@@ -175,10 +193,12 @@ def page_data(
     float16: bool = False,
     yaw_deg: float = 0.0,
     pitch_deg: float = 0.0,
+    superres: Any | None = None,
 ) -> dict[str, Any]:
     """The page's data block (JSON-ready) for a validated triplane; ``settings`` is the final quality
-    of the viewer (default :class:`RenderSettings`), which renders exact EG3D semantics only."""
-    view = view_data(tri, settings=settings, yaw_deg=yaw_deg, pitch_deg=pitch_deg)
+    of the viewer (default :class:`RenderSettings`), which renders exact EG3D semantics only;
+    ``superres`` as :func:`view_data`."""
+    view = view_data(tri, settings=settings, yaw_deg=yaw_deg, pitch_deg=pitch_deg, superres=superres)
     tri.validate()
     h, w = tri.plane_size
     return {
@@ -232,12 +252,19 @@ def build_page(
     float16: bool = False,
     yaw_deg: float = 0.0,
     pitch_deg: float = 0.0,
+    superres: Any | None = None,
 ) -> str:
     """The page's HTML (see the module docstring); arguments as :func:`page_data`."""
     from lp3d import __version__
 
     data = page_data(
-        tri, title=title, settings=settings, float16=float16, yaw_deg=yaw_deg, pitch_deg=pitch_deg
+        tri,
+        title=title,
+        settings=settings,
+        float16=float16,
+        yaw_deg=yaw_deg,
+        pitch_deg=pitch_deg,
+        superres=superres,
     )
     scripts = [*viewer_scripts(), _package_text(SHARE_SCRIPT)]
     values = {"TITLE": html.escape(safe_text(title)), "VERSION": html.escape(__version__)}

@@ -10,10 +10,15 @@
 // A page's script is gpu.js (the camera and the Gpu class), this file, then the page's own entry
 // point: share.js for lp3d share's page, lp3d/serve/serve.js for lp3d serve's.
 //
+// With a super-resolution network in the data (a head of the model whose network it is), the still
+// view is drawn once more: the network's image of the 32-channel feature image at its input side
+// (gpu.js, drawSuperres); moving frames stay raw.
+//
 // Test mode: the URL fragment #probe=YAW,PITCH renders that view at the probe settings (64²,
 // 48+48, exact EG3D semantics) and logs one console line "LP3D_PROBE " + base64 of the float32
-// RGB image (3, 64, 64), the layout of lp3d_render.render(...)["rgb"]. Errors are logged as
-// "LP3D_ERROR <message>".
+// RGB image (3, 64, 64), the layout of lp3d_render.render(...)["rgb"]; with &superres=1, of the
+// network's image (3, R_out, R_out) at the page's settings' samples, lp3d_render.render(...,
+// superres=)["image"]. Errors are logged as "LP3D_ERROR <message>".
 "use strict";
 
 function base64Bytes(text) {
@@ -31,7 +36,8 @@ function bytesBase64(bytes) {
   return btoa(s);
 }
 
-// "#probe=YAW,PITCH[&kernel=quick|fast]" -> {yaw, pitch, kernel}; null without a probe.
+// "#probe=YAW,PITCH[&kernel=quick|fast][&superres=1]" -> {yaw, pitch, kernel, superres}; null
+// without a probe.
 function parseProbe(hash) {
   const params = new URLSearchParams(hash.replace(/^#/, ""));
   if (!params.has("probe")) return null;
@@ -43,7 +49,7 @@ function parseProbe(hash) {
     return { error: "probe: expected #probe=YAW,PITCH with pitch in (-90, 90)" };
   }
   if (kernel !== "quick" && kernel !== "fast") return { error: "probe: kernel must be quick or fast" };
-  return { yaw, pitch, kernel };
+  return { yaw, pitch, kernel, superres: params.get("superres") === "1" };
 }
 
 // ---- test mode -------------------------------------------------------------------------------
@@ -52,11 +58,13 @@ async function runProbe(gpu, data, probe) {
   if (probe.kernel === "fast") await gpu.compileFastKernel(() => {});
   const cam = data.camera;
   const label = lookAtCamera(probe.yaw, probe.pitch, cam, cam.focal);
+  if (probe.superres && !gpu.superres) throw new Error("probe: this page has no super-resolution network");
   const t0 = performance.now();
-  const rgb = await gpu.readRgb(data.probe, label);
+  const rgb = probe.superres ? await gpu.readSuperres(label) : await gpu.readRgb(data.probe, label);
   const info = {
     yaw: probe.yaw,
     pitch: probe.pitch,
+    superres: probe.superres,
     kernel: gpu.kernel,
     adapter: gpu.adapter,
     ms: performance.now() - t0,
@@ -150,7 +158,7 @@ function runViewer(gpu, data, statusLine, fail) {
   const rungs = ladder(data.settings);
   const top = rungs.length - 1;
   let times = new FrameTimes();
-  let shown = null; // {key, rung, ms}
+  let shown = null; // {key, rung, ms, superres: the network's image replaced it}
   let lastChange = -Infinity;
   let running = false;
   let drag = null;
@@ -167,12 +175,18 @@ function runViewer(gpu, data, statusLine, fail) {
       requestAnimationFrame(step);
     }
   };
+  // The still view is final once exact at the top rung and, with a network, super-resolved.
+  const isFinal = (s) => s.rung === top && (s.superres || !gpu.superres);
   const show = (moving) => {
-    const phase = moving ? "moving" : shown.rung === top ? "final" : "refining";
+    const phase = moving ? "moving" : isFinal(shown) ? "final" : "refining";
     const ms = shown.ms;
     const time = ms < 1000 ? ms.toFixed(1) + " ms (" + (1000 / ms).toFixed(0) + " fps)" : (ms / 1000).toFixed(1) + " s";
+    const quality = shown.superres
+      ? gpu.superres.outputResolution + "² super-resolved from " + gpu.superres.inputResolution + "² · " +
+        data.settings.depth_resolution + "+" + data.settings.depth_resolution_importance
+      : rungLabel(rungs[shown.rung]);
     statusLine.textContent =
-      rungLabel(rungs[shown.rung]) + " (" + phase + ") · " + time + " · " + gpu.kernel + " kernel · " +
+      quality + " (" + phase + ") · " + time + " · " + gpu.kernel + " kernel · " +
       gpu.adapter + (gpu.fallback ? " (software)" : "");
   };
 
@@ -182,21 +196,36 @@ function runViewer(gpu, data, statusLine, fail) {
     let rung = null;
     if (shown === null || shown.key !== k) rung = times.interactive(rungs);
     else if (!moving && shown.rung < top) rung = shown.rung + 1;
+    const label = lookAtCamera(view.yaw, view.pitch, cam, cam.focal * view.zoom);
+    if (rung === null && !moving && !isFinal(shown)) {
+      try {
+        const ms = await gpu.drawSuperres(label, context, canvas);
+        // The exact frame's time stays the ladder's; this one is the network's frame.
+        shown = { ...shown, ms, exactMs: shown.ms, superres: true };
+        console.debug("LP3D_FRAME superres " + ms.toFixed(1) + " ms");
+      } catch (e) {
+        running = false;
+        fail("Super-resolving the view failed: " + e.message);
+        return;
+      }
+      requestAnimationFrame(step);
+      return;
+    }
     if (rung === null) {
       if (moving) requestAnimationFrame(step);
       else {
         running = false;
         show(false);
         const final = { yaw: view.yaw, pitch: view.pitch, zoom: view.zoom, ms: shown.ms, kernel: gpu.kernel };
-        if (shown.rung === top) console.log("LP3D_FINAL " + rungLabel(rungs[top]) + " " + JSON.stringify(final));
+        if (shown.superres) Object.assign(final, { superres: true, exact_ms: shown.exactMs });
+        if (isFinal(shown)) console.log("LP3D_FINAL " + rungLabel(rungs[top]) + " " + JSON.stringify(final));
       }
       return;
     }
-    const label = lookAtCamera(view.yaw, view.pitch, cam, cam.focal * view.zoom);
     try {
       const ms = await gpu.draw(rungs[rung], label, context, canvas);
       times.record(rungs[rung], ms);
-      shown = { key: k, rung, ms };
+      shown = { key: k, rung, ms, superres: false };
       console.debug("LP3D_FRAME " + rungLabel(rungs[rung]) + " " + ms.toFixed(1) + " ms");
       show(moving);
     } catch (e) {
