@@ -135,7 +135,8 @@ def make_seeds(folder: Path) -> Seeds:
         "step": 1,
         "student": student,
     }
-    return Seeds(path.read_bytes(), (folder / "m.superres.onnx").read_bytes(), json.loads(side.read_text()), weights, training)
+    sr_onnx = (folder / "m.superres.onnx").read_bytes()
+    return Seeds(path.read_bytes(), sr_onnx, json.loads(side.read_text()), weights, training)
 
 
 # ============================================================================= one case, end to end

@@ -18,6 +18,7 @@ function checkServeData(d) {
   d.decoder.bytes = base64Bytes(d.decoder.base64);
   if (d.decoder.bytes.length !== DECODER_BYTES) throw new Error("the decoder holds " + d.decoder.bytes.length + " bytes");
   delete d.decoder.base64;
+  decodeSuperres(d);
 }
 
 // A triplane message -> {header, planes: {height, width, dtype, bytes}}.

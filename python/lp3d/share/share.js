@@ -69,14 +69,7 @@ function checkData(d) {
   }
   delete p.base64;
   delete d.decoder.base64;
-  const sr = d.superres;
-  if (sr) {
-    sr.weights = base64Bytes(sr.weights_base64);
-    delete sr.weights_base64;
-    if (sr.weights.length !== sr.weights_floats * 4 || !Array.isArray(sr.steps) || !sr.steps.length) {
-      throw new Error("bad super-resolution network");
-    }
-  }
+  decodeSuperres(d);
 }
 
 main();

@@ -36,6 +36,18 @@ function bytesBase64(bytes) {
   return btoa(s);
 }
 
+// The data block's super-resolution network (lp3d.share.superres_data), if any, its weights
+// decoded from base64 in place (gpu.js, buildSuperres, reads them).
+function decodeSuperres(d) {
+  const sr = d.superres;
+  if (!sr) return;
+  sr.weights = base64Bytes(sr.weights_base64);
+  delete sr.weights_base64;
+  if (sr.weights.length !== sr.weights_floats * 4 || !Array.isArray(sr.steps) || !sr.steps.length) {
+    throw new Error("bad super-resolution network");
+  }
+}
+
 // "#probe=YAW,PITCH[&kernel=quick|fast][&superres=1]" -> {yaw, pitch, kernel, superres}; null
 // without a probe.
 function parseProbe(hash) {
