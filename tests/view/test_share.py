@@ -59,8 +59,8 @@ TEST_PAGE_ARGS = ["--resolution", "64", "--samples", "24+24"]
 SCREENSHOT_PAGE_ARGS = ["--yaw", "25", "--pitch", "5"]
 
 
-def _share(npz: Path, page: Path, *args: str) -> Path:
-    assert main(["share", str(npz), "-o", str(page), "--title", "procedural teacher head", *args]) == 0
+def _share(npz: Path, page: Path, *args: str, title: str = "procedural teacher head") -> Path:
+    assert main(["share", str(npz), "-o", str(page), "--title", title, *args]) == 0
     return page
 
 
@@ -184,30 +184,24 @@ def test_browser_renders_what_lp3d_render_renders(browser, head_page) -> None:
     assert expected["rgb"].std() > 0.1  # a head, not an empty image
 
 
-def test_browser_viewer_reaches_its_final_quality(browser, head_page, tmp_path: Path) -> None:
+def test_browser_viewer_reaches_its_final_quality(
+    browser, head_page, model_head_page, tmp_path: Path
+) -> None:
     """Normal mode climbs the quality ladder to the final image; the screenshot shows the head (the
     canvas is 512 CSS pixels wide from x = 44, y = 73, in a 600 x 720 window)."""
     from PIL import Image
 
-    page, final, timeout = head_page[1], "64² · 24+24", 180
     if target := os.environ.get("LP3D_SHARE_SCREENSHOT"):
-        page, final, timeout = (
-            _share(head_page[0], tmp_path / "shot.html", *SCREENSHOT_PAGE_ARGS),
-            "128²",
-            600,
-        )
-    session = browser.open(page.as_uri())
-    line = browser.wait_console(session, lambda t: t.startswith("LP3D_FINAL "), timeout=timeout)
-    assert line.startswith(f"LP3D_FINAL {final}"), line
+        return _screenshots(browser, model_head_page[0], tmp_path, Path(target))
+    session = browser.open(head_page[1].as_uri())
+    line = browser.wait_console(session, lambda t: t.startswith("LP3D_FINAL "), timeout=180)
+    assert line.startswith("LP3D_FINAL 64² · 24+24"), line
     shot = tmp_path / "share.png"
     shot.write_bytes(browser.screenshot(session))
     pixels = np.asarray(Image.open(shot).convert("RGB"), dtype=np.float32)
     assert pixels.shape == (720, 600, 3)
     canvas = pixels[80:580, 50:550]
     assert canvas.std(axis=(0, 1)).max() > 20, "the canvas is blank"
-    if target:
-        Path(target).write_bytes(shot.read_bytes())
-        return
     # Drag to the right and scroll in: the final image is of a turned, zoomed view; Reset returns.
     centre = browser.centre(session, "#view")
     browser.drag(session, centre, (100.0, 0.0))
@@ -216,6 +210,26 @@ def test_browser_viewer_reaches_its_final_quality(browser, head_page, tmp_path: 
     assert view["yaw"] < -10 and view["pitch"] == 0 and view["zoom"] == pytest.approx(np.exp(0.5))
     browser.click(session, "#reset")
     assert _final_view(browser, session, lambda v: v["zoom"] == 1) == {**view, "yaw": 0, "zoom": 1}
+
+
+def _screenshots(browser: Chromium, npz: Path, folder: Path, target: Path) -> None:
+    """``LP3D_SHARE_SCREENSHOT=docs/share.png`` (how it was made): the pages of a shipped-model head
+    at the default quality, turned to show it in 3D, without (left) and with (right) its network, at
+    their final views, side by side."""
+    from PIL import Image
+
+    shots = []
+    for name, extra in (("raw", ["--no-superres"]), ("superres", [])):
+        page = _share(npz, folder / f"{name}.html", *SCREENSHOT_PAGE_ARGS, *extra, title=MODEL_HEAD_TITLE)
+        session = browser.open(page.as_uri())
+        line = browser.wait_console(session, lambda t: t.startswith("LP3D_FINAL "), timeout=900)
+        print(name, line)
+        shots.append(Image.open(__import__("io").BytesIO(browser.screenshot(session))).convert("RGB"))
+    w, h = shots[0].size
+    both = Image.new("RGB", (2 * w + 8, h), (22, 24, 28))
+    for i, shot in enumerate(shots):
+        both.paste(shot, (i * (w + 8), 0))
+    both.save(target, optimize=True)
 
 
 def _final_view(browser: Chromium, session: str, accept) -> dict:
@@ -227,6 +241,10 @@ def _final_view(browser: Chromium, session: str, accept) -> dict:
 
     line = browser.wait_console(session, lambda t: t.startswith("LP3D_FINAL ") and accept(view(t)), 180)
     return view(line)
+
+
+#: The title of the pages of a head the shipped model lifted (from a seeded random image).
+MODEL_HEAD_TITLE = "a head lifted by the shipped model"
 
 
 @pytest.fixture(scope="module")
@@ -241,8 +259,8 @@ def model_head_page(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Pat
     npz = folder / "head.npz"
     save_triplane(npz, encoder.package.triplane(encoder.run(image)[0]))
     args = ["--resolution", "32", "--samples", "12+12"]
-    raw = _share(npz, folder / "raw.html", *args, "--no-superres")
-    return npz, _share(npz, folder / "head.html", *args), raw
+    raw = _share(npz, folder / "raw.html", *args, "--no-superres", title=MODEL_HEAD_TITLE)
+    return npz, _share(npz, folder / "head.html", *args, title=MODEL_HEAD_TITLE), raw
 
 
 def test_a_shipped_model_head_page_carries_its_network(model_head_page) -> None:
