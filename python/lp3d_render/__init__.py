@@ -17,6 +17,7 @@ from lp3d_render._guard import (  # fork and size checks
     bake,
     last_frame_device_bytes,
     render,
+    view,
 )
 from lp3d_render._lp3d_render import (
     DEFAULT_BOX_WARP,
@@ -37,7 +38,6 @@ from lp3d_render._lp3d_render import (
     __version__,
     look_at_camera,
     shader_sources,
-    view,
     view_options,
 )
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from lp3d_render import _lp3d_render as _native
 
-__all__ = ["adapter_info", "attach_baked", "bake", "last_frame_device_bytes", "output_bytes", "render"]
+__all__ = ["adapter_info", "attach_baked", "bake", "last_frame_device_bytes", "output_bytes", "render", "view"]
 
 _F = TypeVar("_F", bound=Callable[..., Any])
 
@@ -131,3 +131,5 @@ adapter_info = _gpu_call(_native.adapter_info)
 bake = _gpu_call(_native.bake)
 attach_baked = _gpu_call(_native.attach_baked)
 last_frame_device_bytes = _gpu_call(_native.last_frame_device_bytes)
+# The viewer makes its own device (eframe's), on the same driver: the same limit kills it.
+view = _gpu_call(_native.view)

@@ -52,6 +52,15 @@ def test_a_file_size_limit_is_file_too_large_not_sigbus(sphere, tmp_path, comman
     assert not out.exists()
 
 
+def test_the_viewer_under_a_file_size_limit_says_file_too_large(sphere, tmp_path) -> None:
+    """The viewer makes its own device on the same driver: the same limit, the same one line."""
+    shot = tmp_path / "shot.png"
+    done = _limited(["view", "--screenshot", str(shot), "--resolution", "16", str(sphere)], 20 << 20)
+    assert done.returncode == 1, (done.returncode, done.stderr)
+    assert "File too large" in done.stderr and "ulimit -f" in done.stderr, done.stderr
+    assert not shot.exists()
+
+
 def test_a_photo_with_damaged_exif_is_a_note_not_a_warning(tmp_path) -> None:
     from lp3d.photo.load import load_image
 
