@@ -16,7 +16,8 @@ import numpy as np
 
 from lp3d_render import _lp3d_render as _native
 
-__all__ = ["adapter_info", "attach_baked", "bake", "last_frame_device_bytes", "output_bytes", "render", "view"]
+__all__ = ["adapter_info", "attach_baked", "bake", "last_frame_device_bytes", "output_bytes", "render"]
+__all__ += ["view"]
 
 _F = TypeVar("_F", bound=Callable[..., Any])
 
