@@ -29,28 +29,23 @@ from pathlib import Path
 import numpy as np
 
 import lp3d_render
-from harness import eg3d_renderer, encoder_outputs, timed  # bench/ is on sys.path when run as a script
+from harness import (  # bench/ is on sys.path when run as a script
+    ALL_SKIPS,
+    EPS,
+    PITCH,
+    SKIP,
+    YAWS,
+    R,
+    bake,
+    eg3d_renderer,
+    scenes,
+    timed,
+)
 from lp3d.render.camera import look_at_camera
 from lp3d.render.psnr import psnr_db
 from lp3d.render.triplane import TriplaneData
-from lp3d.teachers import ProceduralTeacher
 
 os.environ.setdefault("LP3D_KERNEL", "fast")
-
-#: Held-out identities: the training configurations draw theirs from [0, 1,000,000).
-SEEDS = (1_000_003, 1_000_011)
-YAWS = (-30.0, 0.0, 30.0)
-PITCH = 5.0
-R = 128
-EPS = 1e-4
-SKIP = 1e-3
-#: Every skip of exact mode: the occupancy grid in both passes, early termination, empty rays.
-ALL_SKIPS = {
-    "occupancy_epsilon": EPS,
-    "occupancy_coarse": True,
-    "transmittance_threshold": SKIP,
-    "empty_threshold": SKIP,
-}
 
 #: A baked setting's skips, by the suffix of its name.
 BAKED_SKIPS = {
@@ -116,19 +111,6 @@ SETTINGS = [
 ]
 
 
-def scenes() -> list[tuple[str, TriplaneData]]:
-    """Teacher heads and the shipped encoder's triplanes of frontal renders of them."""
-    from lp3d.lift.inference import DEFAULT_MODEL
-
-    teacher = ProceduralTeacher(resolution=64)
-    heads = [teacher.sample(s) for s in SEEDS]
-    out = [(f"teacher head {s}", head) for s, head in zip(SEEDS, heads, strict=True)]
-    if DEFAULT_MODEL.exists():
-        encoded = encoder_outputs(heads)
-        out += [(f"encoder output of {s}", tri) for s, tri in zip(SEEDS, encoded, strict=True)]
-    return out
-
-
 def eg3d_timer(src: str, head: TriplaneData, cams: np.ndarray, repeats: int):
     """ms per frame of EG3D's ImportanceRenderer at 48+48 on ``cams`` (bench/eg3d_speed.py's set-up)."""
     import torch
@@ -161,14 +143,6 @@ def field_of(st: Setting) -> tuple[int, int] | None:
     """The field a setting renders with, (k, k_f) (k_f 0: one level), or None (exact mode)."""
     k = st.kwargs.get("baked_subdivisions")
     return None if k is None else (k, st.kwargs.get("baked_fine_subdivisions", 0))
-
-
-def bake(tri: object, field: tuple[int, int]) -> object:
-    """Bakes the field (k, k_f) of `tri` as every row here uses it (for 24 samples and more); the
-    triplane holds it, and it is returned for its size."""
-    return lp3d_render.bake(
-        tri, subdivisions=field[0], fine_subdivisions=field[1], occupancy_epsilon=EPS, depth_resolution=24
-    )
 
 
 def measure(

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 import lp3d_render
-from baked import ALL_SKIPS, PITCH, YAWS, R, bake, scenes  # bench/ is on sys.path when run as a script
+from harness import ALL_SKIPS, PITCH, YAWS, R, bake, scenes  # bench/ is on sys.path when run as a script
 from lp3d.cli.common import parse_samples
 from lp3d.render.camera import look_at_camera
 from lp3d.render.psnr import psnr_db

@@ -1,6 +1,7 @@
 """What the benchmark scripts share, in one place: the timer, the encoder scenes (the shipped
 encoder's triplane of a frontal render of a head, as ``lp3d demo`` lifts its teacher portrait: what
-a user opens in the viewer), a random triplane, the viewer's baked settings, EG3D's own renderer set
+a user opens in the viewer), the baked field's scenes and views (``bench/baked.py`` and
+``bench/baked_samples.py``), a random triplane, the viewer's baked settings, EG3D's own renderer set
 up for comparisons, the encoder argument of the diagnostics, and the A/B runs in child processes with
 their Markdown table.
 
@@ -102,6 +103,46 @@ def emit_table(lines: list[str], out: Path | None) -> None:
     print("\n" + table)
     if out:
         out.write_text(table + "\n")
+
+
+# ====================================================== the baked field's scenes (baked, baked_samples)
+
+#: Held-out identities: the training configurations draw theirs from [0, 1,000,000).
+SEEDS = (1_000_003, 1_000_011)
+YAWS = (-30.0, 0.0, 30.0)
+PITCH = 5.0
+R = 128
+EPS = 1e-4
+SKIP = 1e-3
+#: Every skip of exact mode: the occupancy grid in both passes, early termination, empty rays.
+ALL_SKIPS = {
+    "occupancy_epsilon": EPS,
+    "occupancy_coarse": True,
+    "transmittance_threshold": SKIP,
+    "empty_threshold": SKIP,
+}
+
+
+def scenes() -> list[tuple[str, TriplaneData]]:
+    """Teacher heads and the shipped encoder's triplanes of frontal renders of them."""
+    from lp3d.lift.inference import DEFAULT_MODEL
+    from lp3d.teachers import ProceduralTeacher
+
+    teacher = ProceduralTeacher(resolution=64)
+    heads = [teacher.sample(s) for s in SEEDS]
+    out = [(f"teacher head {s}", head) for s, head in zip(SEEDS, heads, strict=True)]
+    if DEFAULT_MODEL.exists():
+        encoded = encoder_outputs(heads)
+        out += [(f"encoder output of {s}", tri) for s, tri in zip(SEEDS, encoded, strict=True)]
+    return out
+
+
+def bake(tri: object, field: tuple[int, int]) -> object:
+    """Bakes the field (k, k_f) of `tri` as every row here uses it (for 24 samples and more); the
+    triplane holds it, and it is returned for its size."""
+    return lp3d_render.bake(
+        tri, subdivisions=field[0], fine_subdivisions=field[1], occupancy_epsilon=EPS, depth_resolution=24
+    )
 
 
 # ============================================================================ scenes and settings
