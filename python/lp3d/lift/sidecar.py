@@ -164,12 +164,23 @@ def parse_superres(where: str, entry: Any, folder: Path) -> SuperresEntry:
             )
         return value
 
-    model = field("model", str)
-    if Path(model).name != model or not model.lower().endswith(".onnx"):
-        raise ModelPackageError(
-            f"{where}: field 'superres.model' must be an .onnx file name beside the sidecar, "
-            f"got {short_repr(model)}"
-        )
+    def file_field(name: str, suffix: str) -> str:
+        """A file name beside the sidecar, ending in ``suffix``."""
+        value = field(name, str)
+        if Path(value).name != value or not value.lower().endswith(suffix):
+            raise ModelPackageError(
+                f"{where}: field 'superres.{name}' must be an {suffix} file name beside the sidecar, "
+                f"got {short_repr(value)}"
+            )
+        return value
+
+    def digest_field(name: str) -> str:
+        value = field(name, str)
+        if not _SHA256.fullmatch(value):
+            raise ModelPackageError(f"{where}: field 'superres.{name}' must be 64 lowercase hex digits")
+        return value
+
+    model = file_field("model", ".onnx")
     r_in = field("input_resolution", int)
     r_out = field("output_resolution", int)
     channels = field("in_channels", int)
@@ -188,18 +199,9 @@ def parse_superres(where: str, entry: Any, folder: Path) -> SuperresEntry:
             f"{where}: field 'superres.in_channels' must be {N_CHANNELS} (the renderer's feature image), "
             f"got {short_repr(channels)}"
         )
-    digest = field("sha256", str)
-    if not _SHA256.fullmatch(digest):
-        raise ModelPackageError(f"{where}: field 'superres.sha256' must be 64 lowercase hex digits")
-    weights = field("weights", str)
-    if Path(weights).name != weights or not weights.lower().endswith(".npz"):
-        raise ModelPackageError(
-            f"{where}: field 'superres.weights' must be an .npz file name beside the sidecar, "
-            f"got {short_repr(weights)}"
-        )
-    weights_digest = field("weights_sha256", str)
-    if not _SHA256.fullmatch(weights_digest):
-        raise ModelPackageError(f"{where}: field 'superres.weights_sha256' must be 64 lowercase hex digits")
+    digest = digest_field("sha256")
+    weights = file_field("weights", ".npz")
+    weights_digest = digest_field("weights_sha256")
     about = entry.get("about")
     if about is not None and not isinstance(about, dict):
         raise ModelPackageError(f"{where}: field 'superres.about' must be an object")

@@ -365,8 +365,15 @@ class Gpu {
   async draw(rung, label, context, canvas) {
     const t0 = performance.now();
     const { encoder, pass } = this.encodeRender(rung, label);
-    const r = rung.resolution;
+    await this.present(encoder, pass, rung.resolution, context, canvas);
+    return performance.now() - t0;
+  }
+
+  // Ends `pass` with the present dispatch of the features' r² RGB image (params at side r), copies
+  // it to the canvas, submits and waits for the GPU.
+  async present(encoder, pass, r, context, canvas) {
     const target = this.target(r);
+    pass.setBindGroup(0, this.renderGroup);
     pass.setPipeline(this.presentPipeline);
     pass.setBindGroup(1, target.group);
     pass.dispatchWorkgroups(Math.ceil(r / 8), Math.ceil(r / 8), 1);
@@ -378,26 +385,29 @@ class Gpu {
     encoder.copyTextureToTexture({ texture: target.texture }, { texture: context.getCurrentTexture() }, [r, r]);
     this.device.queue.submit([encoder.finish()]);
     await this.device.queue.onSubmittedWorkDone();
-    return performance.now() - t0;
   }
 
-  // Renders `label` at `rung` and reads the RGB image (3, R, R) float32 back.
-  async readRgb(rung, label) {
-    const { encoder, pass } = this.encodeRender(rung, label);
-    pass.end();
-    const bytes = 3 * rung.resolution * rung.resolution * 4;
+  // Submits `encoder` with a copy of `buffer`'s first `bytes` and resolves with them (a Uint8Array).
+  async readBack(encoder, buffer, bytes) {
     const read = this.device.createBuffer({
-      label: "lp3d features readback",
+      label: "lp3d readback",
       size: bytes,
       usage: GPUBufferUsage.MAP_READ | GPUBufferUsage.COPY_DST,
     });
-    encoder.copyBufferToBuffer(this.features, 0, read, 0, bytes);
+    encoder.copyBufferToBuffer(buffer, 0, read, 0, bytes);
     this.device.queue.submit([encoder.finish()]);
     await read.mapAsync(GPUMapMode.READ);
     const out = new Uint8Array(read.getMappedRange().slice(0));
     read.unmap();
     read.destroy();
     return out;
+  }
+
+  // Renders `label` at `rung` and reads the RGB image (3, R, R) float32 back.
+  async readRgb(rung, label) {
+    const { encoder, pass } = this.encodeRender(rung, label);
+    pass.end();
+    return this.readBack(encoder, this.features, 3 * rung.resolution * rung.resolution * 4);
   }
 
   // The network's image of `label`: the 32-channel feature image at its input side and the
@@ -437,39 +447,13 @@ class Gpu {
     this.device.queue.submit([encoder.finish()]);
     this.writeParams({ resolution: r, depth_resolution: 2, depth_resolution_importance: 0 });
     const present = this.device.createCommandEncoder({ label: "lp3d present superres" });
-    const pass = present.beginComputePass({ label: "lp3d present pass" });
-    const target = this.target(r);
-    pass.setBindGroup(0, this.renderGroup);
-    pass.setPipeline(this.presentPipeline);
-    pass.setBindGroup(1, target.group);
-    pass.dispatchWorkgroups(Math.ceil(r / 8), Math.ceil(r / 8), 1);
-    pass.end();
-    if (canvas.width !== r) {
-      canvas.width = r;
-      canvas.height = r;
-    }
-    present.copyTextureToTexture({ texture: target.texture }, { texture: context.getCurrentTexture() }, [r, r]);
-    this.device.queue.submit([present.finish()]);
-    await this.device.queue.onSubmittedWorkDone();
+    await this.present(present, present.beginComputePass({ label: "lp3d present pass" }), r, context, canvas);
     return performance.now() - t0;
   }
 
   // The network's image of `label` read back: (3, R_out, R_out) float32 bytes.
   async readSuperres(label) {
-    const sr = this.superres;
-    const bytes = 3 * sr.outputResolution * sr.outputResolution * 4;
-    const encoder = this.encodeSuperres(label);
-    const read = this.device.createBuffer({
-      label: "lp3d superres readback",
-      size: bytes,
-      usage: GPUBufferUsage.MAP_READ | GPUBufferUsage.COPY_DST,
-    });
-    encoder.copyBufferToBuffer(sr.output, 0, read, 0, bytes);
-    this.device.queue.submit([encoder.finish()]);
-    await read.mapAsync(GPUMapMode.READ);
-    const out = new Uint8Array(read.getMappedRange().slice(0));
-    read.unmap();
-    read.destroy();
-    return out;
+    const r = this.superres.outputResolution;
+    return this.readBack(this.encodeSuperres(label), this.superres.output, 3 * r * r * 4);
   }
 }
