@@ -21,13 +21,12 @@ import pytest
 
 from lp3d.render.baked import load_baked
 from support.baked_files import arrays_of, baked_bytes, claiming, small_baked
+from support.mutations import byte_mutant
 
 SEED = int(os.environ.get("LP3D_FUZZ_SEED", "0"))
 SCALE = int(os.environ.get("LP3D_FUZZ_SCALE", "1"))
 BYTE_MUTANTS = 150 * SCALE
 ENTRY_MUTANTS = 150 * SCALE
-#: Values that make size and offset fields interesting.
-INTERESTING = [0, 1, 0x7F, 0xFF, 0xFFFF, 0x7FFF_FFFF, 0xFFFF_FFFF, 1 << 40, 2**64 - 1]
 
 
 @pytest.fixture(scope="module")
@@ -44,23 +43,6 @@ def _outcome(path: Path, tri: object) -> str:
         assert len(str(e)) < 2000, f"an error message of {len(str(e))} characters"
         return type(e).__name__
     return "ok"
-
-
-def _byte_mutant(rng: np.random.Generator, data: bytes) -> bytes:
-    out = bytearray(data)
-    kind = rng.integers(3)
-    if kind == 0:
-        for _ in range(int(rng.integers(1, 8))):
-            at = int(rng.integers(len(out)))
-            out[at] ^= 1 << int(rng.integers(8))
-    elif kind == 1:
-        value = INTERESTING[int(rng.integers(len(INTERESTING)))]
-        width = int(rng.choice([2, 4, 8]))
-        at = int(rng.integers(len(out) - width))
-        out[at : at + width] = (value & ((1 << (8 * width)) - 1)).to_bytes(width, "little")
-    else:
-        del out[int(rng.integers(len(out))) :]
-    return bytes(out)
 
 
 def _entry_mutant(rng: np.random.Generator, good: dict[str, np.ndarray]) -> dict[str, object]:
@@ -107,7 +89,7 @@ def test_mutated_bytes(baked, tmp_path) -> None:
     seen: dict[str, int] = {}
     for i in range(BYTE_MUTANTS):
         mutant = tmp_path / f"bytes-{i}.npz"
-        mutant.write_bytes(_byte_mutant(rng, data))
+        mutant.write_bytes(byte_mutant(rng, data))
         kind = _outcome(mutant, tri)
         seen[kind] = seen.get(kind, 0) + 1
         mutant.unlink()
