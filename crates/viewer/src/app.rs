@@ -8,7 +8,8 @@
 //! the chosen settings, where it stops: an unchanged view is never rendered again. Once the file's
 //! baked field is ready (`crate::bake`, made in the background after the file opens), frames
 //! drawn while the view moves look samples up in it, at the most expensive rung it serves (the
-//! chosen quality first) that fits the budget; the settled image is always exact.
+//! chosen quality first) that fits the budget; the settled image is always exact, and with a
+//! super-resolution network (`--superres`) the network's image of it follows (`app/superres.rs`).
 
 mod baking;
 mod panel;
