@@ -1,7 +1,10 @@
-"""Byte mutations the file fuzzers share (``tests/robustness/test_*_fuzz.py``): bit flips, size-like
-values written over any offset, truncation."""
+"""What the file fuzzers share (``tests/robustness/test_*_fuzz.py``): byte mutations (bit flips,
+size-like values written over any offset, truncation) and the one way a mutant's outcome is judged."""
 
 from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from pathlib import Path
 
 import numpy as np
 
@@ -24,3 +27,29 @@ def byte_mutant(rng: np.random.Generator, data: bytes) -> bytes:
     else:
         del out[int(rng.integers(len(out))) :]
     return bytes(out)
+
+
+def outcome(path: Path, read: Callable[[Path], object]) -> str:
+    """``"ok"`` when ``read(path)`` succeeds, else the kind of its clean refusal: a ValueError or
+    OSError that names the file in a message of reasonable length. Anything else propagates (the
+    test fails)."""
+    try:
+        read(path)
+    except (ValueError, OSError) as e:
+        assert str(path) in str(e), f"the error does not name the file: {e}"
+        assert len(str(e)) < 2000, f"an error message of {len(str(e))} characters"
+        return type(e).__name__
+    return "ok"
+
+
+def outcomes(mutants: Iterable[bytes], folder: Path, read: Callable[[Path], object]) -> dict[str, int]:
+    """How many of ``mutants`` (each written to a file in ``folder``, read, then removed) had each
+    :func:`outcome`."""
+    seen: dict[str, int] = {}
+    for i, data in enumerate(mutants):
+        path = folder / f"mutant-{i}.npz"
+        path.write_bytes(data)
+        kind = outcome(path, read)
+        seen[kind] = seen.get(kind, 0) + 1
+        path.unlink()
+    return seen
