@@ -100,11 +100,10 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     superres = None
     if not args.no_superres:
-        from lp3d.lift.gpu_superres import shipped_superres_file
-        from lp3d.render.native import renderer
+        from lp3d.lift.gpu_superres import shipped_superres_entry, superres_on_gpu
 
-        weights = shipped_superres_file(tri)
-        superres = None if weights is None else renderer().SuperRes.load(weights)
+        entry = shipped_superres_entry(tri)
+        superres = None if entry is None else superres_on_gpu(entry)
     with Staged() as staged:
         try:
             size = write_page(

@@ -53,17 +53,23 @@ def run(args: argparse.Namespace) -> int:
 
 
 def shipped_superres_for(path: str | os.PathLike[str]) -> Path | None:
-    """The shipped model's super-resolution weights when the triplane at ``path`` was lifted by it
-    (:func:`lp3d.lift.gpu_superres.shipped_superres_file`), else None. A file that does not load is
-    left to the viewer, whose error names it."""
-    from lp3d.lift.gpu_superres import shipped_superres_file
+    """The shipped model's super-resolution weights file (checked against its SHA-256) when the
+    triplane at ``path`` was lifted by it (:func:`lp3d.lift.gpu_superres.shipped_superres_entry`), else
+    None; the viewer reads the file itself. A triplane that does not load is left to the viewer, whose
+    error names it."""
+    from lp3d.lift.gpu_superres import shipped_superres_entry
+    from lp3d.lift.model_package import verify_superres_weights
     from lp3d.render.triplane_io import load_triplane
 
     try:
         tri = load_triplane(path)
     except (OSError, ValueError):
         return None
-    return shipped_superres_file(tri)
+    entry = shipped_superres_entry(tri)
+    if entry is None:
+        return None
+    verify_superres_weights(entry)
+    return entry.weights_path
 
 
 def main(argv: list[str] | None = None) -> int:

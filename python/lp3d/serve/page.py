@@ -42,27 +42,16 @@ def live_settings() -> dict[str, Any]:
     return {"width": 320, "height": 240, "max_fps": 30, "jpeg_quality": 0.8, "in_flight": 2}
 
 
-def _superres(encoder: LoadedEncoder) -> Any | None:
-    """The model's super-resolution network on the renderer (its weights file, checksum checked), for
-    the page's still view; None for a model without one."""
-    entry = encoder.package.superres
-    if entry is None:
-        return None
-    from lp3d.lift.model_package import verify_superres_weights
-    from lp3d.render.native import renderer
-
-    verify_superres_weights(entry)
-    return renderer().SuperRes.load(entry.weights_path)
-
-
 def build_serve_page(
     encoder: LoadedEncoder, *, settings: RenderSettings | None = None, token_required: bool = False
 ) -> tuple[str, str]:
     """``(html, script hash)`` of the page for ``encoder``'s model; ``settings`` is the viewer's final
     quality (default :class:`RenderSettings`)."""
     from lp3d import __version__
+    from lp3d.lift.gpu_superres import superres_on_gpu
 
     pkg = encoder.package
+    superres = None if pkg.superres is None else superres_on_gpu(pkg.superres)
     t = pkg.triplane_resolution
     blank = pkg.triplane(np.zeros((3, 32, t, t), np.float32))
     data = {
@@ -73,7 +62,7 @@ def build_serve_page(
         "token_required": token_required,
         "limits": {**PHOTO_LIMITS, "max_frame_bytes": MAX_FRAME_BYTES, "max_frame_pixels": MAX_FRAME_PIXELS},
         "live": live_settings(),
-        **view_data(blank, settings=settings, probe=SERVE_PROBE_SETTINGS, superres=_superres(encoder)),
+        **view_data(blank, settings=settings, probe=SERVE_PROBE_SETTINGS, superres=superres),
     }
     scripts = [*viewer_scripts(), resources.files(__package__).joinpath("serve.js").read_text("utf-8")]
     template = resources.files(__package__).joinpath("serve.html").read_text("utf-8")
