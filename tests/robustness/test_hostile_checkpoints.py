@@ -85,6 +85,39 @@ def test_scene_bounds_out_of_range_are_named(state, tmp_path) -> None:
         student_from_checkpoint(load_checkpoint(_save(tmp_path / "step-000008.pt", unknown)))
 
 
+def test_every_torch_file_reader_names_a_fifo_and_a_file_that_is_not_torchs(tmp_path) -> None:
+    """A FIFO given as a checkpoint was "no such file" (``lp3d eval``) or a read that waits for a
+    writer; a JPEG or text file was torch's paragraph about ``weights_only``. Every reader of torch
+    files goes through one (``read_torch_file``): one line each, naming the file."""
+    from lp3d.export.superres import add_superres_to_weights
+    from lp3d.lift.inference import load_encoder
+    from lp3d.superres_fit.checkpoint import load_fit
+
+    fifo = tmp_path / "pipe.pt"
+    os.mkfifo(fifo)
+    text = tmp_path / "notes.pt"
+    text.write_text("not a checkpoint\n")
+    readers: dict[str, Callable[[Path], object]] = {
+        "load_checkpoint": load_checkpoint,
+        "load_fit": load_fit,
+        "load_encoder": lambda p: load_encoder(p, "torch"),
+        "add_superres_to_weights": lambda p: add_superres_to_weights(p, None, ""),  # type: ignore[arg-type]
+    }
+    for name, read in readers.items():
+        err = _within(10.0, lambda read=read: read(fifo))
+        assert err is not None and "pipe.pt" in str(err) and "FIFO" in str(err), (name, err)
+        err = _within(10.0, lambda read=read: read(text))
+        assert err is not None and "notes.pt: not a PyTorch file" in str(err), (name, err)
+        assert len(str(err).splitlines()) == 1, (name, err)
+
+
+def test_lp3d_eval_of_a_fifo_names_it(capsys, tmp_path) -> None:
+    fifo = tmp_path / "step-000001.pt"
+    os.mkfifo(fifo)
+    code, _, err = run(capsys, "eval", fifo, "--baseline-steps", "0")
+    assert code == 1 and "is a FIFO (named pipe), not a regular file" in err and "no such" not in err, err
+
+
 # ------------------------------------------------------------------------------- checkpoint parts
 
 

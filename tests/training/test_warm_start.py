@@ -111,7 +111,7 @@ def test_sources_that_do_not_fit_are_refused_naming_why(teacher, tmp_path) -> No
         tmp_path / "bigger.pt": r"basis.coefficients.1.weight has shape \(256, 1216\).*may grow",
         tmp_path / "list.pt": "a checkpoint must hold a dict",
         tmp_path / "other.pt": "checkpoint layout not understood",
-        tmp_path / "text.pt": "cannot be read as a plain state-dict checkpoint",
+        tmp_path / "text.pt": r"text.pt: not a PyTorch file \(torch.save's zip format",
     }
     torch.save([1, 2], tmp_path / "list.pt")
     torch.save({"weights": {}}, tmp_path / "other.pt")
@@ -124,7 +124,7 @@ def test_sources_that_do_not_fit_are_refused_naming_why(teacher, tmp_path) -> No
     )
     cases[tmp_path / "narrow.pt"] = r"backbone.stem.weight has shape \(8, 5, 7, 7\)"
     torch.save({"encoder": _Sneaky()}, tmp_path / "code.pt")  # unpickling would run code: refused
-    cases[tmp_path / "code.pt"] = "cannot be read as a plain state-dict checkpoint"
+    cases[tmp_path / "code.pt"] = "code.pt: cannot be read as a checkpoint or weights file: Weights only load"
     for path, match in cases.items():
         with pytest.raises(WarmStartError, match=match):
             warm_start(new, path)

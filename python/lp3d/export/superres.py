@@ -28,6 +28,7 @@ from lp3d.lift.model_package import (
 )
 from lp3d.lift.superres_weights import folded_weights, superres_weights_path, write_superres_weights
 from lp3d.nets.superres import FoldedSuperResolution, SuperResolution
+from lp3d.render.npz_reader import read_torch_file
 
 
 class _FeaturesToImage(nn.Module):
@@ -126,11 +127,9 @@ def add_superres_to_weights(path: str | os.PathLike[str], sr: SuperResolution, d
     :func:`save_weights`, atomically; its decoder must be the one the SR was made for."""
     path = Path(path)
     try:
-        data = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:  # torch raises many types for non-checkpoints
-        raise ExportError(
-            f"--weights {path}: cannot be read as a plain state-dict checkpoint ({e})"
-        ) from None
+        data = read_torch_file(path, "an inference-weights file")
+    except (OSError, ValueError) as e:
+        raise ExportError(f"--weights {e}") from None
     if not isinstance(data, dict) or data.get("format") != "lp3d-encoder-weights-v1":
         raise ExportError(f"--weights {path}: not an lp3d inference-weights file (lp3d-encoder-weights-v1)")
     try:

@@ -28,6 +28,7 @@ from lp3d.lift.sidecar import (
     short_repr,
     short_text,
 )
+from lp3d.render.npz_reader import read_torch_file
 from lp3d.render.settings import N_CHANNELS
 
 
@@ -212,14 +213,10 @@ def _build_torch_superres(package: ModelPackage, found: tuple[Any, Any], p: Path
 
 def _read_checkpoint(p: Path) -> Mapping[str, Any]:
     """The checkpoint at ``p`` as a dict, read with ``weights_only=True`` (no code is unpickled)."""
-    import torch
-
     try:
-        ckpt = torch.load(p, map_location="cpu", weights_only=True)
-    except Exception as e:  # torch raises many types for non-checkpoints (UnpicklingError, RuntimeError, ...)
-        raise ModelPackageError(
-            f"{p}: cannot be read as a plain state-dict checkpoint ({short_text(e)})"
-        ) from None
+        ckpt = read_torch_file(p, "a checkpoint or weights file")
+    except (OSError, ValueError) as e:
+        raise ModelPackageError(str(e)) from None
     if not isinstance(ckpt, Mapping):
         raise ModelPackageError(f"{p}: a checkpoint must hold a dict, got {type(ckpt).__name__}")
     return ckpt

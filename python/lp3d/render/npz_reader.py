@@ -424,3 +424,24 @@ def read_npz(
         return {key: npz.read(key, header) for key, header in headers.items()}
     finally:
         npz.close()
+
+
+def read_torch_file(path: str | os.PathLike[str], what: str, map_location: object = "cpu") -> object:
+    """What ``torch.save`` wrote to ``path``, its tensors on ``map_location``, read with
+    ``weights_only=True`` (tensors, numbers,
+    strings and containers: no code is unpickled) after the checks of :func:`open_regular_file`
+    (a FIFO is an ``OSError``, not a hang). A file that is not in torch's zip format, or holds what
+    ``weights_only`` refuses, is a ``ValueError`` of one line naming the file and ``what`` it should
+    have been ("a training checkpoint")."""
+    import torch  # the one caller family that needs it; everything else here is numpy
+
+    file, _ = open_regular_file(path, what)
+    with file:
+        if not zipfile.is_zipfile(file):
+            raise ValueError(f"{os.fspath(path)}: not a PyTorch file (torch.save's zip format; {what})")
+        file.seek(0)
+        try:
+            return torch.load(file, map_location=map_location, weights_only=True)
+        except Exception as e:  # torch raises many types (UnpicklingError, RuntimeError, KeyError ...)
+            first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+            raise ValueError(f"{os.fspath(path)}: cannot be read as {what}: {first[:300]}") from None

@@ -18,6 +18,7 @@ import torch
 
 from lp3d.atomic import atomic_path
 from lp3d.nets.superres import SuperresConfig, SuperResolution
+from lp3d.render.npz_reader import read_torch_file
 from lp3d.superres_fit.config import FitConfig, FitError
 
 __all__ = ["CHECKPOINT_NAME", "FIT_FORMAT", "LoadedFit", "load_fit"]
@@ -77,12 +78,12 @@ def load_fit(path: str | os.PathLike[str]) -> LoadedFit:
     p = Path(path)
     if p.is_dir():
         p = p / CHECKPOINT_NAME
-    if not p.is_file():
+    if not p.exists():
         raise FitError(f"{p}: no such super-resolution fit checkpoint")
     try:
-        ckpt = torch.load(p, map_location="cpu", weights_only=True)
-    except Exception as e:  # torch raises many types for non-checkpoints
-        raise FitError(f"{p}: cannot be read as a plain state-dict checkpoint ({e})") from None
+        ckpt = read_torch_file(p, "a super-resolution fit checkpoint")
+    except (OSError, ValueError) as e:
+        raise FitError(str(e)) from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != FIT_FORMAT:
         got = ckpt.get("format") if isinstance(ckpt, dict) else type(ckpt).__name__
         raise FitError(f"{p}: not a super-resolution fit checkpoint of format {FIT_FORMAT!r} (got {got!r})")

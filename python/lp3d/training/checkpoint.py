@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from lp3d.atomic import atomic_path
+from lp3d.render.npz_reader import read_torch_file
 from lp3d.training import distributed
 from lp3d.training.config import TrainConfig
 from lp3d.training.run_dir import checkpoint_path, checkpoints, newest_readable
@@ -73,12 +74,12 @@ def load_checkpoint(
     p = Path(path)
     if p.is_dir():
         return newest_readable(p, lambda f: load_checkpoint(f, map_location=map_location), CheckpointError)
-    if not p.is_file():
+    if not p.exists():
         raise CheckpointError(f"checkpoint {str(p)!r}: no such file")
     try:
-        ckpt = torch.load(p, map_location=map_location, weights_only=True)
-    except Exception as e:
-        raise CheckpointError(f"checkpoint {str(p)!r} cannot be read as a plain state dict: {e}") from None
+        ckpt = read_torch_file(p, "a training checkpoint", map_location)
+    except (OSError, ValueError) as e:
+        raise CheckpointError(f"checkpoint {e}") from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
         got = ckpt.get("format") if isinstance(ckpt, dict) else type(ckpt).__name__
         raise CheckpointError(

@@ -35,6 +35,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from lp3d.nets.discriminator import g_loss
+from lp3d.render.npz_reader import read_torch_file
 
 __all__ = [
     "LPIPS_BACKBONE_FILES",
@@ -268,9 +269,9 @@ def _backbone_state(path: Path, target: dict[str, Tensor], net: str) -> dict[str
     """Map a torchvision ``{net}`` state dict (``features.N.*``, or bare ``N.*``) onto lpips's
     ``net.sliceK.N.*`` keys; raise ValueError naming what does not fit."""
     try:
-        raw = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:  # a corrupt or pickled-code file: say which file and why
-        raise ValueError(f"cannot read LPIPS backbone weights from {str(path)!r}: {e}") from None
+        raw = read_torch_file(path, "LPIPS backbone weights")
+    except OSError as e:
+        raise ValueError(str(e)) from None
     if not isinstance(raw, dict):
         raise ValueError(f"{str(path)!r} does not hold a state dict (got {type(raw).__name__})")
     out: dict[str, Tensor] = {}
