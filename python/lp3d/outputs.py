@@ -28,6 +28,7 @@ __all__ = [
     "VideoWriter",
     "check_distinct",
     "check_folder",
+    "check_output_folder",
     "check_output",
     "gif_bytes",
     "progress",
@@ -152,6 +153,16 @@ def check_folder(folder: Path, what: str, path: Path) -> None:
         raise UserError(f"{what} {path}: {folder} is not a folder")
     if not os.access(folder, os.W_OK | os.X_OK):
         raise UserError(f"{what} {path}: folder {folder} is not writable")
+
+
+def check_output_folder(folder: Path, what: str = "--out") -> None:
+    """Refuse, before any work, an output folder that cannot be one: a file of that name, or a
+    folder that is not writable. A missing folder is made later, by the command that fills it."""
+    _check_cwd(what, folder)
+    if folder.exists() and not folder.is_dir():
+        raise UserError(f"{what} {folder}: is a file, not a folder")
+    if folder.is_dir() and not os.access(folder, os.W_OK | os.X_OK):
+        raise UserError(f"{what} {folder}: folder is not writable")
 
 
 def _named(e: OSError, path: Path) -> OSError:

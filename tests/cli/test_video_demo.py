@@ -236,6 +236,15 @@ def test_demo_without_a_model_says_what_to_do(capsys, tmp_path, monkeypatch) -> 
     assert not (tmp_path / "demo").exists()
 
 
+def test_demo_refuses_an_output_folder_that_is_a_file_before_any_work(capsys, tmp_path) -> None:
+    """It once lifted and rendered both portraits (about 20 s) before "File exists"."""
+    taken = tmp_path / "demo_out"
+    taken.write_text("a file")
+    code, out, err = run(capsys, "demo", "--out", taken, *DEMO_SMALL)
+    assert code == 1 and err.strip() == f"lp3d demo: error: --out {taken}: is a file, not a folder", err
+    assert "model:" not in out and taken.read_text() == "a file"
+
+
 def test_video_helpers() -> None:
     from lp3d.photo import Crop
     from lp3d.photo.video import nearest_hits, smooth_crops

@@ -47,6 +47,7 @@ from lp3d.cli.common import (
     resolve_model,
 )
 from lp3d.cli.refining import add_refine_argument, refine_triplanes
+from lp3d.outputs import check_output_folder
 from lp3d.photo import prepare_photo
 from lp3d.render.camera import orbit_angles
 
@@ -237,6 +238,8 @@ def run(args: argparse.Namespace) -> int:
     from lp3d.photo import to_encoder_input
     from lp3d.render.triplane_io import save_triplane
     from lp3d.share import write_page
+
+    check_output_folder(args.out)
 
     model = resolve_model(args.model)
     t0 = time.perf_counter()
