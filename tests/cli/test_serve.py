@@ -203,6 +203,9 @@ def test_bad_uploads_get_a_clear_answer(server, photo, photos) -> None:
     finally:
         server.state.max_upload_bytes = limit
     assert status == 413 and "upload limit" in json.loads(body)["error"]
+    # A detect flag that is neither 0 nor 1 was taken as "detect".
+    status, _, body = http(server, "/api/photo?detect=banana", photo)
+    assert status == 400 and json.loads(body)["error"] == "detect: must be 0 or 1"
     # A real photo of a face, found and aligned by the photo pipeline.
     status, _, body = http(server, "/api/photo?name=astronaut.jpg", photos["face"].read_bytes())
     assert status == 200 and "face" in parse_message(body)[0]["description"]

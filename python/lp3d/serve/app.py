@@ -140,7 +140,10 @@ async def upload_photo(request: Request) -> Response:
         return _error(f"{name}: larger than the {limit / 2**20:.3g} MiB upload limit", 413, state)
     if state.busy_photos >= state.max_busy_photos:
         return _error("the server is lifting other photos; try again in a moment", 503, state)
-    detect = request.query_params.get("detect", "1") != "0"
+    detect_flag = request.query_params.get("detect", "1")
+    if detect_flag not in ("0", "1"):
+        return _error("detect: must be 0 or 1", 400, state)
+    detect = detect_flag == "1"
     state.busy_photos += 1
     try:
         loop = asyncio.get_running_loop()
