@@ -1,8 +1,9 @@
 """Checks made in Python before a call reaches the GPU: a process forked after its parent used the GPU,
 a batch whose outputs cannot fit in memory, and a file-size limit the driver's memory cannot live
-under. None would otherwise come back as an error: the device and its threads do not survive
-``fork`` (the call hangs), a failed allocation of the outputs aborts the process, and a driver that
-keeps device memory in files (Mesa's lavapipe) dies of SIGBUS when one cannot grow."""
+under, or an address-space limit (``ulimit -v``) it cannot start under. None would otherwise come
+back as an error: the device and its threads do not survive ``fork`` (the call hangs), a failed
+allocation of the outputs aborts the process, a driver that keeps device memory in files (Mesa's
+lavapipe) dies of SIGBUS when one cannot grow, and one whose mappings fail dies of SIGSEGV."""
 
 from __future__ import annotations
 
@@ -16,7 +17,15 @@ import numpy as np
 
 from lp3d_render import _lp3d_render as _native
 
-__all__ = ["adapter_info", "attach_baked", "bake", "last_frame_device_bytes", "output_bytes", "render"]
+__all__ = [
+    "address_space_left",
+    "adapter_info",
+    "attach_baked",
+    "bake",
+    "last_frame_device_bytes",
+    "output_bytes",
+    "render",
+]
 __all__ += ["view"]
 
 _F = TypeVar("_F", bound=Callable[..., Any])
@@ -52,8 +61,48 @@ def _check_file_size_limit(need: int = 0) -> None:
         raise e
 
 
+#: Address space the GPU device maps when it is created (Mesa's lavapipe: its LLVM JIT, threads and
+#: first memory files), as measured there. A mapping that fails under ``ulimit -v`` is not checked by
+#: the driver: the process dies of SIGSEGV.
+_DEVICE_ADDRESS_BYTES = 800 << 20
+
+
+def address_space_left() -> int | None:
+    """Bytes this process may still map under its address-space limit (``ulimit -v``), or None when
+    it has none (or the platform does not say)."""
+    try:
+        import resource
+    except ImportError:
+        return None
+    soft = resource.getrlimit(resource.RLIMIT_AS)[0]
+    if soft == resource.RLIM_INFINITY:
+        return None
+    try:
+        with open("/proc/self/statm") as f:
+            mapped = int(f.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return None
+    return soft - mapped
+
+
+def _check_address_space(need: int = 0) -> None:
+    """An OSError (ENOMEM) when the address-space limit leaves less than the device (at the first
+    call) and ``need`` (a render's outputs) take."""
+    left = address_space_left()
+    need += _DEVICE_ADDRESS_BYTES if _gpu_pid is None else 0
+    if left is not None and left < need:
+        e = OSError(
+            f"Cannot allocate memory: the GPU driver needs about {need >> 20} MiB of address space, and "
+            f"this process's address-space limit (ulimit -v) leaves {max(left, 0) >> 20} MiB; raise the "
+            "limit"
+        )
+        e.errno = errno.ENOMEM
+        raise e
+
+
 def _check_process() -> None:
     _check_file_size_limit()
+    _check_address_space()
     global _gpu_pid
     pid = os.getpid()
     if _gpu_pid is None:
@@ -112,6 +161,7 @@ def _check_size(camera: Any, resolution: Any, outputs: Any) -> None:
     n = shape[0] if len(shape) == 2 else 1
     need, have = output_bytes(n, r, names), _memory_bytes()
     _check_file_size_limit(need)
+    _check_address_space(need)
     if have is not None and need > have:
         gib = 1 << 30
         raise ValueError(

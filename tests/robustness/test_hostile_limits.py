@@ -29,12 +29,15 @@ def sphere(tmp_path_factory) -> Path:
     return path
 
 
-def _limited(argv: list[str], limit_bytes: int) -> subprocess.CompletedProcess[str]:
-    """``lp3d ARGV`` in a fresh process under a file-size limit (``ulimit -f``)."""
+def _limited(
+    argv: list[str], limit_bytes: int, which: str = "RLIMIT_FSIZE"
+) -> subprocess.CompletedProcess[str]:
+    """``lp3d ARGV`` in a fresh process under a file-size limit (``ulimit -f``), or the limit
+    ``which`` names (``RLIMIT_AS``: ``ulimit -v``)."""
     import resource
 
     def limit() -> None:
-        resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
+        resource.setrlimit(getattr(resource, which), (limit_bytes, limit_bytes))
 
     cmd = [sys.executable, "-m", "lp3d.cli", *argv]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=240, preexec_fn=limit)
@@ -59,6 +62,63 @@ def test_the_viewer_under_a_file_size_limit_says_file_too_large(sphere, tmp_path
     assert done.returncode == 1, (done.returncode, done.stderr)
     assert "File too large" in done.stderr and "ulimit -f" in done.stderr, done.stderr
     assert not shot.exists()
+
+
+@pytest.mark.parametrize("command", ["render", "encode"])
+def test_a_small_address_space_limit_is_one_line_not_sigsegv(sphere, tmp_path, command) -> None:
+    """Under ``ulimit -v`` 600 MiB, OpenCV's import (encode) and the GPU driver (render) died of
+    SIGSEGV with no word."""
+    out = tmp_path / ("view.png" if command == "render" else "head.npz")
+    src = str(sphere) if command == "render" else str(_photo(tmp_path))
+    done = _limited([command, src, "-o", str(out)], 600 << 20, "RLIMIT_AS")
+    assert done.returncode == 1, (done.returncode, done.stderr)
+    assert "the address-space limit (ulimit -v) leaves" in done.stderr and "Traceback" not in done.stderr
+    assert not out.exists()
+
+
+def test_the_gpu_driver_is_not_started_without_the_address_space_it_maps(sphere) -> None:
+    """``lp3d_render`` called with too little address space left for the device: an OSError (ENOMEM)
+    naming the limit, where the driver's first mapping that failed was a SIGSEGV."""
+    code = f"""
+import errno, resource
+import lp3d_render
+from lp3d.render.camera import look_at_camera
+with open("/proc/self/statm") as f:
+    mapped = int(f.read().split()[0]) * resource.getpagesize()
+resource.setrlimit(resource.RLIMIT_AS, (mapped + (300 << 20), resource.RLIM_INFINITY))
+tri = lp3d_render.Triplane.load({str(sphere)!r})
+try:
+    lp3d_render.render(tri, look_at_camera(), resolution=16)
+except OSError as e:
+    print("refused", e.errno == errno.ENOMEM, e)
+"""
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, (done.returncode, done.stderr)
+    assert done.stdout.startswith("refused True Cannot allocate memory: the GPU driver needs"), done.stdout
+    assert "ulimit -v" in done.stdout
+
+
+@pytest.mark.parametrize("command", ["eval", "encode --refine"])
+def test_torch_that_cannot_load_under_a_limit_is_not_called_missing(tmp_path, command) -> None:
+    """PyTorch's libraries cannot be mapped under a 1.5 GiB address space: the commands said
+    "needs PyTorch (pip install torch)" or "install the training extra" of an installed PyTorch."""
+    if command == "eval":
+        argv = ["eval", str(tmp_path / "run")]
+    else:
+        argv = ["encode", str(_photo(tmp_path)), "-o", str(tmp_path / "h.npz"), "--refine", "2"]
+    done = _limited(argv, 3 << 29, "RLIMIT_AS")
+    assert done.returncode == 1, (done.returncode, done.stderr)
+    assert "could not be loaded" in done.stderr and "pip install" not in done.stderr, done.stderr
+
+
+def _photo(folder: Path) -> Path:
+    """A real portrait (scikit-image's astronaut) as a JPEG in ``folder``."""
+    from skimage import data
+
+    path = folder / "astronaut.jpg"
+    if not path.exists():
+        Image.fromarray(data.astronaut()).save(path)
+    return path
 
 
 def test_a_photo_with_damaged_exif_is_a_note_not_a_warning(tmp_path) -> None:

@@ -32,12 +32,17 @@ def add_refine_argument(p: argparse.ArgumentParser, what: str = "each photo") ->
 
 
 def require_torch() -> None:
-    try:
-        import torch  # noqa: F401
-    except ImportError:
+    import importlib.util
+
+    if importlib.util.find_spec("torch") is None:
         raise CLIError(
             "--refine needs PyTorch (pip install torch); without --refine lp3d runs on onnxruntime alone"
-        ) from None
+        )
+    try:
+        import torch  # noqa: F401
+    except ImportError as e:  # installed, but its libraries did not load (a memory limit, a broken install)
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise CLIError(f"--refine: PyTorch is installed but could not be loaded: {first}") from None
 
 
 def refine_triplanes(
