@@ -30,7 +30,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from lp3d.lift.refine_settings import MAX_STEPS as REFINE_MAX_STEPS
     from lp3d.training.teacher_factory import TEACHERS
 
-    p.add_argument("checkpoint", help="training checkpoint (.pt) or run directory (its latest checkpoint)")
+    p.add_argument(
+        "checkpoint",
+        help="training checkpoint (.pt), run directory (its latest checkpoint), or a model package's "
+        "MODEL.onnx (its MODEL.json and torch weights MODEL.pt beside it: the shipped model, an export)",
+    )
     default = EvalSettings()
     p.add_argument(
         "--n-identities",

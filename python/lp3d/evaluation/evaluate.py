@@ -83,6 +83,7 @@ from lp3d.evaluation.metrics import (
     depth_errors,
     psnr,
 )
+from lp3d.evaluation.package_student import is_package, package_student
 from lp3d.evaluation.protocol import (
     INPUT_YAW_RANGE_DEG,
     NOVEL_VIEWS,
@@ -316,9 +317,12 @@ def evaluate_checkpoint(
     overrides the teacher the run recorded (runs made before procedural teacher v2 recorded
     ``procedural`` for what is now ``procedural-v1``)."""
     device = torch.device(device)
-    ckpt = load_checkpoint(checkpoint, map_location=device)
+    if is_package(checkpoint):  # MODEL.onnx or MODEL.pt: the package's own student, its sidecar's config
+        student, ckpt = package_student(checkpoint, device)
+    else:
+        ckpt = load_checkpoint(checkpoint, map_location=device)
+        student = student_from_checkpoint(ckpt, device)
     cfg: TrainConfig = ckpt["train_config"]
-    student = student_from_checkpoint(ckpt, device)
     # The run recorded how its teacher was built; given paths override (e.g. the pickle moved).
     targs = resolve_teacher_args(ckpt, teacher_pkl=teacher_pkl, eg3d_source=eg3d_source)
     teacher_name = teacher_name or ckpt["teacher"]
@@ -348,13 +352,15 @@ def evaluate_checkpoint(
     report, rows = evaluate(
         student, teacher, settings=settings, lpips=lpips, perceptual=perceptual, device=device
     )
-    report = {"checkpoint": ckpt["path"], "step": int(ckpt["step"]), "teacher": teacher_name, **report}
+    step = None if ckpt["step"] is None else int(ckpt["step"])
+    report = {"checkpoint": ckpt["path"], "step": step, "teacher": teacher_name, **report}
     if lpips_note:
         report["lpips_note"] = lpips_note
-    out_dir = (
-        Path(out)
-        if out is not None
-        else Path(ckpt["path"]).parent.parent / f"eval-step-{int(ckpt['step']):06d}"
-    )
+    if out is not None:
+        out_dir = Path(out)
+    elif step is None:  # a package: beside it, named for it
+        out_dir = Path(ckpt["path"]).with_name(f"{Path(ckpt['path']).stem}-eval")
+    else:
+        out_dir = Path(ckpt["path"]).parent.parent / f"eval-step-{step:06d}"
     report_path, png = write_outputs(report, rows, out_dir)
     return report_path, png, report
