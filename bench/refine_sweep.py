@@ -112,7 +112,7 @@ def main(argv: list[str] | None = None) -> int:
         d_in, d_nv, secs = [], [], []
         for _, camera, cam, truth_in, truth_nv, planes, pose_s, base_in, base_nv in items:
             t0 = time.perf_counter()
-            refined = refine_planes(planes, decoder, student.scene, truth_in["high"][0], camera, settings)
+            refined, _ = refine_planes(planes, decoder, student.scene, truth_in["high"][0], camera, settings)
             secs.append(pose_s + time.perf_counter() - t0)
             with torch.no_grad():
                 r_in = float(

@@ -36,6 +36,13 @@ from lp3d.render.psnr import psnr_db
 from lp3d.teachers.procedural import ProceduralTeacher
 from lp3d.training.config import TRAIN_CONFIGS
 
+#: What ``--camera`` names, as the table's caption says it.
+CAMERAS = {
+    "face": "from the face",
+    "fit": "fitted from the face",
+    "search": "searched photometrically",
+    "true": "of the true camera",
+}
 #: Samples of every render here: EG3D's.
 SAMPLES = {"depth_resolution": 48, "depth_resolution_importance": 48}
 
@@ -65,10 +72,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--steps", type=int, default=RefineSettings().steps)
     p.add_argument("--no-superres", action="store_true", help="refine the raw render only")
     p.add_argument(
-        "--fit-pose",
+        "--camera",
+        choices=("face", "fit", "search", "true"),
+        default="face",
+        help="where the refine starts: the face's camera as it is (lp3d encode --refine's way), fitted "
+        "photometrically from the face's first (as for a video's next frame), searched photometrically "
+        "without the face's (a grid, then the fit: refine without a pose), or the true camera",
+    )
+    p.add_argument(
+        "--fit-camera",
         action="store_true",
-        help="fit the camera photometrically from the face's (as for a video's next frame) instead of "
-        "using the face's camera as it is (lp3d encode --refine's way)",
+        help="move the camera with the planes (RefineSettings.fit_camera)",
     )
     args = p.parse_args(argv)
 
@@ -77,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
     encoder = load_encoder(DEFAULT_MODEL, superres=True)
     pkg = encoder.package
     superres = None if args.no_superres else superres_module(pkg)
-    settings = RefineSettings(steps=args.steps)
+    settings = RefineSettings(steps=args.steps, fit_camera=args.fit_camera)
     views = np.stack([look_at_camera(yaw_deg=y, pitch_deg=p) for y, p in NOVEL_VIEWS])
     seeds = [cfg.eval_seed_start + 200 + i for i in range(args.n_identities)]
     rows = []
@@ -90,24 +104,33 @@ def main(argv: list[str] | None = None) -> int:
         )
         try:
             prep = prepare_photo(photo, pkg.image_size, detect=True, name=f"identity {seed}")
-        except ValueError as e:
+        except ValueError as e:  # every camera's rows are the heads whose face was found
             print(f"identity {seed}: skipped ({e})", file=sys.stderr)
             continue
+        face = prep.pose
+        if args.camera == "true":
+            # The true camera is the render's: the photo is lifted as rendered (in the training
+            # framing), not re-framed by the landmarks, whose crop would move it.
+            prep = prepare_photo(photo, pkg.image_size, detect=False, name=f"identity {seed}")
         lifted = pkg.triplane(encoder.encode(to_encoder_input(prep.image[None]))[0], source="bench")
         t0 = time.perf_counter()
-        if args.fit_pose:
-            start = camera_at(*prep.pose).double().numpy()
+        true = camera_summary(cam)
+        if args.camera == "fit":
+            start = camera_at(*face).double().numpy()
             result = refine(lifted, prep.image, settings, start_camera=start, superres=superres)
+        elif args.camera == "search":
+            result = refine(lifted, prep.image, settings, superres=superres)
         else:
-            result = refine(lifted, prep.image, settings, pose=prep.pose, superres=superres)
+            known = {"camera": cam} if args.camera == "true" else {"pose": face}
+            result = refine(lifted, prep.image, settings, superres=superres, **known)
         seconds = time.perf_counter() - t0
         base = novel_psnr(lifted.to_native(), truth_gpu, views, encoder.superres)
         refined = novel_psnr(result.triplane.to_native(), truth_gpu, views, encoder.superres)
-        true = camera_summary(cam)
-        rows.append((seed, true["yaw_deg"], prep.pose, base, refined, seconds))
+        rows.append((seed, true["yaw_deg"], face, base, refined, seconds))
         print(
             f"identity {seed}: true yaw {true['yaw_deg']:+.1f}° pitch {true['pitch_deg']:+.1f}°, from the "
-            f"face {prep.pose[0]:+.1f}° {prep.pose[1]:+.1f}°; novel views raw {base[0]:.2f} -> "
+            f"face {face[0]:+.1f}° {face[1]:+.1f}°, refined at {result.yaw_deg:+.1f}° "
+            f"{result.pitch_deg:+.1f}°; novel views raw {base[0]:.2f} -> "
             f"{refined[0]:.2f} dB, super-resolved {base[1]:.2f} -> {refined[1]:.2f} dB "
             f"({seconds:.1f} s)",
             file=sys.stderr,
@@ -117,12 +140,13 @@ def main(argv: list[str] | None = None) -> int:
         print("no identity had a face found", file=sys.stderr)
         return 1
     how = "raw render only" if superres is None else "last steps through the SR"
-    flags = (" --no-superres" if args.no_superres else "") + (" --fit-pose" if args.fit_pose else "")
+    flags = (" --no-superres" if args.no_superres else "") + f" --camera {args.camera}"
+    flags += " --fit-camera" if args.fit_camera else ""
     print(
         f"\nCommand: `python bench/refine_teachers.py --n-identities {args.n_identities} --steps {args.steps}"
         f"{flags}` ({time.strftime('%Y-%m-%d')}; {len(rows)} of "
         f"{args.n_identities} held-out teacher identities with a face found; refine {args.steps} steps, "
-        f"{how}, at the camera {'fitted from the face' if args.fit_pose else 'from the face'})\n"
+        f"{how}, starting at the camera {CAMERAS[args.camera]})\n"
     )
     print("| novel views | encoder | refined | gain (mean) | gain (min / max) |\n|---|---:|---:|---:|---:|")
     for k, name in enumerate(("raw 128²", f"super-resolved {encoder.superres.output_resolution}²")):

@@ -209,6 +209,27 @@ def test_refine_finds_the_camera_when_none_is_given() -> None:
         refine(truth, photo, SMALL, start_camera=np.stack([start] * 2))
 
 
+def test_fit_camera_moves_a_camera_given_off_toward_the_photos(scene) -> None:
+    """With ``fit_camera``, the raw steps move the camera with the planes: started 6° off in yaw (the
+    planes the truth's, held by the prior), the refine ends near the photo's camera, and the label
+    it returns is the moved one; without it the given camera stays as it is. A whole camera label
+    is taken as it is too."""
+    truth, _, _ = scene
+    guess = truth
+    photo = _photo(truth, 26.0, 0.0)
+    settings = dataclasses.replace(SMALL, steps=60, prior_weight=1.0, fit_camera=True, pose_lr=0.02)
+    moved = refine(guess, photo, settings, pose=(20.0, 0.0))
+    held = refine(guess, photo, dataclasses.replace(settings, fit_camera=False), pose=(20.0, 0.0))
+    assert abs(moved.yaw_deg - 26.0) < 1.5 and abs(moved.pitch_deg) < 1.5, (moved.yaw_deg, moved.pitch_deg)
+    np.testing.assert_allclose(held.camera, look_at_camera(yaw_deg=20.0, pitch_deg=0.0), atol=1e-6)
+    np.testing.assert_array_equal(moved.triplane.camera, moved.camera)
+    label = look_at_camera(yaw_deg=20.0, pitch_deg=0.0)
+    same = refine(guess, photo, dataclasses.replace(settings, fit_camera=False), camera=label)
+    np.testing.assert_array_equal(same.triplane.planes, held.triplane.planes)
+    with pytest.raises(ValueError, match="pose or camera, not both"):
+        refine(guess, photo, settings, pose=(20.0, 0.0), camera=label)
+
+
 def test_refine_is_reproducible_on_two_threads(scene) -> None:
     """The same photo refined twice gives the same camera and planes, bit for bit, with torch's two
     CPU threads. The triplane lookup's backward once summed the two planes sharing a world axis in
@@ -256,6 +277,6 @@ def test_the_super_resolved_steps_fit_the_image_the_network_makes() -> None:
             f = render_rays(p[None], *dec, o, d, bounds=truth.bounds, settings=rs, clamp=False)["features"]
             return float((net(f.transpose(1, 2).reshape(1, -1, 16, 16))[0] - photo).abs().mean())
 
-    raw_only = refine_planes(planes, dec, truth.bounds, photo.numpy(), cam, settings)
-    with_sr = refine_planes(planes, dec, truth.bounds, photo.numpy(), cam, settings, superres=net)
+    raw_only, _ = refine_planes(planes, dec, truth.bounds, photo.numpy(), cam, settings)
+    with_sr, _ = refine_planes(planes, dec, truth.bounds, photo.numpy(), cam, settings, superres=net)
     assert sr_error(with_sr) < sr_error(raw_only) - 0.01, (sr_error(with_sr), sr_error(raw_only))

@@ -181,7 +181,7 @@ def refine_identity(
                 camera = cam[0].detach().cpu()
             else:
                 camera = find_camera(planes, decoder, student.scene, image0, settings.refine, on_step=tick)
-            refined = refine_planes(
+            refined, camera = refine_planes(
                 planes, decoder, student.scene, image0, camera, settings.refine, on_step=tick
             )
         (run.refine_s if method == "refined" else run.photo_refine_s).append(time.perf_counter() - t0)

@@ -53,6 +53,7 @@ from lp3d.lift.pose import (
     find_camera,
     fit_pose,
     mirrored_camera,
+    moved_camera,
     photo_target,
     render_rgb,
 )
@@ -104,27 +105,40 @@ def refine_planes(
     *,
     superres: torch.nn.Module | None = None,
     on_step: Callable[[], Any] | None = None,
-) -> Tensor:
+) -> tuple[Tensor, Tensor]:
     """``planes`` (3, 32, T, T) float32 fitted to ``image`` (3, S, S) seen from ``camera`` (25,) by
     :class:`RefineSettings` (module docstring); with ``superres`` (the package's network as a torch
     module, :func:`superres_module`) the last ``settings.superres_share`` of the steps fit the
-    super-resolved image. Returns new planes, the input untouched."""
-    cameras = [camera.float()] + ([mirrored_camera(camera.float())] if settings.mirror else [])
+    super-resolved image. With ``settings.fit_camera`` the raw steps move the camera too
+    (:func:`~lp3d.lift.pose.moved_camera`, the same six numbers as :func:`~lp3d.lift.pose.fit_pose`).
+    Returns new planes and the camera they were fitted at (25,) float32; the inputs untouched."""
+    start_camera = camera.detach().float()
+    delta = torch.zeros(6, requires_grad=settings.fit_camera)
+
+    def views() -> list[Tensor]:
+        """The photo's camera (moved by ``delta``) and, with ``mirror``, its mirror image."""
+        cam = moved_camera(start_camera, delta) if settings.fit_camera else start_camera
+        return [cam] + ([mirrored_camera(cam)] if settings.mirror else [])
+
+    n_views = 2 if settings.mirror else 1
 
     def photos(side: int) -> Tensor:
         """The photo (and its mirror image) at ``side``², (V, 3, side, side)."""
         photo = photo_target(image, side)
-        return torch.stack([photo, photo.flip(-1)][: len(cameras)])
+        return torch.stack([photo, photo.flip(-1)][:n_views])
 
     r = settings.resolution
     targets = photos(r).flatten(2).transpose(1, 2)  # (V, M, 3)
-    origins, dirs = rays_from_cameras(torch.stack(cameras), r)
+    origins, dirs = rays_from_cameras(torch.stack(views()), r)
     start = planes.detach().float()
     # The prior's unit: each channel's spread over the encoder's planes, so that weight 1 means "a
     # change of one standard deviation everywhere costs as much as an L1 photo error of 1".
     spread = start.std(dim=(-2, -1), keepdim=True).clamp_min(1e-6)
     x = start.clone().requires_grad_(True)
-    opt = torch.optim.Adam([x], lr=settings.lr)
+    groups = [{"params": [x], "lr": settings.lr}]
+    if settings.fit_camera:
+        groups.append({"params": [delta], "lr": settings.pose_lr})
+    opt = torch.optim.Adam(groups)
 
     def step(fit: Tensor) -> None:
         prior = ((x - start) / spread).square().mean()
@@ -140,27 +154,31 @@ def refine_planes(
     rs = settings.render_settings(r)
     sr_steps = settings.superres_steps(superres is not None)
     for _ in range(settings.steps - sr_steps):
+        if settings.fit_camera:
+            origins, dirs = rays_from_cameras(torch.stack(views()), r)
         # Each view gets its own random rays; the steps' cost is split between the views.
         idx = torch.stack(
-            [torch.randperm(r * r, generator=gen)[: max(1, n // len(cameras))] for _ in cameras]
+            [torch.randperm(r * r, generator=gen)[: max(1, n // n_views)] for _ in range(n_views)]
         )
         pick = idx[..., None].expand(-1, -1, 3)
         rgb = render_rgb(x[None], decoder, origins.gather(1, pick), dirs.gather(1, pick), bounds, rs)
         step((rgb - targets.gather(1, pick)).abs().mean())
+    delta = delta.detach()  # the super-resolved steps fit the planes at the camera found so far
 
     if superres is not None and sr_steps > 0:
         # The whole feature image of every view through the network: what `lp3d render` will show.
         side_in, side_out = superres.config.input_resolution, superres.config.output_resolution
         sr_targets = photos(side_out)
-        o, d = rays_from_cameras(torch.stack(cameras), side_in)
+        o, d = rays_from_cameras(torch.stack(views()), side_in)
         srs = settings.render_settings(side_in, settings.superres_samples)
-        for group in opt.param_groups:
+        for group in opt.param_groups[:1]:
             group["lr"] = settings.superres_lr
         for _ in range(sr_steps):
             out = render_rays(x[None], *decoder, o, d, bounds=bounds, settings=srs, clamp=False)
-            features = out["features"].transpose(1, 2).reshape(len(cameras), -1, side_in, side_in)
+            features = out["features"].transpose(1, 2).reshape(n_views, -1, side_in, side_in)
             step((superres(features) - sr_targets).abs().mean())
-    return x.detach()
+    with torch.no_grad():
+        return x.detach(), views()[0].detach()
 
 
 def _input_view_psnr(
@@ -184,13 +202,15 @@ def refine(
     settings: RefineSettings | None = None,
     *,
     pose: tuple[float, float] | None = None,
+    camera: np.ndarray | None = None,
     start_camera: np.ndarray | None = None,
     superres: torch.nn.Module | None = None,
     on_step: Callable[[], Any] | None = None,
 ) -> RefineResult:
     """Fit ``triplane`` (the encoder's output) to ``image``, the photo it was lifted from: (3, S, S)
     float in [-1, 1] (``lp3d.photo.to_encoder_input`` of the crop) or (S, S, 3) uint8 (the crop).
-    ``pose`` ``(yaw, pitch)`` in degrees, when known, is used as it is; else the camera is found
+    ``pose`` ``(yaw, pitch)`` in degrees, or a whole ``camera`` label (25,), when known, is used as it
+    is (then moved only with ``settings.fit_camera``); else the camera is found
     (:func:`lp3d.lift.pose.find_camera`), or fitted from ``start_camera`` (25,) when given (a video's
     previous frame: no grid search). ``superres``: the package's SR network as a torch module, for the
     super-resolved fit (:func:`refine_planes`). ``on_step`` is called after every pose and plane step
@@ -207,7 +227,14 @@ def refine(
     )
     bounds = triplane.bounds
     target = photo_target(img, settings.resolution)  # checks the image before any work
-    if pose is not None:
+    if pose is not None and camera is not None:
+        raise ValueError("give pose or camera, not both")
+    if camera is not None:
+        label, batched = validate_camera(camera)
+        if batched:
+            raise ValueError(f"camera must be one camera (25,), got shape {np.shape(camera)}")
+        camera = torch.from_numpy(label[0]).float()
+    elif pose is not None:
         camera = camera_at(*pose)
     elif start_camera is not None:
         start, batched = validate_camera(start_camera)
@@ -219,7 +246,7 @@ def refine(
     else:
         camera = find_camera(planes, decoder, bounds, img, settings, on_step=on_step)
     before = _input_view_psnr(planes, decoder, bounds, camera, target, settings)
-    refined = refine_planes(
+    refined, camera = refine_planes(
         planes, decoder, bounds, img, camera, settings, superres=superres, on_step=on_step
     )
     after = _input_view_psnr(refined, decoder, bounds, camera, target, settings)

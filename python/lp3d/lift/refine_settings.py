@@ -28,6 +28,12 @@ class RefineSettings:
     #: Also fit the photo flipped left to right, seen from the mirrored camera: faces are nearly
     #: symmetric, and the second view holds the side the photo turns away from.
     mirror: bool = True
+    #: Move the camera with the planes in the raw steps (six numbers: a turn about the head, the
+    #: principal point, the focal length; learning rate ``pose_lr``): planes held at a wrong camera
+    #: bend to fit the photo from there. Off: it helps where the lifted head looks like the photo
+    #: (the teacher's own heads) and turns real photos' cameras away from their faces
+    #: (docs/photos-and-video.md measures both).
+    fit_camera: bool = False
     resolution: int = 64
     rays_per_step: int = 1024
     #: The share of ``steps`` (the last ones) that fit the *super-resolved* image, when :func:`refine`
@@ -84,8 +90,9 @@ class RefineSettings:
             and 0 <= n[1] <= 256
         ):
             raise ValueError(f"RefineSettings.superres_samples must be (coarse 4-256, fine 0-256), got {n!r}")
-        if not isinstance(self.mirror, bool):
-            raise ValueError(f"RefineSettings.mirror must be a bool, got {self.mirror!r}")
+        for name in ("mirror", "fit_camera"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"RefineSettings.{name} must be a bool, got {getattr(self, name)!r}")
         for name in ("search_yaws_deg", "search_pitches_deg"):
             v = getattr(self, name)
             if not v or not all(isinstance(a, (int, float)) and math.isfinite(a) and abs(a) < 90 for a in v):
