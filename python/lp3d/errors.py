@@ -51,6 +51,8 @@ __all__ = [
     "Terminated",
     "UsageError",
     "UserError",
+    "MIN_ADDRESS_SPACE",
+    "address_space_left",
     "float_in",
     "int_in",
     "quiet_startup_interrupts",
@@ -184,6 +186,30 @@ def _no_adapter_reasons(message: str) -> list[str]:
     if seen:
         reasons.append(f"adapters seen: {seen.group(1)}")
     return reasons
+
+
+#: The least address space (``ulimit -v``) a command starts with: below it OpenCV's import crashed
+#: (SIGSEGV), and the GPU driver maps most of it again when it starts (``lp3d_render`` checks that
+#: then, with its own twin of :func:`address_space_left`: it does not import lp3d).
+MIN_ADDRESS_SPACE = 768 << 20
+
+
+def address_space_left() -> int | None:
+    """Bytes this process may still map under its address-space limit (``ulimit -v``), or None when
+    it has none (or the platform does not say)."""
+    try:
+        import resource
+    except ImportError:
+        return None
+    soft = resource.getrlimit(resource.RLIMIT_AS)[0]
+    if soft == resource.RLIM_INFINITY:
+        return None
+    try:
+        with open("/proc/self/statm") as f:
+            mapped = int(f.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return None
+    return soft - mapped
 
 
 def renderer_setup_error(message: str) -> str | None:
@@ -360,6 +386,14 @@ def _run(parser: argparse.ArgumentParser, argv: Sequence[str] | None, prog: list
         return EXIT_USAGE
     command: argparse.ArgumentParser = getattr(args, "command_parser", None) or parser
     prog[0] = command.prog
+    left = address_space_left()
+    if left is not None and left < MIN_ADDRESS_SPACE:  # the native libraries would crash, not fail
+        print(
+            f"{command.prog}: error: the address-space limit (ulimit -v) leaves {max(left, 0) >> 20} MiB; "
+            f"lp3d's native libraries need at least {MIN_ADDRESS_SPACE >> 20} MiB to start; raise the limit",
+            file=sys.stderr,
+        )
+        return EXIT_ERROR
     interrupts = _interrupts[0]
     try:
         return _interrupted_or(interrupts, func, args)

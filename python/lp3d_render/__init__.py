@@ -13,7 +13,6 @@ See ``docs/triplane-format.md`` for the file format and ``lp3d.render.camera`` f
 
 from lp3d_render._guard import (  # fork and size checks
     adapter_info,
-    address_space_left,
     attach_baked,
     bake,
     last_frame_device_bytes,
@@ -60,7 +59,6 @@ __all__ = [
     "VIEW_USAGE",
     "__version__",
     "adapter_info",
-    "address_space_left",
     "attach_baked",
     "bake",
     "last_frame_device_bytes",

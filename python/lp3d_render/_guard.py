@@ -18,7 +18,6 @@ import numpy as np
 from lp3d_render import _lp3d_render as _native
 
 __all__ = [
-    "address_space_left",
     "adapter_info",
     "attach_baked",
     "bake",
@@ -67,9 +66,10 @@ def _check_file_size_limit(need: int = 0) -> None:
 _DEVICE_ADDRESS_BYTES = 800 << 20
 
 
-def address_space_left() -> int | None:
+def _address_space_left() -> int | None:
     """Bytes this process may still map under its address-space limit (``ulimit -v``), or None when
-    it has none (or the platform does not say)."""
+    it has none (or the platform does not say). ``lp3d.errors.address_space_left`` is its twin for
+    the command line (lp3d_render does not import lp3d)."""
     try:
         import resource
     except ImportError:
@@ -88,7 +88,7 @@ def address_space_left() -> int | None:
 def _check_address_space(need: int = 0) -> None:
     """An OSError (ENOMEM) when the address-space limit leaves less than the device (at the first
     call) and ``need`` (a render's outputs) take."""
-    left = address_space_left()
+    left = _address_space_left()
     need += _DEVICE_ADDRESS_BYTES if _gpu_pid is None else 0
     if left is not None and left < need:
         e = OSError(

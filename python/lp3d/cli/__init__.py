@@ -112,27 +112,10 @@ def standalone_parser(module: ModuleType, prog: str) -> argparse.ArgumentParser:
     return p
 
 
-#: The least address space (``ulimit -v``) a command starts with: below it OpenCV's import crashed,
-#: and the GPU driver maps most of it again when it starts (``lp3d_render`` checks that then).
-MIN_ADDRESS_SPACE = 768 << 20
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status (0 ok, 1 error, 2 usage, 130 interrupted)."""
     args = sys.argv[1:] if argv is None else list(argv)
     command = args[0] if args else None
-    from lp3d_render import address_space_left
-
-    left = address_space_left()
-    if left is not None and left < MIN_ADDRESS_SPACE:
-        # Below it the native libraries (OpenCV, onnxruntime, PyTorch, the GPU driver) do not fail
-        # but crash (SIGSEGV), or fail to import and read as missing packages.
-        print(
-            f"{PROG}: error: the address-space limit (ulimit -v) leaves {max(left, 0) >> 20} MiB; lp3d's "
-            f"native libraries need at least {MIN_ADDRESS_SPACE >> 20} MiB to start; raise the limit",
-            file=sys.stderr,
-        )
-        return EXIT_ERROR
     try:
         parser = build_parser(command)
     except ModuleNotFoundError as e:  # a lazy subcommand without its dependencies (torch)
