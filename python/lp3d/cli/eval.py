@@ -18,9 +18,9 @@ LAZY = True
 DESCRIPTION = (
     "Evaluate a trained encoder on held-out teacher identities: does it follow its input, and how does "
     "it compare with the mean head, the teacher itself and a per-identity optimisation baseline? "
-    "Writes report.json and comparison.png into --out (default <run>/eval-step-NNNNNN) and prints a "
-    "short table. Every metric is against the teacher at its native plane resolution, on identities "
-    "outside the training range."
+    "Writes report.json and comparison.png into --out (default <run>/eval-step-NNNNNN; MODEL-eval for a "
+    "package) and prints a short table. Every metric is against the teacher at its native plane "
+    "resolution, on identities outside the training range."
 )
 
 
@@ -42,7 +42,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=default.n_identities,
         help=f"held-out identities (default {default.n_identities})",
     )
-    p.add_argument("--out", default=None, help="output directory (default <run>/eval-step-NNNNNN)")
+    p.add_argument(
+        "--out",
+        default=None,
+        help="output directory (default <run>/eval-step-NNNNNN; ./MODEL-eval for a package)",
+    )
     p.add_argument(
         "--baseline-steps",
         type=int,

@@ -358,8 +358,8 @@ def evaluate_checkpoint(
         report["lpips_note"] = lpips_note
     if out is not None:
         out_dir = Path(out)
-    elif step is None:  # a package: beside it, named for it
-        out_dir = Path(ckpt["path"]).with_name(f"{Path(ckpt['path']).stem}-eval")
+    elif step is None:  # a package (maybe installed, not writable): in the working folder, named for it
+        out_dir = Path(f"{Path(ckpt['path']).stem}-eval")
     else:
         out_dir = Path(ckpt["path"]).parent.parent / f"eval-step-{step:06d}"
     report_path, png = write_outputs(report, rows, out_dir)
