@@ -430,14 +430,16 @@ def read_torch_file(path: str | os.PathLike[str], what: str, map_location: objec
     """What ``torch.save`` wrote to ``path``, its tensors on ``map_location``, read with
     ``weights_only=True`` (tensors, numbers,
     strings and containers: no code is unpickled) after the checks of :func:`open_regular_file`
-    (a FIFO is an ``OSError``, not a hang). A file that is not in torch's zip format, or holds what
-    ``weights_only`` refuses, is a ``ValueError`` of one line naming the file and ``what`` it should
-    have been ("a training checkpoint")."""
+    (a FIFO is an ``OSError``, not a hang). A file that is not in torch's zip format, is damaged, or
+    holds what ``weights_only`` refuses, is a ``ValueError`` of one line naming the file and ``what``
+    it should have been ("a training checkpoint")."""
     import torch  # the one caller family that needs it; everything else here is numpy
 
     file, _ = open_regular_file(path, what)
     with file:
-        if not zipfile.is_zipfile(file):
+        # A zip's first local header; a torch file cut short (a full disk) still starts with it and is
+        # reported by torch.load below as damaged, not as some other kind of file.
+        if file.read(4) != b"PK\x03\x04":
             raise ValueError(f"{os.fspath(path)}: not a PyTorch file (torch.save's zip format; {what})")
         file.seek(0)
         try:
